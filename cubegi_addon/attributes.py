@@ -1,0 +1,95 @@
+"""CubeGI's colour attributes on meshes: names, writing, clearing.
+
+Output contract: FLOAT_COLOR attributes on the POINT domain, ``CubeGI_direct``,
+``CubeGI_bounce_1`` .. ``CubeGI_bounce_N`` and ``CubeGI`` (the sum of the bounces), holding
+diffuse light (irradiance / pi); optionally ``CubeGI_lit``, the lit colour (albedo times
+direct plus indirect light) for display and export. Nothing else of the mesh is touched.
+"""
+
+import re
+
+import numpy as np
+
+PREFIX = "CubeGI"
+DIRECT = "CubeGI_direct"
+TOTAL = "CubeGI"
+LIT = "CubeGI_lit"
+_OWN = re.compile(r"^CubeGI(_direct|_lit|_bounce_\d+)?$")
+
+
+def bounce_name(k):
+    return f"CubeGI_bounce_{k}"
+
+
+def is_own(name):
+    """True for the names a bake writes (and a new bake replaces)."""
+    return bool(_OWN.match(name))
+
+
+def vertex_values(target, point_values):
+    """Per-vertex ``(v, 3)`` mean over each vertex's corners of per-point values ``(s, 3)``."""
+    corner = point_values[target.loop_point]
+    count = np.bincount(target.loop_vertex, minlength=target.vertex_count).astype(np.float64)
+    out = np.stack(
+        [np.bincount(target.loop_vertex, corner[:, c], minlength=target.vertex_count) for c in range(3)], axis=1
+    )
+    return out / np.maximum(count, 1.0)[:, None]
+
+
+def sanitise(values):
+    """No NaN, Inf or negative light reaches an attribute."""
+    v = np.nan_to_num(np.asarray(values, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    return np.clip(v, 0.0, np.finfo(np.float32).max)
+
+
+def clear(mesh):
+    """Remove CubeGI's own attributes from ``mesh``; returns their names."""
+    names = [a.name for a in mesh.attributes if is_own(a.name)]
+    for name in names:
+        mesh.attributes.remove(mesh.attributes[name])
+    return names
+
+
+def write(mesh, layers):
+    """Replace CubeGI's attributes of ``mesh`` by ``layers``: a dict name -> ``(v, 3)``."""
+    prepared = {}
+    for name, values in layers.items():
+        v = sanitise(values)
+        if v.shape != (len(mesh.vertices), 3):
+            raise ValueError(f"{mesh.name}: {name} has shape {v.shape}, mesh has {len(mesh.vertices)} vertices")
+        rgba = np.ones((len(v), 4), dtype=np.float32)
+        rgba[:, :3] = v
+        prepared[name] = rgba
+    clear(mesh)
+    for name, rgba in prepared.items():
+        attr = mesh.attributes.new(name, "FLOAT_COLOR", "POINT")
+        attr.data.foreach_set("color", rgba.ravel())
+
+
+def read(mesh, name):
+    """An attribute's RGB values ``(v, 3)`` float64."""
+    attr = mesh.attributes[name]
+    data = np.empty(len(attr.data) * 4, dtype=np.float32)
+    attr.data.foreach_get("color", data)
+    return data.reshape(-1, 4)[:, :3].astype(np.float64)
+
+
+def snapshot(mesh):
+    """CubeGI's own attributes of ``mesh`` as they are now, for :func:`restore`."""
+    saved = []
+    for a in mesh.attributes:
+        if is_own(a.name):
+            width = 4 if a.data_type in {"FLOAT_COLOR", "BYTE_COLOR"} else None
+            key = "color" if width else "value"
+            data = np.empty(len(a.data) * (width or 1), dtype=np.float32)
+            a.data.foreach_get(key, data)
+            saved.append((a.name, a.data_type, a.domain, key, data))
+    return saved
+
+
+def restore(mesh, saved):
+    """Put back what :func:`snapshot` saw, removing anything CubeGI wrote since."""
+    clear(mesh)
+    for name, data_type, domain, key, data in saved:
+        attr = mesh.attributes.new(name, data_type, domain)
+        attr.data.foreach_set(key, data)

@@ -1,0 +1,230 @@
+"""Cube-map capture with Blender's ``gpu`` module: the one place CubeGI draws.
+
+Implements the :class:`cubegi_engine.bake.Renderer` protocol. Every view of a call is drawn
+into one atlas (a float RGBA target with a depth attachment) and read back once.
+Per texel the id pass writes ``(+-(triangle + 1), b1, b2, distance)``: the sign marks a
+back face, 0 means nothing was hit; triangle ids are exact in float32 up to 2^24.
+"""
+
+import math
+
+import bpy
+import gpu
+import numpy as np
+from gpu_extras.batch import batch_for_shader
+
+# Largest atlas edge in texels; 2048^2 RGBA32F is 64 MiB.
+ATLAS_EDGE = 2048
+MAX_TRIANGLES = (1 << 24) - 1
+FAR_AWAY = 3.0e38
+
+_gpu_ready = False
+
+
+def ensure_gpu():
+    """Bring up the GPU module in background mode, where no public call does it.
+
+    A Workbench render of a 1x1 image from a throw-away scene holding only a camera starts
+    the GPU backend for the rest of the process. Everything it creates is removed again,
+    so the user's file is unchanged.
+    """
+    global _gpu_ready
+    if _gpu_ready or not bpy.app.background:
+        _gpu_ready = True
+        return
+    had_render_result = {im.name for im in bpy.data.images if im.type == "RENDER_RESULT"}
+    scene = bpy.data.scenes.new("CubeGI_gpu_init")
+    cam_data = bpy.data.cameras.new("CubeGI_gpu_init")
+    cam = bpy.data.objects.new("CubeGI_gpu_init", cam_data)
+    try:
+        scene.collection.objects.link(cam)
+        scene.camera = cam
+        scene.render.engine = "BLENDER_WORKBENCH"
+        scene.render.resolution_x = scene.render.resolution_y = 1
+        bpy.ops.render.render(scene=scene.name)
+    finally:
+        bpy.data.objects.remove(cam)
+        bpy.data.cameras.remove(cam_data)
+        bpy.data.scenes.remove(scene)
+        for im in list(bpy.data.images):
+            if im.type == "RENDER_RESULT" and im.name not in had_render_result:
+                bpy.data.images.remove(im)
+    _gpu_ready = True
+
+
+_ID_VERT = """
+void main() {
+  v_id = tid;
+  v_bary = bary;
+  v_pos = pos;
+  gl_Position = view_proj * vec4(pos, 1.0);
+}
+"""
+_ID_FRAG = """
+void main() {
+  float dist = ortho > 0.5 ? dot(v_pos - eye, axis) : length(v_pos - eye);
+  float id = v_id + 1.0;
+  out_texel = vec4(gl_FrontFacing ? id : -id, v_bary, dist);
+}
+"""
+_COLOUR_VERT = """
+void main() {
+  v_colour = colour;
+  gl_Position = view_proj * vec4(pos, 1.0);
+}
+"""
+_COLOUR_FRAG = """
+void main() {
+  out_texel = gl_FrontFacing ? vec4(v_colour, 1.0) : vec4(0.0, 0.0, 0.0, 1.0);
+}
+"""
+
+
+def _id_shader():
+    iface = gpu.types.GPUStageInterfaceInfo("cubegi_id_iface")
+    iface.flat("FLOAT", "v_id")
+    iface.smooth("VEC2", "v_bary")
+    iface.smooth("VEC3", "v_pos")
+    info = gpu.types.GPUShaderCreateInfo()
+    info.push_constant("MAT4", "view_proj")
+    info.push_constant("VEC3", "eye")
+    info.push_constant("VEC3", "axis")
+    info.push_constant("FLOAT", "ortho")
+    info.vertex_in(0, "VEC3", "pos")
+    info.vertex_in(1, "VEC2", "bary")
+    info.vertex_in(2, "FLOAT", "tid")
+    info.vertex_out(iface)
+    info.fragment_out(0, "VEC4", "out_texel")
+    info.vertex_source(_ID_VERT)
+    info.fragment_source(_ID_FRAG)
+    return gpu.shader.create_from_info(info)
+
+
+def _colour_shader():
+    iface = gpu.types.GPUStageInterfaceInfo("cubegi_colour_iface")
+    iface.smooth("VEC3", "v_colour")
+    info = gpu.types.GPUShaderCreateInfo()
+    info.push_constant("MAT4", "view_proj")
+    info.vertex_in(0, "VEC3", "pos")
+    info.vertex_in(1, "VEC3", "colour")
+    info.vertex_out(iface)
+    info.fragment_out(0, "VEC4", "out_texel")
+    info.vertex_source(_COLOUR_VERT)
+    info.fragment_source(_COLOUR_FRAG)
+    return gpu.shader.create_from_info(info)
+
+
+def _column_major(matrix):
+    # GLSL reads a mat4 push constant column by column.
+    return np.asarray(matrix, dtype=np.float64).T.ravel().tolist()
+
+
+def read_texture(texture, width, height):
+    """RGBA32F texture to a ``(height, width, 4)`` float32 array (row 0 = bottom).
+
+    ``np.asarray`` of a ``gpu`` buffer comes back with its strides reversed; a Fortran-order
+    ravel of that view is the buffer's memory in order.
+    """
+    buf = texture.read()
+    return np.asarray(buf, dtype=np.float32).ravel(order="F").reshape(height, width, 4)
+
+
+class GpuRenderer:
+    """Draws one fixed set of triangles into many square views (see the Renderer protocol).
+
+    points: ``(s, 3)`` world positions; triangles: ``(t, 3)`` point indices.
+    """
+
+    def __init__(self, points, triangles):
+        ensure_gpu()
+        triangles = np.asarray(triangles)
+        if len(triangles) > MAX_TRIANGLES:
+            raise ValueError(f"the scene has {len(triangles)} triangles; capture supports up to {MAX_TRIANGLES}")
+        self.triangles = triangles
+        self.corner_pos = np.asarray(points, dtype=np.float32)[triangles].reshape(-1, 3)
+        t = len(triangles)
+        bary = np.tile(np.array([[0, 0], [1, 0], [0, 1]], dtype=np.float32), (t, 1))
+        tid = np.repeat(np.arange(t, dtype=np.float32), 3)
+        self.id_shader = _id_shader()
+        self.id_batch = batch_for_shader(self.id_shader, "TRIS", {"pos": self.corner_pos, "bary": bary, "tid": tid})
+        self._colour_shader = None
+
+    def _draw_views(self, view_projs, size, draw_one):
+        """Draw every view into atlas tiles; yields ``(first_view, tiles (k, n, n, 4))``."""
+        per_row = max(1, ATLAS_EDGE // size)
+        per_atlas = per_row * per_row
+        v = len(view_projs)
+        for first in range(0, v, per_atlas):
+            count = min(per_atlas, v - first)
+            cols = min(count, per_row)
+            rows = math.ceil(count / cols)
+            width, height = cols * size, rows * size
+            colour = gpu.types.GPUTexture((width, height), format="RGBA32F")
+            depth = gpu.types.GPUTexture((width, height), format="DEPTH_COMPONENT32F")
+            # The framebuffer does not keep its attachments alive: hold both until read back.
+            fb = gpu.types.GPUFrameBuffer(depth_slot=depth, color_slots=(colour,))
+            with fb.bind():
+                fb.clear(color=(0.0, 0.0, 0.0, FAR_AWAY), depth=1.0)
+                gpu.state.depth_test_set("LESS")
+                gpu.state.depth_mask_set(True)
+                gpu.state.face_culling_set("NONE")
+                gpu.state.blend_set("NONE")
+                for k in range(count):
+                    gpu.state.viewport_set((k % cols) * size, (k // cols) * size, size, size)
+                    draw_one(first + k)
+                gpu.state.depth_test_set("NONE")
+                gpu.state.depth_mask_set(False)
+            atlas = read_texture(colour, width, height)
+            del fb, depth, colour
+            tiles = atlas.reshape(rows, size, cols, size, 4).transpose(0, 2, 1, 3, 4).reshape(rows * cols, size, size, 4)
+            yield first, tiles[:count]
+
+    def render(self, view_projs, eyes, axes, size):
+        v = len(view_projs)
+        tid = np.empty((v, size, size), dtype=np.int64)
+        bary = np.empty((v, size, size, 3), dtype=np.float32)
+        dist = np.empty((v, size, size), dtype=np.float32)
+        back = np.empty((v, size, size), dtype=bool)
+        shader = self.id_shader
+        shader.bind()
+
+        def draw_one(k):
+            shader.uniform_float("view_proj", _column_major(view_projs[k]))
+            shader.uniform_float("eye", tuple(float(x) for x in eyes[k]))
+            if axes is None:
+                shader.uniform_float("axis", (0.0, 0.0, 1.0))
+                shader.uniform_float("ortho", 0.0)
+            else:
+                shader.uniform_float("axis", tuple(float(x) for x in axes[k]))
+                shader.uniform_float("ortho", 1.0)
+            self.id_batch.draw(shader)
+
+        for first, tiles in self._draw_views(view_projs, size, draw_one):
+            sl = slice(first, first + len(tiles))
+            code = tiles[..., 0]
+            tid[sl] = np.abs(code).astype(np.int64) - 1
+            back[sl] = code < 0
+            b1, b2 = tiles[..., 1], tiles[..., 2]
+            bary[sl] = np.stack([1.0 - b1 - b2, b1, b2], axis=-1)
+            hit = code != 0
+            dist[sl] = np.where(hit, tiles[..., 3], np.inf)
+        return tid, bary, dist, back
+
+    def render_colour(self, view_projs, size, point_radiance):
+        if self._colour_shader is None:
+            self._colour_shader = _colour_shader()
+        shader = self._colour_shader
+        colour = np.asarray(point_radiance, dtype=np.float32)[self.triangles].reshape(-1, 3)
+        batch = batch_for_shader(shader, "TRIS", {"pos": self.corner_pos, "colour": colour})
+        out = np.empty((len(view_projs), size, size, 3), dtype=np.float32)
+        shader.bind()
+
+        def draw_one(k):
+            shader.uniform_float("view_proj", _column_major(view_projs[k]))
+            batch.draw(shader)
+
+        for first, tiles in self._draw_views(view_projs, size, draw_one):
+            # Where nothing is drawn the clear colour's alpha (FAR_AWAY) marks sky: black.
+            rgb = np.where(tiles[..., 3:4] == FAR_AWAY, 0.0, tiles[..., :3])
+            out[first : first + len(tiles)] = rgb
+        return out

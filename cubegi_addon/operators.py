@@ -1,0 +1,124 @@
+"""Operators: bake (``cubegi.bake``), clear (``cubegi.clear``), add a probe grid."""
+
+import json
+
+import bpy
+from bpy.props import BoolProperty, IntProperty, IntVectorProperty, StringProperty
+
+from ..cubegi_engine.bake import BakeSettings, run
+from . import attributes, pipeline
+
+
+def _settings_from(op, scene):
+    s = scene.cubegi
+    def pick(name):
+        return getattr(op, name) if op.properties.is_property_set(name) else getattr(s, name)
+    return BakeSettings(cube_size=pick("cube_size"), bounces=pick("bounces"), visibility=pick("visibility"))
+
+
+class CUBEGI_OT_bake(bpy.types.Operator):
+    """Bake direct and indirect diffuse light into CubeGI colour attributes on every mesh"""
+
+    bl_idname = "cubegi.bake"
+    bl_label = "Bake CubeGI"
+    bl_options = {"REGISTER", "UNDO"}
+
+    cube_size: IntProperty(name="Cube-Map Size", description="Cube-map face size (default: the scene's setting)", default=32, min=1)
+    bounces: IntProperty(name="Bounces", description="Indirect bounces (default: the scene's setting)", default=5, min=0)
+    visibility: BoolProperty(name="Probe Visibility", description="Leave out probes that cannot see a vertex", default=True)
+    grid: IntVectorProperty(name="Grid", description="Probes along X, Y, Z (default: probe grid object, or fitted)", size=3, default=(0, 0, 0))
+    lit: BoolProperty(name="Lit Colour", description="Also write CubeGI_lit, albedo times all light", default=False)
+    report_path: StringProperty(name="Report", description="Write the bake report (JSON) to this file", default="", subtype="FILE_PATH")
+
+    @classmethod
+    def poll(cls, context):
+        if context.scene is None:
+            cls.poll_message_set("No scene to bake")
+            return False
+        if context.mode != "OBJECT":
+            cls.poll_message_set("Switch to Object Mode to bake")
+            return False
+        return True
+
+    def execute(self, context):
+        settings = _settings_from(self, context.scene)
+        resolution = tuple(self.grid) if any(self.grid) else None
+        try:
+            report = run(pipeline.bake_steps(context, settings, resolution, lit=self.lit))
+        except ValueError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        context.scene.cubegi.last_report = json.dumps(report)
+        if self.report_path:
+            pipeline.write_report(report, bpy.path.abspath(self.report_path))
+        self.report({"INFO"}, f"CubeGI: baked {len(report['scene']['meshes_baked'])} meshes in {report['total_seconds']:.2f} s")
+        return {"FINISHED"}
+
+
+class CUBEGI_OT_clear(bpy.types.Operator):
+    """Remove CubeGI's colour attributes from every mesh in the scene"""
+
+    bl_idname = "cubegi.clear"
+    bl_label = "Clear CubeGI"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        seen, removed = set(), 0
+        for ob in context.scene.objects:
+            if ob.type == "MESH" and ob.data.name not in seen and ob.data.library is None:
+                seen.add(ob.data.name)
+                removed += len(attributes.clear(ob.data))
+        self.report({"INFO"}, f"CubeGI: removed {removed} attributes")
+        return {"FINISHED"}
+
+
+class CUBEGI_OT_add_probe_grid(bpy.types.Operator):
+    """Add a CubeGI probe grid fitted to the visible geometry"""
+
+    bl_idname = "cubegi.add_probe_grid"
+    bl_label = "CubeGI Probe Grid"
+    bl_options = {"REGISTER", "UNDO"}
+
+    resolution: IntVectorProperty(name="Resolution", description="Probes along X, Y, Z", size=3, default=(4, 4, 2), min=1, max=256)
+
+    def execute(self, context):
+        import numpy as np
+
+        pts = []
+        for ob in context.visible_objects:
+            if ob.type == "MESH":
+                m = np.array(ob.matrix_world)
+                bb = np.array([list(c) + [1.0] for c in ob.bound_box]) @ m.T
+                pts.append(bb[:, :3])
+        if pts:
+            allp = np.concatenate(pts)
+            lo, hi = allp.min(axis=0), allp.max(axis=0)
+        else:
+            lo, hi = -np.ones(3), np.ones(3)
+        ob = bpy.data.objects.new("CubeGI Probe Grid", None)
+        ob.empty_display_type = "CUBE"
+        ob.empty_display_size = 1.0
+        ob.location = tuple(0.5 * (lo + hi))
+        ob.scale = tuple(np.maximum(0.5 * (hi - lo), 1e-3))
+        ob.cubegi.is_probe_grid = True
+        ob.cubegi.resolution = self.resolution
+        context.collection.objects.link(ob)
+        return {"FINISHED"}
+
+
+def menu_add(self, context):
+    self.layout.operator(CUBEGI_OT_add_probe_grid.bl_idname, icon="LIGHTPROBE_VOLUME")
+
+
+classes = (CUBEGI_OT_bake, CUBEGI_OT_clear, CUBEGI_OT_add_probe_grid)
+_register, _unregister = bpy.utils.register_classes_factory(classes)
+
+
+def register():
+    _register()
+    bpy.types.VIEW3D_MT_add.append(menu_add)
+
+
+def unregister():
+    bpy.types.VIEW3D_MT_add.remove(menu_add)
+    _unregister()

@@ -1,0 +1,152 @@
+"""The bake as Blender sees it: scene in, attributes out, a report.
+
+Thin glue: :mod:`.scene_data` turns the scene into arrays, :mod:`.gpu_capture` draws, the
+engine computes, :mod:`.attributes` writes. Nothing is written to a mesh until every value is
+computed; if writing fails midway, every mesh gets its previous CubeGI attributes back.
+"""
+
+import json
+import os
+import time
+
+import numpy as np
+
+from ..cubegi_engine import __version__
+from ..cubegi_engine.bake import BakeSettings, area_weighted_mean, bake_steps as engine_bake_steps
+from ..cubegi_engine.grid import ProbeGrid, fit_bounds
+from . import attributes, scene_data
+from .gpu_capture import GpuRenderer
+
+# Probes of a fitted grid: cells of about an eighth of the scene's longest side.
+MAX_FITTED_PROBES = 4096
+
+
+def probe_grid_objects(scene):
+    """The scene's probe grid objects (Empties marked by ``Object.cubegi.is_probe_grid``)."""
+    return [ob for ob in scene.objects if ob.type == "EMPTY" and getattr(ob, "cubegi", None) and ob.cubegi.is_probe_grid]
+
+
+def grid_bounds_of(ob):
+    """World-space axis-aligned box of a probe grid object's cube (rotation is ignored)."""
+    s = ob.empty_display_size
+    corners = np.array([[x, y, z, 1.0] for x in (-s, s) for y in (-s, s) for z in (-s, s)])
+    world = corners @ np.array(ob.matrix_world, dtype=np.float64).T
+    return world[:, :3].min(axis=0), world[:, :3].max(axis=0)
+
+
+def resolve_grid(scene, arrays, resolution=None):
+    """The probe grid of a bake, and where it came from.
+
+    ``resolution`` (3 ints) overrides the resolution; the bounds come from the scene's probe
+    grid object if it has one, else from the geometry's bounding box.
+    """
+    grids = probe_grid_objects(scene)
+    if grids:
+        ob = grids[0]
+        lo, hi = grid_bounds_of(ob)
+        res = resolution or tuple(ob.cubegi.resolution)
+        return ProbeGrid(lo, hi, res), f"probe grid object {ob.name!r}"
+    lo, hi = arrays.bounds()
+    pad = np.maximum(hi - lo, 1e-9 * max(arrays.scale, 1e-30)) * 1e-3
+    lo, hi = lo - pad, hi + pad
+    if resolution:
+        return ProbeGrid(lo, hi, resolution), "scene bounds"
+    return ProbeGrid(lo, hi, fit_bounds(lo, hi, max_probes=MAX_FITTED_PROBES)), "fitted to scene bounds"
+
+
+def bake_steps(context, settings=None, resolution=None, lit=False):
+    """Bake the context's scene. A generator of engine Progress; returns the report dict."""
+    settings = settings or BakeSettings()
+    settings.validate()
+    t0 = time.perf_counter()
+    collected = scene_data.collect(context)
+    arrays = collected.arrays
+    grid, grid_source = resolve_grid(context.scene, arrays, resolution)
+    t_collect = time.perf_counter() - t0
+    if not collected.targets:
+        raise ValueError("no mesh in the scene can receive baked light")
+
+    t = time.perf_counter()
+    renderer = GpuRenderer(arrays.points, arrays.triangles)
+    t_setup = time.perf_counter() - t
+    result = yield from engine_bake_steps(arrays, grid, renderer, settings)
+
+    t = time.perf_counter()
+    layers_per_target = []
+    indirect = result.indirect
+    for target in collected.targets:
+        layers = {attributes.DIRECT: attributes.vertex_values(target, result.direct)}
+        for k, b in enumerate(result.bounces, start=1):
+            layers[attributes.bounce_name(k)] = attributes.vertex_values(target, b)
+        layers[attributes.TOTAL] = attributes.vertex_values(target, indirect)
+        if lit:
+            layers[attributes.LIT] = attributes.vertex_values(target, arrays.albedo * (result.direct + indirect))
+        layers_per_target.append(layers)
+    write_all(context, collected.targets, layers_per_target)
+    t_write = time.perf_counter() - t
+
+    areas = arrays.point_areas()
+    names = list(layers_per_target[0].keys())
+    for rec in result.bounce_records:
+        rec["attribute"] = attributes.bounce_name(rec["bounce"])
+    timings = dict(result.timings)
+    timings.update(collect=t_collect, gpu_setup=t_setup, write=t_write, total=time.perf_counter() - t0)
+    return {
+        "cubegi_version": __version__,
+        "settings": {
+            "cube_size": settings.cube_size,
+            "bounces": settings.bounces,
+            "visibility": settings.visibility,
+            "shadow_size": settings.shadow_size,
+        },
+        "grid": {
+            "resolution": list(grid.resolution),
+            "lo": list(grid.lo),
+            "hi": list(grid.hi),
+            "probes": grid.count,
+            "probes_inside_geometry": int((~result.probe_valid).sum()),
+            "source": grid_source,
+        },
+        "scene": {
+            "points": len(arrays.points),
+            "triangles": len(arrays.triangles),
+            "lights": len(arrays.lights),
+            "sky": arrays.sky.tolist(),
+            "meshes_baked": [t.object_name for t in collected.targets],
+            "notes": collected.notes,
+        },
+        "direct": {
+            "seconds": timings["direct"],
+            "mean_light": area_weighted_mean(result.direct, areas).tolist(),
+            "attribute": attributes.DIRECT,
+        },
+        "bounces": result.bounce_records,
+        "indirect": {"mean_light": area_weighted_mean(indirect, areas).tolist(), "attribute": attributes.TOTAL},
+        "timings": timings,
+        "total_seconds": timings["total"],
+        "attributes": names,
+    }
+
+
+def write_all(context, targets, layers_per_target):
+    """Write every target's layers, or none: a failure restores what was there."""
+    import bpy
+
+    meshes = [bpy.data.meshes[t.mesh_name] for t in targets]
+    saved = [attributes.snapshot(m) for m in meshes]
+    try:
+        for mesh, layers in zip(meshes, layers_per_target):
+            attributes.write(mesh, layers)
+            mesh.update()
+    except BaseException:
+        for mesh, snap in zip(meshes, saved):
+            attributes.restore(mesh, snap)
+        raise
+
+
+def write_report(report, path):
+    """Write the report as JSON through a temporary file."""
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "w") as fh:
+        json.dump(report, fh, indent=2)
+    os.replace(tmp, path)

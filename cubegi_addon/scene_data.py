@@ -1,0 +1,363 @@
+"""Blender scene to CubeGI arrays: evaluated meshes, materials, lights, world.
+
+The only module that reads the scene's data for a bake. Bulk data moves with
+``foreach_get`` into numpy arrays; nothing loops over vertices in Python.
+
+Shading points: CubeGI computes light at one point per distinct (vertex, corner normal,
+material) of each mesh, so a flat-shaded corner gets the light of each of its faces (as a
+Cycles bake of the face corners does); a vertex's value is the mean over its corners.
+"""
+
+from dataclasses import dataclass, field
+
+import bpy
+import numpy as np
+
+from ..cubegi_engine.lights import Light, area_polygon, area_samples
+from ..cubegi_engine.transport import SceneArrays
+
+# Albedo for a material CubeGI cannot read (no nodes, or a surface shader it does not
+# know): the material's viewport display colour; for a face with no material, this grey
+# (Blender's default surface).
+DEFAULT_ALBEDO = (0.8, 0.8, 0.8)
+
+
+@dataclass
+class MeshTarget:
+    """Where one object's baked light goes: its original mesh, and how its corners map.
+
+    loop_point: ``(corners,)`` global shading-point index of each corner; loop_vertex:
+    ``(corners,)`` the corner's vertex; vertex_count: vertices in the mesh.
+    """
+
+    object_name: str
+    mesh_name: str
+    loop_point: np.ndarray
+    loop_vertex: np.ndarray
+    vertex_count: int
+
+
+@dataclass
+class CollectedScene:
+    arrays: SceneArrays
+    targets: list
+    notes: list = field(default_factory=list)
+
+
+def _render_visible_objects(view_layer):
+    """Names of objects in at least one collection that is neither excluded nor hidden
+    from render in this view layer."""
+    visible = set()
+
+    def walk(layer_coll, parent_hidden):
+        hidden = parent_hidden or layer_coll.exclude or layer_coll.collection.hide_render
+        if not hidden:
+            visible.update(o.name for o in layer_coll.collection.objects)
+        for child in layer_coll.children:
+            walk(child, hidden)
+
+    walk(view_layer.layer_collection, False)
+    return visible
+
+
+def _srgb_to_linear(c):
+    c = np.asarray(c, dtype=np.float64)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def _image_pixels(image):
+    w, h = image.size
+    if w == 0 or h == 0:
+        return None
+    px = np.empty(w * h * image.channels, dtype=np.float32)
+    image.pixels.foreach_get(px)
+    px = px.reshape(h, w, image.channels)
+    if image.channels < 3:
+        px = np.repeat(px[..., :1], 3, axis=2)
+    rgb = px[..., :3].astype(np.float64)
+    if not image.is_float and image.colorspace_settings.name == "sRGB":
+        rgb = _srgb_to_linear(rgb)
+    return rgb
+
+
+def _sample_image(rgb, uv):
+    """Bilinear, repeating look-up of ``rgb (h, w, 3)`` at ``uv (k, 2)``."""
+    h, w, _ = rgb.shape
+    x = uv[:, 0] * w - 0.5
+    y = uv[:, 1] * h - 0.5
+    x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    x0, x1 = x0 % w, (x0 + 1) % w
+    y0, y1 = y0 % h, (y0 + 1) % h
+    top = rgb[y0, x0] * (1 - fx) + rgb[y0, x1] * fx
+    bottom = rgb[y1, x0] * (1 - fx) + rgb[y1, x1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def _surface_shader(material):
+    """The shader node feeding the material's active output, or None."""
+    if material is None or material.node_tree is None:
+        return None
+    tree = material.node_tree
+    outputs = [n for n in tree.nodes if n.type == "OUTPUT_MATERIAL"]
+    if not outputs:
+        return None
+    active = [n for n in outputs if n.is_active_output] or outputs
+    out = next((n for n in active if n.target in {"ALL", "CYCLES"}), active[0])
+    surface = out.inputs.get("Surface")
+    if surface is None or not surface.is_linked:
+        return None
+    return surface.links[0].from_node
+
+
+def _corner_colour(socket, mesh, loop_ids, loop_vertex, fallback):
+    """Per-corner linear colour ``(k, 3)`` from a colour input socket.
+
+    Understands a plain value, an RGB node, an Image Texture (at the UV map given by a UV
+    Map node or the mesh's active render UV map) and a Color Attribute / Attribute node.
+    """
+    k = len(loop_ids)
+    if socket is None:
+        return np.tile(fallback, (k, 1))
+    if not socket.is_linked:
+        return np.tile(np.asarray(socket.default_value[:3], dtype=np.float64), (k, 1))
+    node = socket.links[0].from_node
+    if node.type == "RGB":
+        return np.tile(np.asarray(node.outputs[0].default_value[:3], dtype=np.float64), (k, 1))
+    if node.type == "TEX_IMAGE" and node.image is not None:
+        rgb = _image_pixels(node.image)
+        uv_layer = None
+        vec = node.inputs.get("Vector")
+        if vec is not None and vec.is_linked and vec.links[0].from_node.type == "UVMAP":
+            uv_layer = mesh.uv_layers.get(vec.links[0].from_node.uv_map)
+        if uv_layer is None:
+            uv_layer = next((u for u in mesh.uv_layers if u.active_render), None)
+        if rgb is None or uv_layer is None:
+            return np.tile(fallback, (k, 1))
+        uv = np.empty(len(mesh.loops) * 2, dtype=np.float32)
+        uv_layer.data.foreach_get("uv", uv)
+        return _sample_image(rgb, uv.reshape(-1, 2)[loop_ids].astype(np.float64))
+    if node.type in {"VERTEX_COLOR", "ATTRIBUTE"}:
+        name = node.layer_name if node.type == "VERTEX_COLOR" else node.attribute_name
+        attr = mesh.color_attributes.get(name) if name else mesh.color_attributes.active_color
+        if attr is None:
+            return np.tile(fallback, (k, 1))
+        data = np.empty(len(attr.data) * 4, dtype=np.float32)
+        attr.data.foreach_get("color", data)
+        data = data.reshape(-1, 4)[:, :3].astype(np.float64)
+        return data[loop_ids] if attr.domain == "CORNER" else data[loop_vertex[loop_ids]]
+    return np.tile(fallback, (k, 1))
+
+
+def _material_corners(material, mesh, loop_ids, loop_vertex, notes):
+    """Albedo and emission ``(k, 3)`` each for the corners ``loop_ids`` of one material."""
+    k = len(loop_ids)
+    if material is None:
+        return np.tile(DEFAULT_ALBEDO, (k, 1)), np.zeros((k, 3))
+    fallback = np.asarray(material.diffuse_color[:3], dtype=np.float64)
+    shader = _surface_shader(material)
+    if shader is None:
+        notes.append(f"material {material.name!r}: no node surface, using its viewport colour")
+        return np.tile(fallback, (k, 1)), np.zeros((k, 3))
+    if shader.type == "BSDF_PRINCIPLED":
+        albedo = _corner_colour(shader.inputs["Base Color"], mesh, loop_ids, loop_vertex, fallback)
+        strength = shader.inputs["Emission Strength"].default_value
+        emission = _corner_colour(shader.inputs["Emission Color"], mesh, loop_ids, loop_vertex, np.zeros(3)) * strength
+        return albedo, emission
+    if shader.type == "BSDF_DIFFUSE":
+        return _corner_colour(shader.inputs["Color"], mesh, loop_ids, loop_vertex, fallback), np.zeros((k, 3))
+    if shader.type == "EMISSION":
+        strength = shader.inputs["Strength"].default_value
+        emission = _corner_colour(shader.inputs["Color"], mesh, loop_ids, loop_vertex, np.ones(3)) * strength
+        return np.zeros((k, 3)), emission
+    notes.append(f"material {material.name!r}: shader {shader.bl_idname} not understood, using its viewport colour")
+    return np.tile(fallback, (k, 1)), np.zeros((k, 3))
+
+
+def _mesh_arrays(ob_eval, matrix, notes):
+    """World-space corner data of one evaluated object, or None if it has no triangles."""
+    mesh = ob_eval.to_mesh()
+    try:
+        mesh.calc_loop_triangles()
+        t = len(mesh.loop_triangles)
+        if t == 0:
+            return None
+        nv, nl = len(mesh.vertices), len(mesh.loops)
+        co = np.empty(nv * 3, dtype=np.float64)
+        mesh.vertices.foreach_get("co", co)
+        tri_loops = np.empty(t * 3, dtype=np.int64)
+        mesh.loop_triangles.foreach_get("loops", tri_loops)
+        tri_mat = np.empty(t, dtype=np.int64)
+        mesh.loop_triangles.foreach_get("material_index", tri_mat)
+        loop_vertex = np.empty(nl, dtype=np.int64)
+        mesh.loops.foreach_get("vertex_index", loop_vertex)
+        cn = np.empty(nl * 3, dtype=np.float64)
+        mesh.corner_normals.foreach_get("vector", cn)
+
+        m = np.array(matrix, dtype=np.float64)
+        co = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+        normal_m = np.linalg.inv(m[:3, :3]).T if abs(np.linalg.det(m[:3, :3])) > 1e-300 else m[:3, :3]
+        cn = cn.reshape(-1, 3) @ normal_m.T
+        cn /= np.maximum(np.linalg.norm(cn, axis=1, keepdims=True), 1e-300)
+        tri_loops = tri_loops.reshape(-1, 3)
+        if np.linalg.det(m[:3, :3]) < 0:  # mirrored: keep front faces front
+            tri_loops = tri_loops[:, ::-1]
+
+        # Material of each corner (a corner's material is its face's).
+        loop_mat = np.zeros(nl, dtype=np.int64)
+        loop_mat[tri_loops.ravel()] = np.repeat(tri_mat, 3)
+        albedo = np.empty((nl, 3))
+        emission = np.empty((nl, 3))
+        slots = [s.material for s in ob_eval.material_slots] or [None]
+        for mi in np.unique(loop_mat):
+            ids = np.nonzero(loop_mat == mi)[0]
+            mat = slots[mi] if mi < len(slots) else None
+            albedo[ids], emission[ids] = _material_corners(mat, mesh, ids, loop_vertex, notes)
+        return {
+            "co": co,
+            "loop_vertex": loop_vertex,
+            "corner_normal": cn,
+            "tri_loops": tri_loops,
+            "loop_mat": loop_mat,
+            "albedo": np.clip(albedo, 0.0, 1.0),
+            "emission": np.maximum(emission, 0.0),
+            "vertex_count": nv,
+        }
+    finally:
+        ob_eval.to_mesh_clear()
+
+
+def _shading_points(data):
+    """Merge corners that share vertex, normal and material into shading points."""
+    key = np.concatenate(
+        [
+            data["loop_vertex"][:, None],
+            np.round(data["corner_normal"] * 1e4).astype(np.int64),
+            data["loop_mat"][:, None],
+        ],
+        axis=1,
+    )
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.ravel()
+    count = np.bincount(inverse).astype(np.float64)[:, None]
+
+    def mean(values):
+        return np.stack([np.bincount(inverse, values[:, c], minlength=len(first)) for c in range(3)], axis=1) / count
+
+    normals = mean(data["corner_normal"])
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
+    return {
+        "points": data["co"][data["loop_vertex"][first]],
+        "normals": normals,
+        "albedo": mean(data["albedo"]),
+        "emission": mean(data["emission"]),
+        "triangles": inverse[data["tri_loops"]],
+        "loop_point": inverse,
+    }
+
+
+def _world_radiance(scene):
+    world = scene.world
+    if world is None:
+        return np.zeros(3)
+    tree = world.node_tree
+    if tree is not None:
+        out = next((n for n in tree.nodes if n.type == "OUTPUT_WORLD" and n.is_active_output), None)
+        out = out or next((n for n in tree.nodes if n.type == "OUTPUT_WORLD"), None)
+        if out is not None:
+            surface = out.inputs.get("Surface")
+            if surface is None or not surface.is_linked:
+                return np.zeros(3)
+            node = surface.links[0].from_node
+            if node.type == "BACKGROUND":
+                colour = node.inputs["Color"]
+                c = np.asarray(colour.default_value[:3] if not colour.is_linked else world.color[:3], dtype=np.float64)
+                return c * float(node.inputs["Strength"].default_value)
+    return np.asarray(world.color[:3], dtype=np.float64)
+
+
+def _light(ob_eval, matrix):
+    data = ob_eval.data
+    m = np.array(matrix, dtype=np.float64)
+    pos = m[:3, 3].copy()
+    direction = -m[:3, 2]
+    direction = direction / max(np.linalg.norm(direction), 1e-300)
+    colour = np.asarray(data.color[:3], dtype=np.float64) * float(data.energy)
+    common = dict(colour=colour, position=pos, direction=direction, casts_shadow=bool(data.use_shadow), name=ob_eval.name)
+    if data.type == "POINT":
+        return Light("POINT", radius=float(data.shadow_soft_size), **common)
+    if data.type == "SPOT":
+        return Light("SPOT", radius=float(data.shadow_soft_size), spot_size=float(data.spot_size), spot_blend=float(data.spot_blend), **common)
+    if data.type == "SUN":
+        return Light("SUN", **common)
+    if data.type == "AREA":
+        local = area_polygon(data.shape, data.size, data.size_y)
+        poly = local @ m[:3, :3].T + pos
+        e = np.cross(np.roll(poly, -1, axis=0) - poly[0], poly - poly[0])
+        area = 0.5 * float(np.linalg.norm(e.sum(axis=0)))
+        samples = area_samples(data.shape, data.size, data.size_y, 4) @ m[:3, :3].T + pos
+        return Light("AREA", polygon=poly, area=area, samples=samples, **common)
+    return None
+
+
+def collect(context, depsgraph=None):
+    """The scene's arrays and the meshes to write back to.
+
+    Every mesh-like object that renders contributes geometry (modifiers applied, world
+    transforms, instances); original, non-instanced mesh objects whose evaluated vertex
+    count matches their mesh receive the baked light.
+    """
+    depsgraph = depsgraph or context.evaluated_depsgraph_get()
+    scene = context.scene
+    visible = _render_visible_objects(context.view_layer)
+    notes = []
+    parts, targets, lights = [], [], []
+    offset = 0
+    claimed_meshes = set()
+    for inst in depsgraph.object_instances:
+        ob = inst.object
+        original = ob.original
+        top = inst.parent.original if inst.is_instance and inst.parent else original
+        if top.hide_render or top.name not in visible or original.hide_render:
+            continue
+        if ob.type == "LIGHT":
+            light = _light(ob, inst.matrix_world)
+            if light is not None:
+                lights.append(light)
+            continue
+        if ob.type not in {"MESH", "CURVE", "SURFACE", "FONT", "META"}:
+            continue
+        data = _mesh_arrays(ob, inst.matrix_world, notes)
+        if data is None:
+            continue
+        pts = _shading_points(data)
+        parts.append(pts)
+        loop_point = pts["loop_point"] + offset
+        offset += len(pts["points"])
+        if inst.is_instance or ob.type != "MESH":
+            if ob.type != "MESH":
+                notes.append(f"{original.name}: {ob.type.lower()} object lit and lighting others, but not baked")
+            continue
+        mesh = original.data
+        if mesh.name in claimed_meshes:
+            notes.append(f"{original.name}: shares mesh {mesh.name!r} with an object already baked; not baked again")
+            continue
+        if data["vertex_count"] != len(mesh.vertices):
+            notes.append(f"{original.name}: modifiers change its vertex count; it lights others but is not baked")
+            continue
+        claimed_meshes.add(mesh.name)
+        targets.append(MeshTarget(original.name, mesh.name, loop_point, data["loop_vertex"], len(mesh.vertices)))
+
+    if not parts:
+        raise ValueError("the scene has no visible geometry to bake")
+    tri_offsets = np.cumsum([0] + [len(p["points"]) for p in parts[:-1]])
+    arrays = SceneArrays(
+        points=np.concatenate([p["points"] for p in parts]),
+        normals=np.concatenate([p["normals"] for p in parts]),
+        albedo=np.concatenate([p["albedo"] for p in parts]),
+        emission=np.concatenate([p["emission"] for p in parts]),
+        triangles=np.concatenate([p["triangles"] + o for p, o in zip(parts, tri_offsets)]).astype(np.int64),
+        sky=_world_radiance(scene),
+        lights=lights,
+    )
+    return CollectedScene(arrays, targets, notes)

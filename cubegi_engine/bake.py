@@ -1,0 +1,224 @@
+"""The bake: direct light, probe capture, and the bounce loop, as one generator.
+
+Pure numpy; must not import bpy. The GPU is reached only through the ``renderer`` passed
+in (see :class:`Renderer`), so the same pipeline runs from the add-on, the command line and
+the tests.
+
+:func:`bake_steps` yields a :class:`Progress` after every stage (so a modal operator can
+show each bounce as it lands) and returns a :class:`BakeResult`.
+"""
+
+import time
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from . import cubemap, lights as lights_mod
+from .transport import Transport, capture_cubes, clip_planes
+
+MIN_CUBE_SIZE, MAX_CUBE_SIZE = 4, 512
+
+
+class Renderer(Protocol):
+    """What the bake needs from the GPU.
+
+    ``render(view_projs (v, 4, 4), eyes (v, 3), axes (v, 3) or None, size)`` draws the
+    scene's triangles into ``v`` square views and returns per texel the triangle index
+    (int64, -1 for nothing), barycentric weights ``(v, n, n, 3)``, distance (radial from the
+    eye, or along ``axes`` for orthographic views; inf for nothing) and a back-face flag.
+    ``render_colour(view_projs, size, point_radiance (s, 3))`` draws the scene coloured by
+    per-point radiance (back faces black) and returns ``(v, n, n, 3)``.
+    """
+
+    def render(self, view_projs, eyes, axes, size): ...
+
+    def render_colour(self, view_projs, size, point_radiance): ...
+
+
+@dataclass
+class BakeSettings:
+    """Everything that sets how a bake runs (not what it bakes)."""
+
+    cube_size: int = 32
+    bounces: int = 5
+    visibility: bool = True
+    shadow_size: int = 512
+    sun_shadow_size: int = 2048
+    area_shadow_samples: int = 4  # per side: 4 x 4 shadow maps per area light
+    area_shadow_size: int = 128
+
+    def validate(self):
+        if not MIN_CUBE_SIZE <= int(self.cube_size) <= MAX_CUBE_SIZE:
+            raise ValueError(f"cube-map size must be between {MIN_CUBE_SIZE} and {MAX_CUBE_SIZE}, got {self.cube_size}")
+        if int(self.bounces) < 0:
+            raise ValueError(f"bounces must be 0 or more, got {self.bounces}")
+
+
+@dataclass
+class Progress:
+    stage: str
+    done: int
+    total: int
+    message: str
+    light: np.ndarray = None  # (s, 3) the light so far (direct + bounces), when it changed
+
+
+@dataclass
+class BakeResult:
+    """Diffuse light per point: ``direct (s, 3)`` and one ``(s, 3)`` per bounce."""
+
+    direct: np.ndarray
+    bounces: list
+    timings: dict
+    bounce_records: list = field(default_factory=list)
+    grid: object = None
+    probe_valid: np.ndarray = None
+
+    @property
+    def indirect(self):
+        if not self.bounces:
+            return np.zeros_like(self.direct)
+        return np.sum(self.bounces, axis=0)
+
+
+def area_weighted_mean(values, areas):
+    """Area-weighted mean of ``values (s, 3)``: ``(3,)``."""
+    total = float(areas.sum())
+    if total <= 0.0:
+        return np.zeros(values.shape[1:])
+    return (values * areas[:, None]).sum(axis=0) / total
+
+
+def direct_from_lights(scene, renderer, settings, point_ids=None):
+    """Diffuse light ``(s, 3)`` from every light, with shadows from depth maps."""
+    s = len(scene.points)
+    out = np.zeros((s, 3))
+    if point_ids is None:
+        point_ids = np.arange(s)
+    scale = scene.scale
+    near, far = clip_planes(scale)
+    for light in scene.lights:
+        value = lights_mod.unshadowed(light, scene.points, scene.normals)
+        lit = np.any(value > 0, axis=1)
+        if not light.casts_shadow or not lit.any():
+            out += value
+            continue
+        pts, nrm, ids = scene.points[lit], scene.normals[lit], point_ids[lit]
+        if light.kind == "SUN":
+            vis = _sun_visibility(scene, renderer, settings, light, pts, nrm, ids)
+        elif light.kind == "AREA":
+            vis = _area_visibility(scene, renderer, settings, light, pts, nrm, ids, near, far)
+        else:
+            cap = capture_cubes(renderer, light.position[None], settings.shadow_size, near, far)
+            vis = lights_mod.shadow_visibility(pts, nrm, light.position, cap.tid[0], cap.dist[0], scene.triangles, ids, scale)
+        value[lit] *= vis[:, None]
+        out += value
+    return out
+
+
+def _sun_visibility(scene, renderer, settings, light, pts, nrm, ids):
+    lo, hi = scene.bounds()
+    centre, radius = 0.5 * (lo + hi), 0.5 * scene.scale * 1.01
+    axis = light.direction / np.linalg.norm(light.direction)
+    eye = centre - axis * radius * 2.0
+    view = cubemap.look_matrix(eye, axis, cubemap.any_perpendicular(axis))
+    vp = cubemap.orthographic(radius, 1e-3 * radius, 4.0 * radius) @ view
+    n = settings.sun_shadow_size
+    tid, _, dist, _ = renderer.render(vp[None], eye[None], axis[None], n)
+    return lights_mod.ortho_visibility(pts, nrm, vp, axis, eye, tid[0], dist[0], scene.triangles, ids, radius, scene.scale)
+
+
+def _area_visibility(scene, renderer, settings, light, pts, nrm, ids, near, far):
+    samples = light.samples if light.samples is not None and len(light.samples) else light.position[None]
+    # Lift the samples off the light's plane a little so the light's own geometry (if any)
+    # and surfaces it rests on do not shadow it.
+    eyes = samples + light.direction * (1e-4 * scene.scale)
+    cap = capture_cubes(renderer, eyes, settings.area_shadow_size, near, far)
+    num = np.zeros(len(pts))
+    den = np.zeros(len(pts))
+    for k, eye in enumerate(eyes):
+        rel = eye - pts
+        d2 = np.einsum("sc,sc->s", rel, rel)
+        cos_r = np.maximum(0.0, np.einsum("sc,sc->s", nrm, rel)) / np.sqrt(np.maximum(d2, 1e-300))
+        cos_l = np.maximum(0.0, -(rel @ light.direction)) / np.sqrt(np.maximum(d2, 1e-300))
+        w = cos_r * cos_l / np.maximum(d2, 1e-300) + 1e-12
+        vis = lights_mod.shadow_visibility(pts, nrm, eye, cap.tid[k], cap.dist[k], scene.triangles, ids, scene.scale)
+        num += w * vis
+        den += w
+    return num / den
+
+
+def bake_steps(scene, grid, renderer, settings=None):
+    """Bake ``scene`` on ``grid``; a generator of :class:`Progress`, returning a BakeResult."""
+    settings = settings or BakeSettings()
+    settings.validate()
+    t_start = time.perf_counter()
+    timings = {}
+    total = 3 + settings.bounces
+    areas = scene.point_areas()
+    near, far = clip_planes(scene.scale)
+
+    yield Progress("capture", 0, total, f"capturing {grid.count} probes at {settings.cube_size}x{settings.cube_size}")
+    t = time.perf_counter()
+    capture = capture_cubes(renderer, grid.positions(), settings.cube_size, near, far)
+    timings["capture"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    transport = Transport(scene, grid, capture, visibility=settings.visibility)
+    timings["tables"] = time.perf_counter() - t
+
+    yield Progress("direct", 1, total, f"direct light from {len(scene.lights)} lights")
+    t = time.perf_counter()
+    direct = direct_from_lights(scene, renderer, settings)
+    timings["direct_lights"] = time.perf_counter() - t
+    t = time.perf_counter()
+    # Light reaching a point straight from emissive surfaces or the sky is direct (as in
+    # Cycles); it comes through the probes.
+    if np.any(scene.emission > 0) or np.any(scene.sky > 0):
+        direct = direct + transport.gather_light(scene.emission, scene.sky)
+    timings["direct_probes"] = time.perf_counter() - t
+    timings["direct"] = timings["direct_lights"] + timings["direct_probes"]
+    yield Progress("direct", 2, total, "direct light done", light=direct)
+
+    bounces, records = [], []
+    previous = direct
+    albedo = scene.albedo.astype(np.float32)
+    light_sum = direct.copy()
+    for b in range(1, settings.bounces + 1):
+        t0 = time.perf_counter()
+        texels = transport.texel_radiance(albedo * previous)
+        t1 = time.perf_counter()
+        coeffs = transport.project(texels)
+        t2 = time.perf_counter()
+        light = transport.interpolate(coeffs).astype(np.float64)
+        t3 = time.perf_counter()
+        mean = area_weighted_mean(light, areas)
+        records.append(
+            {
+                "bounce": b,
+                "seconds": t3 - t0,
+                "gather_seconds": t1 - t0,
+                "project_seconds": t2 - t1,
+                "interpolate_seconds": t3 - t2,
+                "mean_light": mean.tolist(),
+                "mean": float(mean.mean()),
+            }
+        )
+        bounces.append(light)
+        light_sum += light
+        previous = light
+        yield Progress("bounce", 2 + b, total, f"bounce {b}/{settings.bounces}: mean light {mean.mean():.4g}", light=light_sum)
+
+    timings["bounces"] = sum(r["seconds"] for r in records)
+    timings["total"] = time.perf_counter() - t_start
+    return BakeResult(direct, bounces, timings, records, grid, transport.probe_valid)
+
+
+def run(steps):
+    """Drain a generator of :class:`Progress` and return its result."""
+    while True:
+        try:
+            next(steps)
+        except StopIteration as stop:
+            return stop.value

@@ -1,0 +1,130 @@
+"""Cube-map texel geometry: face frames, texel directions, exact solid angles, look-ups.
+
+Pure numpy; must not import bpy, gpu or mathutils.
+
+Conventions (fixed here, used by the GPU capture and by every look-up):
+
+* Faces are ordered +X, -X, +Y, -Y, +Z, -Z. Each face has an orthonormal frame
+  (forward, right, up) with ``right = forward x up``, so a camera looking along
+  ``forward`` with ``up`` as its screen-up is an ordinary right-handed OpenGL camera
+  (front faces keep their winding).
+* Side faces use world +Z as up; the +Z face uses +Y and the -Z face -Y as up.
+* Texel ``(face, row, col)`` of an ``n x n`` face has its centre at
+  ``u = 2 (col + 0.5) / n - 1`` along ``right`` and ``v = 2 (row + 0.5) / n - 1`` along
+  ``up``; row 0 is the bottom row, as OpenGL writes it and as the atlas read-back stores it.
+  Its unnormalised direction is ``forward + u right + v up``.
+* The solid angle of a texel is exact (the projected area formula of the unit cube,
+  ``atan2(u v, sqrt(u^2 + v^2 + 1))`` evaluated at the texel corners), so the texel solid
+  angles of a whole cube sum to 4 pi up to rounding.
+"""
+
+import numpy as np
+
+FACE_FORWARD = np.array(
+    [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.float64
+)
+FACE_UP = np.array(
+    [[0, 0, 1], [0, 0, 1], [0, 0, 1], [0, 0, 1], [0, 1, 0], [0, -1, 0]], dtype=np.float64
+)
+FACE_RIGHT = np.cross(FACE_FORWARD, FACE_UP)
+FACE_NAMES = ("+X", "-X", "+Y", "-Y", "+Z", "-Z")
+
+
+def texel_uv(n):
+    """Texel-centre coordinates of one face: ``(u, v)``, each ``(n, n)`` float64, [row, col]."""
+    c = (np.arange(n, dtype=np.float64) + 0.5) * (2.0 / n) - 1.0
+    v, u = np.meshgrid(c, c, indexing="ij")
+    return u, v
+
+
+def texel_directions(n):
+    """Unit directions of every texel centre: ``(6, n, n, 3)`` float64."""
+    u, v = texel_uv(n)
+    d = (
+        FACE_FORWARD[:, None, None, :]
+        + u[None, :, :, None] * FACE_RIGHT[:, None, None, :]
+        + v[None, :, :, None] * FACE_UP[:, None, None, :]
+    )
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def _area_element(x, y):
+    # Solid angle of the face rectangle [0, x] x [0, y] at distance 1 (signed).
+    return np.arctan2(x * y, np.sqrt(x * x + y * y + 1.0))
+
+
+def texel_solid_angles(n):
+    """Exact solid angle of every texel of one face: ``(n, n)`` float64, same for all faces."""
+    e = np.linspace(-1.0, 1.0, n + 1)
+    y0, x0 = np.meshgrid(e[:-1], e[:-1], indexing="ij")
+    y1, x1 = np.meshgrid(e[1:], e[1:], indexing="ij")
+    return _area_element(x1, y1) - _area_element(x0, y1) - _area_element(x1, y0) + _area_element(x0, y0)
+
+
+def direction_to_texel(dirs, n):
+    """Face, row and column of the texel each direction falls in.
+
+    dirs: ``(..., 3)`` directions (need not be unit, must be non-zero).
+    Returns ``(face, row, col)``, each ``(...)`` int64, and ``(u, v)`` face coordinates.
+    """
+    d = np.asarray(dirs, dtype=np.float64)
+    a = np.abs(d)
+    axis = np.argmax(a, axis=-1)
+    sign_neg = np.take_along_axis(d, axis[..., None], axis=-1)[..., 0] < 0
+    face = axis * 2 + sign_neg
+    fwd = FACE_FORWARD[face]
+    depth = np.einsum("...i,...i->...", d, fwd)
+    depth = np.where(depth > 0, depth, 1.0)
+    u = np.einsum("...i,...i->...", d, FACE_RIGHT[face]) / depth
+    v = np.einsum("...i,...i->...", d, FACE_UP[face]) / depth
+    col = np.clip(((u + 1.0) * 0.5 * n).astype(np.int64), 0, n - 1)
+    row = np.clip(((v + 1.0) * 0.5 * n).astype(np.int64), 0, n - 1)
+    return face, row, col, u, v
+
+
+def perspective_90(near, far):
+    """OpenGL projection matrix (4x4 float64) of a 90-degree square frustum."""
+    p = np.zeros((4, 4))
+    p[0, 0] = p[1, 1] = 1.0
+    p[2, 2] = -(far + near) / (far - near)
+    p[2, 3] = -2.0 * far * near / (far - near)
+    p[3, 2] = -1.0
+    return p
+
+
+def orthographic(half_width, near, far):
+    """OpenGL projection matrix (4x4 float64) of a square orthographic box."""
+    p = np.zeros((4, 4))
+    p[0, 0] = p[1, 1] = 1.0 / half_width
+    p[2, 2] = -2.0 / (far - near)
+    p[2, 3] = -(far + near) / (far - near)
+    p[3, 3] = 1.0
+    return p
+
+
+def look_matrix(eye, forward, up):
+    """World-to-view matrix (4x4 float64) of a camera at ``eye`` looking along ``forward``."""
+    f = np.asarray(forward, dtype=np.float64)
+    f = f / np.linalg.norm(f)
+    u = np.asarray(up, dtype=np.float64)
+    r = np.cross(f, u)
+    r /= np.linalg.norm(r)
+    u = np.cross(r, f)
+    m = np.eye(4)
+    m[0, :3], m[1, :3], m[2, :3] = r, u, -f
+    m[:3, 3] = -m[:3, :3] @ np.asarray(eye, dtype=np.float64)
+    return m
+
+
+def cube_view_projections(eye, near, far):
+    """The six face view-projection matrices of a cube map at ``eye``: ``(6, 4, 4)`` float64."""
+    proj = perspective_90(near, far)
+    return np.stack([proj @ look_matrix(eye, FACE_FORWARD[f], FACE_UP[f]) for f in range(6)])
+
+
+def any_perpendicular(v):
+    """A unit vector perpendicular to ``v`` (3,)."""
+    v = np.asarray(v, dtype=np.float64)
+    helper = np.array([0.0, 0.0, 1.0]) if abs(v[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    p = np.cross(v, helper)
+    return p / np.linalg.norm(p)

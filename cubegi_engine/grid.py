@@ -1,0 +1,126 @@
+"""Uniform probe grid: probe positions, trilinear weights, and visibility-aware weights.
+
+Pure numpy; must not import bpy.
+
+Probes sit at the centres of the ``nx x ny x nz`` cells that divide the grid's box, as in
+the paper ("render a cube map at the center of each volume"). Probe ``(ix, iy, iz)`` has the
+flat index ``ix + nx * (iy + ny * iz)``. A point outside the box of probe centres takes the
+nearest face of that box (clamped trilinear), so every point gets weights summing to 1.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import cubemap
+
+
+@dataclass(frozen=True)
+class ProbeGrid:
+    """A box ``lo``..``hi`` (world units) cut into ``resolution`` cells, one probe in each."""
+
+    lo: tuple
+    hi: tuple
+    resolution: tuple
+
+    def __post_init__(self):
+        res = tuple(int(r) for r in self.resolution)
+        if len(res) != 3 or min(res) < 1:
+            raise ValueError(f"grid resolution must be three integers >= 1, got {self.resolution}")
+        lo = np.asarray(self.lo, dtype=np.float64)
+        hi = np.asarray(self.hi, dtype=np.float64)
+        if lo.shape != (3,) or hi.shape != (3,) or not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+            raise ValueError("grid bounds must be two finite 3-vectors")
+        if np.any(hi <= lo):
+            raise ValueError(f"grid bounds are empty: lo={lo.tolist()} hi={hi.tolist()}")
+        object.__setattr__(self, "resolution", res)
+        object.__setattr__(self, "lo", tuple(lo.tolist()))
+        object.__setattr__(self, "hi", tuple(hi.tolist()))
+
+    @property
+    def count(self):
+        nx, ny, nz = self.resolution
+        return nx * ny * nz
+
+    @property
+    def cell_size(self):
+        """Cell edge lengths ``(3,)`` float64."""
+        return (np.asarray(self.hi) - np.asarray(self.lo)) / np.asarray(self.resolution)
+
+    def positions(self):
+        """Probe centres ``(count, 3)`` float64, x fastest."""
+        lo, h = np.asarray(self.lo), self.cell_size
+        axes = [lo[a] + (np.arange(self.resolution[a]) + 0.5) * h[a] for a in range(3)]
+        z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
+        return np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
+
+    def trilinear(self, points):
+        """The 8 surrounding probes of every point and their trilinear weights.
+
+        points: ``(s, 3)``. Returns ``(index (s, 8) int64, weight (s, 8) float64)``; weights are
+        non-negative and sum to 1 per point.
+        """
+        p = np.asarray(points, dtype=np.float64)
+        res = np.asarray(self.resolution)
+        t = (p - np.asarray(self.lo)) / self.cell_size - 0.5
+        t = np.clip(t, 0.0, res - 1.0)
+        i0 = np.minimum(np.floor(t).astype(np.int64), np.maximum(res - 2, 0))
+        f = t - i0
+        i1 = np.minimum(i0 + 1, res - 1)
+        idx = np.empty((len(p), 8), dtype=np.int64)
+        w = np.empty((len(p), 8), dtype=np.float64)
+        for corner in range(8):
+            bits = [(corner >> a) & 1 for a in range(3)]
+            ia = [i1[:, a] if bits[a] else i0[:, a] for a in range(3)]
+            wa = [f[:, a] if bits[a] else 1.0 - f[:, a] for a in range(3)]
+            idx[:, corner] = ia[0] + res[0] * (ia[1] + res[1] * ia[2])
+            w[:, corner] = wa[0] * wa[1] * wa[2]
+        return idx, w
+
+
+def fit_bounds(lo, hi, spacing=None, max_probes=4096):
+    """A grid resolution for the box ``lo``..``hi`` with cells of about ``spacing``.
+
+    Without a spacing, one is chosen so that the longest side gets about 8 cells. The
+    resolution is capped so that the probe count stays at or below ``max_probes``.
+    """
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    size = np.maximum(hi - lo, 1e-12)
+    if spacing is None:
+        spacing = size.max() / 8.0
+    res = np.maximum(1, np.round(size / spacing)).astype(np.int64)
+    while np.prod(res) > max_probes:
+        res = np.maximum(1, np.floor(res * 0.9)).astype(np.int64)
+    return tuple(int(r) for r in res)
+
+
+def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals, index, weight):
+    """Trilinear weights with probes that cannot see a point, or are invalid, left out.
+
+    A probe is kept for a point if the point, lifted off its surface along the normal by a
+    tenth of the smallest cell edge, is no farther from the probe than the first surface the
+    probe's cube map records in that direction (the depth test of a shadow map). This stops
+    light leaking through walls thinner than a cell. If every probe of a point is left out,
+    the point keeps its plain trilinear weights over the valid probes (or all of them).
+
+    probe_pos: ``(p, 3)``; probe_dist: ``(p, 6, n, n)`` distance to the first surface (inf
+    where the probe sees sky); probe_valid: ``(p,)`` bool; points, normals: ``(s, 3)``;
+    index, weight: ``(s, 8)`` from :meth:`ProbeGrid.trilinear`. Returns new weights ``(s, 8)``.
+    """
+    n = probe_dist.shape[-1]
+    lift = 0.1 * float(np.min(grid.cell_size))
+    q = points[:, None, :] + lift * normals[:, None, :]  # (s, 1, 3)
+    v = q - probe_pos[index]  # (s, 8, 3)
+    dist = np.linalg.norm(v, axis=-1)
+    face, row, col, _, _ = cubemap.direction_to_texel(np.where(dist[..., None] > 0, v, 1.0), n)
+    seen = probe_dist[index, face, row, col]
+    # Tolerance: two texels' worth of angle at that distance plus a hundredth of a cell.
+    tol = dist * (4.0 / n) + 0.01 * float(np.min(grid.cell_size))
+    visible = dist <= seen + tol
+    valid = probe_valid[index]
+    w = weight * (visible & valid)
+    total = w.sum(axis=1, keepdims=True)
+    fallback = weight * valid
+    fallback_total = fallback.sum(axis=1, keepdims=True)
+    w = np.where(total > 1e-9, w, np.where(fallback_total > 1e-9, fallback, weight))
+    return w / w.sum(axis=1, keepdims=True)

@@ -1,0 +1,214 @@
+"""Direct light from Blender's light types, in Cycles' units, as diffuse light (E / pi).
+
+Pure numpy; must not import bpy.
+
+Formulas (matched against Cycles 5.0 bakes; see docs/conventions.md):
+
+* Point of power P (W) and radius r, colour c: ``c P cos / (4 pi^2 (d^2 + r^2))``.
+* Spot: the point formula times Cycles' cone attenuation
+  ``smoothstep((cos_axis - cos_half) / ((1 - cos_half) * blend))`` (``spot.h``); radiant
+  intensity does not depend on the cone angle (P / 4 pi, as for a point light).
+* Sun of strength S (W/m^2): ``c S cos / pi``.
+* Area of power P and area A, one-sided along its local -Z: radiance ``L = c P / (pi A)``,
+  diffuse light ``L * F`` with F the exact form factor of the light's polygon (Lambert's
+  formula), after clipping the polygon to the receiver's upper hemisphere. Disks and
+  ellipses are regular 32-gons of the same area.
+
+Shadows come from depth cube maps rendered at the light (see :func:`shadow_visibility`).
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import cubemap
+
+DISK_SEGMENTS = 32
+
+
+@dataclass
+class Light:
+    """One light in world space.
+
+    kind: 'POINT', 'SPOT', 'SUN' or 'AREA'. colour: linear RGB times power (W for point,
+    spot, area; W/m^2 for sun). direction: unit vector the light faces (local -Z).
+    polygon: ``(k, 3)`` world corners of an area light, counter-clockwise seen from the side
+    it lights. samples: ``(m, 3)`` points on the light from which shadows are rendered.
+    """
+
+    kind: str
+    colour: np.ndarray
+    position: np.ndarray
+    direction: np.ndarray
+    radius: float = 0.0
+    spot_size: float = np.pi
+    spot_blend: float = 0.0
+    polygon: np.ndarray = None
+    area: float = 0.0
+    casts_shadow: bool = True
+    name: str = ""
+    samples: np.ndarray = field(default=None)
+
+
+def area_polygon(shape, size_x, size_y):
+    """Local-space corners ``(k, 3)`` of an area light shape (light faces -Z).
+
+    Ordered so that the polygon winds clockwise seen from +Z, i.e. counter-clockwise seen
+    from the lit side (-Z). Disks and ellipses are scaled so their area is exact.
+    """
+    if shape in ("SQUARE", "RECTANGLE"):
+        hx, hy = 0.5 * size_x, 0.5 * (size_y if shape == "RECTANGLE" else size_x)
+        pts = np.array([[-hx, -hy], [-hx, hy], [hx, hy], [hx, -hy]], dtype=np.float64)
+    elif shape in ("DISK", "ELLIPSE"):
+        rx, ry = 0.5 * size_x, 0.5 * (size_y if shape == "ELLIPSE" else size_x)
+        a = -np.arange(DISK_SEGMENTS) * (2.0 * np.pi / DISK_SEGMENTS)
+        # A regular k-gon inscribed in the unit circle has area k/2 sin(2 pi / k); scale to pi.
+        k = DISK_SEGMENTS
+        s = np.sqrt(np.pi / (0.5 * k * np.sin(2.0 * np.pi / k)))
+        pts = np.stack([rx * s * np.cos(a), ry * s * np.sin(a)], axis=1)
+    else:
+        raise ValueError(f"unknown area light shape {shape!r}")
+    return np.concatenate([pts, np.zeros((len(pts), 1))], axis=1)
+
+
+def area_samples(shape, size_x, size_y, per_side):
+    """Stratified local points ``(per_side^2, 3)`` on an area light, for shadow maps."""
+    g = (np.arange(per_side) + 0.5) / per_side
+    u, v = np.meshgrid(g, g, indexing="ij")
+    u, v = u.ravel(), v.ravel()
+    if shape in ("SQUARE", "RECTANGLE"):
+        sy = size_y if shape == "RECTANGLE" else size_x
+        pts = np.stack([(u - 0.5) * size_x, (v - 0.5) * sy], axis=1)
+    else:
+        sy = size_y if shape == "ELLIPSE" else size_x
+        r, a = np.sqrt(u), 2.0 * np.pi * v
+        pts = np.stack([0.5 * size_x * r * np.cos(a), 0.5 * sy * r * np.sin(a)], axis=1)
+    return np.concatenate([pts, np.zeros((len(pts), 1))], axis=1)
+
+
+def _smoothstep(x):
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def spot_attenuation(light, to_point):
+    """Cycles' spot cone factor for unit directions ``to_point`` ``(s, 3)`` from the light."""
+    cos_axis = to_point @ light.direction
+    cos_half = np.cos(0.5 * light.spot_size)
+    smooth = (1.0 - cos_half) * light.spot_blend
+    if smooth <= 0.0:
+        return (cos_axis > cos_half).astype(np.float64)
+    return _smoothstep((cos_axis - cos_half) / smooth)
+
+
+def polygon_form_factor(points, normals, polygon):
+    """Form factor from receivers to a one-sided polygon, clipped to their hemispheres.
+
+    points, normals: ``(s, 3)``; polygon: ``(k, 3)`` counter-clockwise seen from its lit
+    side. Returns ``(s,)`` in [0, 1]: the cosine-weighted fraction of the hemisphere the
+    polygon covers (Lambert's formula ``1/(2 pi) sum_i theta_i n . g_i``).
+    """
+    s, k = len(points), len(polygon)
+    rel = polygon[None, :, :] - points[:, None, :]  # (s, k, 3)
+    h = np.einsum("skc,sc->sk", rel, normals)  # height above the receiver's tangent plane
+    nxt = np.roll(np.arange(k), -1)
+    a, b = rel, rel[:, nxt]
+    ha, hb = h, h[:, nxt]
+    # Sutherland-Hodgman against the plane h >= 0, two candidate slots per edge.
+    t = np.where(ha != hb, ha / np.where(ha != hb, ha - hb, 1.0), 0.0)
+    cut = a + t[..., None] * (b - a)
+    slots = np.stack([a, cut], axis=2).reshape(s, 2 * k, 3)
+    keep = np.stack([ha >= 0, (ha >= 0) != (hb >= 0)], axis=2).reshape(s, 2 * k)
+    order = np.argsort(~keep, axis=1, kind="stable")
+    slots = np.take_along_axis(slots, order[..., None], axis=1)
+    count = keep.sum(axis=1)
+    j = np.arange(2 * k)[None, :]
+    valid = j < count[:, None]
+    nxt_j = np.where(j + 1 < count[:, None], j + 1, 0)
+    u = slots / np.maximum(np.linalg.norm(slots, axis=-1, keepdims=True), 1e-30)
+    w = np.take_along_axis(u, nxt_j[..., None], axis=1)
+    cross = np.cross(u, w)
+    sin_t = np.linalg.norm(cross, axis=-1)
+    cos_t = np.einsum("sjc,sjc->sj", u, w)
+    theta = np.arctan2(sin_t, cos_t)
+    g = cross / np.maximum(sin_t, 1e-30)[..., None]
+    term = theta * np.einsum("sjc,sc->sj", g, normals)
+    f = np.where(valid & (count[:, None] >= 3), term, 0.0).sum(axis=1) / (2.0 * np.pi)
+    return np.clip(f, 0.0, 1.0)
+
+
+def unshadowed(light, points, normals):
+    """Diffuse light ``(s, 3)`` from one light at every receiver, without shadows."""
+    colour = np.asarray(light.colour, dtype=np.float64)
+    if light.kind == "SUN":
+        cos = np.maximum(0.0, normals @ (-light.direction))
+        return (cos / np.pi)[:, None] * colour
+    if light.kind in ("POINT", "SPOT"):
+        rel = light.position - points
+        d2 = np.einsum("sc,sc->s", rel, rel)
+        dirs = rel / np.sqrt(np.maximum(d2, 1e-300))[:, None]
+        cos = np.maximum(0.0, np.einsum("sc,sc->s", normals, dirs))
+        val = cos / (4.0 * np.pi**2 * (d2 + light.radius**2))
+        if light.kind == "SPOT":
+            val = val * spot_attenuation(light, -dirs)
+        return val[:, None] * colour
+    if light.kind == "AREA":
+        if light.area <= 0.0:
+            return np.zeros((len(points), 3))
+        radiance = colour / (np.pi * light.area)
+        front = (points - light.position) @ light.direction > 0.0
+        ff = polygon_form_factor(points, normals, light.polygon) * front
+        return ff[:, None] * radiance
+    raise ValueError(f"unknown light kind {light.kind!r}")
+
+
+def shadow_visibility(points, normals, eye, face_tid, face_dist, triangles, point_ids, scale):
+    """Whether each receiver sees ``eye``, from a depth cube map rendered at ``eye``.
+
+    points, normals: ``(s, 3)``; face_tid: ``(6, n, n)`` triangle index seen per texel (-1:
+    nothing); face_dist: ``(6, n, n)`` distance to it; triangles: ``(t, 3)`` point indices;
+    point_ids: ``(s,)`` index of each receiver in the point arrays; scale: scene size.
+
+    A receiver is lit if the texel in its direction sees one of its own triangles, or if it
+    is no farther than the recorded depth plus a bias of one texel footprint (larger at
+    grazing angles) and 1e-4 of the scene size. The receiver is first lifted off its
+    surface by one texel footprint. Returns ``(s,)`` float64 in {0, 1}.
+    """
+    n = face_dist.shape[-1]
+    rel = points - eye
+    d = np.linalg.norm(rel, axis=1)
+    footprint = d * (2.0 / n)
+    lifted = points + normals * footprint[:, None]
+    rel2 = lifted - eye
+    d2 = np.linalg.norm(rel2, axis=1)
+    face, row, col, _, _ = cubemap.direction_to_texel(np.where(d2[:, None] > 0, rel2, 1.0), n)
+    seen = face_dist[face, row, col]
+    tid = face_tid[face, row, col]
+    cos = np.abs(np.einsum("sc,sc->s", normals, rel / np.maximum(d, 1e-300)[:, None]))
+    return _depth_test(d2, seen, tid, cos, footprint, triangles, point_ids, scale).astype(np.float64)
+
+
+def _depth_test(depth, seen, tid, cos, footprint, triangles, point_ids, scale):
+    # Lit if nearer than the recorded surface plus a slope-scaled bias, or if the texel
+    # records one of the receiver's own triangles (no bias can fail that case).
+    bias = footprint / np.maximum(cos, 0.2) + 1e-4 * scale
+    own = (tid >= 0) & np.any(triangles[np.maximum(tid, 0)] == point_ids[:, None], axis=1)
+    return (depth <= seen + bias) | own
+
+
+def ortho_visibility(points, normals, view_proj, axis, eye, tid_map, dist_map, triangles, point_ids, half_width, scale):
+    """Like :func:`shadow_visibility` for a sun: one orthographic depth map along ``axis``."""
+    n = dist_map.shape[-1]
+    footprint = 2.0 * half_width / n
+    lifted = points + normals * footprint
+    clip = np.concatenate([lifted, np.ones((len(points), 1))], axis=1) @ view_proj.T
+    ndc = clip[:, :2] / clip[:, 3:4]
+    col = np.clip(((ndc[:, 0] + 1.0) * 0.5 * n).astype(np.int64), 0, n - 1)
+    row = np.clip(((ndc[:, 1] + 1.0) * 0.5 * n).astype(np.int64), 0, n - 1)
+    depth = (lifted - eye) @ axis
+    seen = dist_map[row, col]
+    tid = tid_map[row, col]
+    cos = np.abs(normals @ axis)
+    inside = (np.abs(ndc) <= 1.0).all(axis=1)
+    lit = _depth_test(depth, seen, tid, cos, footprint, triangles, point_ids, scale)
+    return (lit | ~inside).astype(np.float64)

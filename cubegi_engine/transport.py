@@ -1,0 +1,178 @@
+"""Light transport on a probe grid: the paper's bounce loop as array arithmetic.
+
+Pure numpy; must not import bpy.
+
+For fixed geometry every step from the light leaving the surfaces to the light arriving at
+them is linear. So each probe's cube map is captured once, recording for every texel what it
+sees (a triangle and the barycentric weights of the point hit, a back face, or sky), not a
+colour. A bounce is then:
+
+1. gather: texel radiance = barycentric mix of the outgoing radiance of the triangle's
+   corner points (sky texels take the sky's radiance; back faces give none);
+2. project: SH coefficients per probe = texel radiance weighted by basis x solid angle;
+3. interpolate: diffuse light at each point = the 8 surrounding probes' coefficients,
+   weighted by (visibility-aware) trilinear weights, evaluated for the point's normal.
+
+Drawing the lit scene again every bounce (the paper's way) gives the same numbers up to the
+texel-centre sampling of the radiance; :func:`reference_coefficients` does that with a
+renderer and is kept as a check in the tests.
+
+Light is carried as the diffuse value of a white Lambertian surface, ``E / pi``; the outgoing
+radiance of a surface of albedo rho receiving diffuse light l is ``rho * l`` (+ emission).
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import cubemap, sh
+from .grid import visibility_weights
+
+# A probe whose cube map sees back faces over more than this share of the sphere is taken
+# to sit inside geometry and is left out of the interpolation (as DDGI does).
+INSIDE_BACKFACE_SHARE = 0.25
+
+
+@dataclass
+class SceneArrays:
+    """The scene as CubeGI sees it: shading points, triangles over them, lights and sky.
+
+    points, normals: ``(s, 3)`` float64 world space, normals unit; albedo: ``(s, 3)``
+    diffuse colour in [0, 1]; emission: ``(s, 3)`` emitted radiance; triangles: ``(t, 3)``
+    int64 point indices; sky: ``(3,)`` radiance of the world background; lights: list of
+    :class:`cubegi_engine.lights.Light`.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    albedo: np.ndarray
+    emission: np.ndarray
+    triangles: np.ndarray
+    sky: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    lights: list = field(default_factory=list)
+
+    def bounds(self):
+        return self.points.min(axis=0), self.points.max(axis=0)
+
+    @property
+    def scale(self):
+        """The length of the scene's bounding-box diagonal (at least a tiny positive number)."""
+        lo, hi = self.bounds()
+        return max(float(np.linalg.norm(hi - lo)), 1e-30)
+
+    def point_areas(self):
+        """Each point's share of the surface: a third of its triangles' areas, ``(s,)``."""
+        p = self.points[self.triangles]
+        area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+        return np.bincount(self.triangles.ravel(), np.repeat(area / 3.0, 3), minlength=len(self.points))
+
+
+@dataclass
+class CubeCapture:
+    """What every texel of a set of cube maps sees; arrays are ``(k, 6, n, n, ...)``.
+
+    tid: int64 triangle index (-1 where the texel sees sky); bary: float32 ``(..., 3)``
+    barycentric weights of the hit point; dist: float32 distance to it (inf for sky);
+    backface: bool, the texel sees a triangle from behind.
+    """
+
+    tid: np.ndarray
+    bary: np.ndarray
+    dist: np.ndarray
+    backface: np.ndarray
+
+    @property
+    def size(self):
+        return self.tid.shape[-1]
+
+
+def capture_cubes(renderer, eyes, size, near, far):
+    """Render cube maps at ``eyes`` ``(k, 3)`` with ``renderer`` and return a CubeCapture."""
+    eyes = np.asarray(eyes, dtype=np.float64).reshape(-1, 3)
+    vps = np.concatenate([cubemap.cube_view_projections(e, near, far) for e in eyes])
+    tid, bary, dist, back = renderer.render(vps, np.repeat(eyes, 6, axis=0), None, size)
+    shape = (len(eyes), 6, size, size)
+    return CubeCapture(tid.reshape(shape), bary.reshape(shape + (3,)), dist.reshape(shape), back.reshape(shape))
+
+
+def clip_planes(scale):
+    """Near and far distances for captures in a scene of size ``scale`` (its diagonal)."""
+    return 1e-4 * scale, 4.0 * scale
+
+
+class Transport:
+    """The linear operators of one scene, grid and capture: gather, project, interpolate.
+
+    After construction every bounce is a few gathers and matrix products (float32).
+    """
+
+    def __init__(self, scene, grid, capture, visibility=True):
+        n = capture.size
+        p = grid.count
+        self.grid = grid
+        self.size = n
+        dirs = cubemap.texel_directions(n).reshape(-1, 3)
+        solid = np.tile(cubemap.texel_solid_angles(n).ravel(), 6)
+        self.sh_weights = (sh.basis(dirs) * solid[:, None]).astype(np.float32)  # (6n^2, 9)
+
+        tid = capture.tid.reshape(p, -1)
+        back = capture.backface.reshape(p, -1)
+        hit = (tid >= 0) & ~back
+        self.corners = scene.triangles[np.maximum(tid, 0)].astype(np.int32)  # (p, 6n^2, 3)
+        self.bary = (capture.bary.reshape(p, -1, 3) * hit[..., None]).astype(np.float32)
+        sky = (tid < 0).astype(np.float32)
+        self.sky_projection = sky @ self.sh_weights  # (p, 9): SH of a unit sky seen by each probe
+        back_share = (back * solid[None, :]).sum(axis=1) / (4.0 * np.pi)
+        self.probe_valid = back_share <= INSIDE_BACKFACE_SHARE
+
+        positions = grid.positions()
+        index, weight = grid.trilinear(scene.points)
+        if visibility:
+            dist = capture.dist.reshape(p, 6, n, n)
+            weight = visibility_weights(grid, positions, dist, self.probe_valid, scene.points, scene.normals, index, weight)
+        elif not self.probe_valid.all():
+            w = weight * self.probe_valid[index]
+            total = w.sum(axis=1, keepdims=True)
+            weight = np.where(total > 1e-9, w / np.maximum(total, 1e-30), weight)
+        self.index = index
+        # Per point: trilinear weight x diffuse SH basis of its normal, (s, 8 * 9).
+        basis = sh.diffuse_basis(scene.normals)
+        self.point_weights = (weight[:, :, None] * basis[:, None, :]).reshape(len(scene.points), 72).astype(np.float32)
+
+    def texel_radiance(self, radiance):
+        """Radiance seen by every texel ``(p, 6n^2, 3)`` from point radiance ``(s, 3)``."""
+        r = np.asarray(radiance, dtype=np.float32)
+        return np.einsum("ptc,ptcr->ptr", self.bary, r[self.corners], optimize=True)
+
+    def project(self, texel_radiance, sky=None):
+        """SH radiance coefficients ``(p, 9, 3)`` of texel radiance (plus a uniform sky)."""
+        c = np.matmul(self.sh_weights.T[None], texel_radiance)
+        if sky is not None:
+            c = c + self.sky_projection[:, :, None] * np.asarray(sky, dtype=np.float32)[None, None, :]
+        return c
+
+    def interpolate(self, coeffs):
+        """Diffuse light ``(s, 3)`` at every point from probe coefficients ``(p, 9, 3)``.
+
+        Low-order SH can ring below zero next to a small bright source; light is never
+        negative, so the result is clamped at zero.
+        """
+        g = coeffs[self.index].reshape(len(self.index), 72, 3)
+        out = np.einsum("sk,skc->sc", self.point_weights, g, optimize=True)
+        return np.maximum(out, 0.0)
+
+    def gather_light(self, radiance, sky=None):
+        """One full transport step: point radiance (and sky) to diffuse light at the points."""
+        return self.interpolate(self.project(self.texel_radiance(radiance), sky))
+
+
+def reference_coefficients(renderer, grid, scene, radiance, size, near, far):
+    """The paper's way: draw the scene coloured by ``radiance`` ``(s, 3)`` into a cube map at
+    every probe and project the images. Returns ``(p, 9, 3)`` float64. Sky is black."""
+    eyes = grid.positions()
+    vps = np.concatenate([cubemap.cube_view_projections(e, near, far) for e in eyes])
+    images = renderer.render_colour(vps, size, radiance)  # (6p, n, n, 3)
+    images = images.reshape(len(eyes), 6 * size * size, 3).astype(np.float64)
+    dirs = cubemap.texel_directions(size).reshape(-1, 3)
+    solid = np.tile(cubemap.texel_solid_angles(size).ravel(), 6)
+    return sh.project(images, dirs, solid)

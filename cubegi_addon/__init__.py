@@ -3,7 +3,7 @@
 Registers in dependency order (properties, then operators) and unregisters in reverse.
 """
 
-from . import operators, props
+from . import attributes, operators, pipeline, props, reference, scene_data
 
 _modules = (props, operators)
 

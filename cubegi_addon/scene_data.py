@@ -361,3 +361,19 @@ def collect(context, depsgraph=None):
         lights=lights,
     )
     return CollectedScene(arrays, targets, notes)
+
+
+def vertex_areas(ob):
+    """Each vertex's share of the object's world-space surface area, ``(v,)``."""
+    mesh = ob.data
+    mesh.calc_loop_triangles()
+    co = np.empty(len(mesh.vertices) * 3)
+    mesh.vertices.foreach_get("co", co)
+    m = np.array(ob.matrix_world, dtype=np.float64)
+    co = co.reshape(-1, 3) @ m[:3, :3].T
+    tri = np.empty(len(mesh.loop_triangles) * 3, dtype=np.int64)
+    mesh.loop_triangles.foreach_get("vertices", tri)
+    tri = tri.reshape(-1, 3)
+    p = co[tri]
+    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    return np.bincount(tri.ravel(), np.repeat(area / 3.0, 3), minlength=len(mesh.vertices))

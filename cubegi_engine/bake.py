@@ -111,7 +111,9 @@ def direct_from_lights(scene, renderer, settings, point_ids=None):
             vis = _area_visibility(scene, renderer, settings, light, pts, nrm, ids, near, far)
         else:
             cap = capture_cubes(renderer, light.position[None], settings.shadow_size, near, far)
-            vis = lights_mod.shadow_visibility(pts, nrm, light.position, cap.tid[0], cap.dist[0], scene.triangles, ids, scale)
+            vis = lights_mod.shadow_visibility(
+                pts, nrm, light.position, cap.tid[0], cap.dist[0], cap.backface[0], scene.triangles, ids, scale
+            )
         value[lit] *= vis[:, None]
         out += value
     return out
@@ -125,8 +127,10 @@ def _sun_visibility(scene, renderer, settings, light, pts, nrm, ids):
     view = cubemap.look_matrix(eye, axis, cubemap.any_perpendicular(axis))
     vp = cubemap.orthographic(radius, 1e-3 * radius, 4.0 * radius) @ view
     n = settings.sun_shadow_size
-    tid, _, dist, _ = renderer.render(vp[None], eye[None], axis[None], n)
-    return lights_mod.ortho_visibility(pts, nrm, vp, axis, eye, tid[0], dist[0], scene.triangles, ids, radius, scene.scale)
+    tid, _, dist, back = renderer.render(vp[None], eye[None], axis[None], n)
+    return lights_mod.ortho_visibility(
+        pts, nrm, vp, axis, eye, tid[0], dist[0], back[0], scene.triangles, ids, radius, scene.scale
+    )
 
 
 def _area_visibility(scene, renderer, settings, light, pts, nrm, ids, near, far):
@@ -143,7 +147,9 @@ def _area_visibility(scene, renderer, settings, light, pts, nrm, ids, near, far)
         cos_r = np.maximum(0.0, np.einsum("sc,sc->s", nrm, rel)) / np.sqrt(np.maximum(d2, 1e-300))
         cos_l = np.maximum(0.0, -(rel @ light.direction)) / np.sqrt(np.maximum(d2, 1e-300))
         w = cos_r * cos_l / np.maximum(d2, 1e-300) + 1e-12
-        vis = lights_mod.shadow_visibility(pts, nrm, eye, cap.tid[k], cap.dist[k], scene.triangles, ids, scene.scale)
+        vis = lights_mod.shadow_visibility(
+            pts, nrm, eye, cap.tid[k], cap.dist[k], cap.backface[k], scene.triangles, ids, scene.scale
+        )
         num += w * vis
         den += w
     return num / den

@@ -127,7 +127,7 @@ def polygon_form_factor(points, normals, polygon):
     nxt_j = np.where(j + 1 < count[:, None], j + 1, 0)
     u = slots / np.maximum(np.linalg.norm(slots, axis=-1, keepdims=True), 1e-30)
     w = np.take_along_axis(u, nxt_j[..., None], axis=1)
-    cross = np.cross(u, w)
+    cross = np.cross(w, u)  # counter-clockwise seen from the receiver: w x u faces it
     sin_t = np.linalg.norm(cross, axis=-1)
     cos_t = np.einsum("sjc,sjc->sj", u, w)
     theta = np.arctan2(sin_t, cos_t)
@@ -162,11 +162,12 @@ def unshadowed(light, points, normals):
     raise ValueError(f"unknown light kind {light.kind!r}")
 
 
-def shadow_visibility(points, normals, eye, face_tid, face_dist, triangles, point_ids, scale):
+def shadow_visibility(points, normals, eye, face_tid, face_dist, face_back, triangles, point_ids, scale):
     """Whether each receiver sees ``eye``, from a depth cube map rendered at ``eye``.
 
     points, normals: ``(s, 3)``; face_tid: ``(6, n, n)`` triangle index seen per texel (-1:
-    nothing); face_dist: ``(6, n, n)`` distance to it; triangles: ``(t, 3)`` point indices;
+    nothing); face_dist: ``(6, n, n)`` distance to it; face_back: ``(6, n, n)`` the texel
+    sees a back face; triangles: ``(t, 3)`` point indices;
     point_ids: ``(s,)`` index of each receiver in the point arrays; scale: scene size.
 
     A receiver is lit if the texel in its direction sees one of its own triangles, or if it
@@ -184,19 +185,25 @@ def shadow_visibility(points, normals, eye, face_tid, face_dist, triangles, poin
     face, row, col, _, _ = cubemap.direction_to_texel(np.where(d2[:, None] > 0, rel2, 1.0), n)
     seen = face_dist[face, row, col]
     tid = face_tid[face, row, col]
+    back = face_back[face, row, col]
     cos = np.abs(np.einsum("sc,sc->s", normals, rel / np.maximum(d, 1e-300)[:, None]))
-    return _depth_test(d2, seen, tid, cos, footprint, triangles, point_ids, scale).astype(np.float64)
+    return _depth_test(d2, d, seen, tid, back, cos, footprint, triangles, point_ids, scale).astype(np.float64)
 
 
-def _depth_test(depth, seen, tid, cos, footprint, triangles, point_ids, scale):
-    # Lit if nearer than the recorded surface plus a slope-scaled bias, or if the texel
-    # records one of the receiver's own triangles (no bias can fail that case).
+def _depth_test(depth, plain_depth, seen, tid, back, cos, footprint, triangles, point_ids, scale):
+    # Lit if nearer than the recorded surface plus a slope-scaled bias (which keeps a
+    # surface from shadowing itself), or if the texel records one of the receiver's own
+    # triangles. A receiver the light reaches faces it, so a texel that sees a surface from
+    # behind sees another surface; at the receiver's depth that surface touches it (a
+    # wall's edge under a ceiling) and shadows it, as it does a ray leaving that point.
     bias = footprint / np.maximum(cos, 0.2) + 1e-4 * scale
     own = (tid >= 0) & np.any(triangles[np.maximum(tid, 0)] == point_ids[:, None], axis=1)
-    return (depth <= seen + bias) | own
+    front_lit = ~back & (depth <= seen + bias)
+    back_lit = back & (plain_depth < seen - 0.5 * footprint)
+    return front_lit | back_lit | own
 
 
-def ortho_visibility(points, normals, view_proj, axis, eye, tid_map, dist_map, triangles, point_ids, half_width, scale):
+def ortho_visibility(points, normals, view_proj, axis, eye, tid_map, dist_map, back_map, triangles, point_ids, half_width, scale):
     """Like :func:`shadow_visibility` for a sun: one orthographic depth map along ``axis``."""
     n = dist_map.shape[-1]
     footprint = 2.0 * half_width / n
@@ -208,7 +215,9 @@ def ortho_visibility(points, normals, view_proj, axis, eye, tid_map, dist_map, t
     depth = (lifted - eye) @ axis
     seen = dist_map[row, col]
     tid = tid_map[row, col]
+    back = back_map[row, col]
     cos = np.abs(normals @ axis)
     inside = (np.abs(ndc) <= 1.0).all(axis=1)
-    lit = _depth_test(depth, seen, tid, cos, footprint, triangles, point_ids, scale)
+    plain = (points - eye) @ axis
+    lit = _depth_test(depth, plain, seen, tid, back, cos, footprint, triangles, point_ids, scale)
     return (lit | ~inside).astype(np.float64)

@@ -1,0 +1,103 @@
+"""The command line: bake a saved file, reopen the output, check every attribute; bad input
+fails with one line and writes nothing."""
+
+import os
+import subprocess
+import sys
+
+import bpy
+import numpy as np
+import pytest
+
+import scenes
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _cli(*args):
+    env = dict(os.environ)
+    return subprocess.run(
+        [sys.executable, "-m", "cubegi_engine", *args], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300
+    )
+
+
+@pytest.fixture
+def saved_scene(empty_scene, tmp_path):
+    v, f = scenes.box_mesh((-2, -2, 0), (2, 2, 2.5), (8, 8, 5), inward=True)
+    room = scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    bv, bf = scenes.box_mesh((-0.53, -0.37, 0.0), (0.41, 0.49, 0.93), (2, 2, 2), inward=False)
+    block = scenes.mesh_object("Block", bv, bf, scenes.material("Red", (0.7, 0.1, 0.1)))
+    block.data.attributes.new("user_data", "FLOAT", "POINT")
+    scenes.add_light("POINT", (0.7, 0.9, 2.1), 100.0)
+    path = tmp_path / "in.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    return path, {"Room": len(room.data.vertices), "Block": len(block.data.vertices)}
+
+
+def test_cli_bakes_a_saved_file(saved_scene, tmp_path, cubegi):
+    src, counts = saved_scene
+    before = src.read_bytes()
+    out, report = tmp_path / "out.blend", tmp_path / "report.json"
+    r = _cli("bake", str(src), "-o", str(out), "--grid", "3", "3", "2", "--bounces", "3", "--report", str(report))
+    assert r.returncode == 0, r.stderr
+    assert "bounce 3/3" in r.stdout
+    assert src.read_bytes() == before  # the input is never written
+    import json
+
+    rep = json.loads(report.read_text())
+    assert [b["attribute"] for b in rep["bounces"]] == ["CubeGI_bounce_1", "CubeGI_bounce_2", "CubeGI_bounce_3"]
+    assert all(b["seconds"] > 0 for b in rep["bounces"]) and rep["total_seconds"] > 0
+    assert rep["grid"]["resolution"] == [3, 3, 2]
+
+    bpy.ops.wm.open_mainfile(filepath=str(out))
+    names = ["CubeGI_direct", "CubeGI_bounce_1", "CubeGI_bounce_2", "CubeGI_bounce_3", "CubeGI"]
+    attributes = cubegi.cubegi_addon.attributes
+    for ob_name, count in counts.items():
+        mesh = bpy.data.objects[ob_name].data
+        for name in names:
+            attr = mesh.attributes[name]
+            assert attr.data_type == "FLOAT_COLOR" and attr.domain == "POINT"
+            values = attributes.read(mesh, name)
+            assert values.shape == (count, 3)
+            assert np.isfinite(values).all() and (values >= 0).all()
+        total = attributes.read(mesh, "CubeGI")
+        summed = sum(attributes.read(mesh, f"CubeGI_bounce_{k}") for k in (1, 2, 3))
+        np.testing.assert_allclose(total, summed, rtol=1e-5, atol=1e-7)
+        assert attributes.read(mesh, "CubeGI_direct").mean() > 0
+    assert "user_data" in bpy.data.objects["Block"].data.attributes
+
+
+def test_cli_rebake_replaces_only_its_own_attributes(saved_scene, tmp_path):
+    src, _ = saved_scene
+    first, second = tmp_path / "a.blend", tmp_path / "b.blend"
+    assert _cli("bake", str(src), "-o", str(first), "--grid", "2", "2", "2", "--bounces", "3").returncode == 0
+    assert _cli("bake", str(first), "-o", str(second), "--grid", "2", "2", "2", "--bounces", "1").returncode == 0
+    bpy.ops.wm.open_mainfile(filepath=str(second))
+    names = {a.name for a in bpy.data.objects["Block"].data.attributes}
+    assert {"CubeGI_direct", "CubeGI_bounce_1", "CubeGI", "user_data"} <= names
+    assert "CubeGI_bounce_2" not in names and "CubeGI_bounce_3" not in names
+
+
+@pytest.mark.parametrize(
+    "args,needle",
+    [
+        (["bake", "/nonexistent/x.blend", "-o", "{tmp}/o.blend"], "does not exist"),
+        (["bake", "{notblend}", "-o", "{tmp}/o.blend"], "not a .blend"),
+        (["bake", "{src}", "-o", "/nonexistent-dir/o.blend"], "output folder does not exist"),
+        (["bake", "{src}", "-o", "{src}"], "overwrite the input"),
+        (["bake", "{src}", "-o", "{tmp}/o.blend", "--grid", "0", "2", "2"], "--grid"),
+        (["bake", "{src}", "-o", "{tmp}/o.blend", "--cube-size", "2"], "--cube-size"),
+        (["bake", "{src}", "-o", "{tmp}/o.blend", "--bounces", "-1"], "--bounces"),
+    ],
+)
+def test_cli_bad_input_is_one_line_and_writes_nothing(saved_scene, tmp_path, args, needle):
+    src, _ = saved_scene
+    notblend = tmp_path / "notes.txt"
+    notblend.write_text("hello")
+    args = [a.format(tmp=tmp_path, src=src, notblend=notblend) for a in args]
+    before = sorted(os.listdir(tmp_path))
+    r = _cli(*args)
+    assert r.returncode != 0
+    lines = [ln for ln in r.stderr.strip().splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("cubegi: error:") and needle in lines[0], r.stderr
+    assert sorted(os.listdir(tmp_path)) == before

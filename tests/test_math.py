@@ -1,0 +1,183 @@
+"""The engine's mathematics against closed forms and brute force (pure numpy, no bpy)."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from cubegi_engine import cubemap, grid, lights, sh
+
+N = 32
+DIRS = cubemap.texel_directions(N).reshape(-1, 3)
+SOLID = np.tile(cubemap.texel_solid_angles(N).ravel(), 6)
+# Quadrature at texel centres of a 32x32 cube map integrates the order-2 basis to about
+# 1e-4 of pi; 1e-3 leaves margin without hiding a wrong constant (those are off by >= 10%).
+QUADRATURE_TOL = 1e-3
+
+
+def fibonacci_sphere(k):
+    i = np.arange(k) + 0.5
+    z = 1 - 2 * i / k
+    r = np.sqrt(1 - z * z)
+    a = np.pi * (1 + 5**0.5) * i
+    return np.stack([r * np.cos(a), r * np.sin(a), z], axis=1)
+
+
+def test_texel_solid_angles_sum_to_4pi():
+    for n in (1, 2, 7, 32, 128):
+        total = 6 * cubemap.texel_solid_angles(n).sum()
+        assert total == pytest.approx(4 * np.pi, rel=1e-12), n
+
+
+def test_texel_solid_angle_matches_small_texel_estimate():
+    # A texel's solid angle ~ its area x cos / r^2 at its centre, for small texels.
+    n = 256
+    u, v = cubemap.texel_uv(n)
+    approx = (2.0 / n) ** 2 / (1 + u * u + v * v) ** 1.5
+    np.testing.assert_allclose(cubemap.texel_solid_angles(n), approx, rtol=1e-4)
+
+
+def test_texel_lookup_round_trip():
+    face, row, col, _, _ = cubemap.direction_to_texel(cubemap.texel_directions(16), 16)
+    f, r, c = np.meshgrid(np.arange(6), np.arange(16), np.arange(16), indexing="ij")
+    assert (face == f).all() and (row == r).all() and (col == c).all()
+
+
+def test_face_frames_are_right_handed_cameras():
+    for f in range(6):
+        view = cubemap.look_matrix(np.zeros(3), cubemap.FACE_FORWARD[f], cubemap.FACE_UP[f])
+        np.testing.assert_allclose(view[:3, :3] @ cubemap.FACE_FORWARD[f], [0, 0, -1], atol=1e-12)
+        np.testing.assert_allclose(view[:3, :3] @ cubemap.FACE_RIGHT[f], [1, 0, 0], atol=1e-12)
+        assert np.linalg.det(view[:3, :3]) == pytest.approx(1.0)
+
+
+def test_constant_radiance_gives_its_value():
+    c = np.array([0.3, 1.0, 2.5])
+    coeffs = sh.project(np.tile(c, (len(DIRS), 1)), DIRS, SOLID)
+    got = sh.irradiance_diffuse(coeffs, fibonacci_sphere(50))
+    np.testing.assert_allclose(got, np.tile(c, (50, 1)), rtol=1e-9)
+
+
+def test_linear_radiance_gives_exact_irradiance():
+    # L(w) = a + b.w  ->  E(n) = pi a + 2 pi / 3 b.n  (bands 0 and 1 are exact).
+    a, b = 0.7, np.array([0.2, -0.3, 0.4])
+    coeffs = sh.project((a + DIRS @ b)[:, None], DIRS, SOLID)
+    n = fibonacci_sphere(200)
+    want = a + (2.0 / 3.0) * (n @ b)
+    np.testing.assert_allclose(sh.irradiance_diffuse(coeffs, n)[:, 0], want, atol=QUADRATURE_TOL)
+
+
+def test_clamped_cosine_lobe_coefficients_and_irradiance():
+    # L(w) = max(0, w.z): analytic coefficients L00 = sqrt(pi)/2, L10 = sqrt(pi/3),
+    # L20 = sqrt(5 pi)/8, others 0 (R&H 2001, eq. 10 with A_l / sqrt(4 pi / (2l+1))).
+    radiance = np.maximum(DIRS[:, 2], 0.0)[:, None]
+    coeffs = sh.project(radiance, DIRS, SOLID)[:, 0]
+    want = np.zeros(9)
+    want[0], want[2], want[6] = np.sqrt(np.pi) / 2, np.sqrt(np.pi / 3), np.sqrt(5 * np.pi) / 8
+    np.testing.assert_allclose(coeffs, want, atol=QUADRATURE_TOL)
+    # Irradiance of that lobe at normal n, by brute force over a fine cube map.
+    fine = cubemap.texel_directions(128).reshape(-1, 3)
+    fine_w = np.tile(cubemap.texel_solid_angles(128).ravel(), 6)
+    n = fibonacci_sphere(64)
+    brute = (np.maximum(fine[:, 2], 0)[None] * np.maximum(n @ fine.T, 0) * fine_w).sum(1) / np.pi
+    got = sh.irradiance_diffuse(coeffs[:, None], n)[:, 0]
+    # Order-2 truncation: R&H report under 3% average error for irradiance; the worst case
+    # for this lobe is 0.03 of the peak value 2/3 near the lobe's terminator.
+    assert np.abs(got - brute).max() < 0.03 * (2 / 3)
+    assert np.abs(got - brute).mean() < 0.01 * (2 / 3)
+
+
+def test_projection_is_linear_and_rotates_with_input():
+    rng = np.random.default_rng(1)
+    a, b = rng.random((len(DIRS), 3)), rng.random((len(DIRS), 3))
+    np.testing.assert_allclose(
+        sh.project(2 * a + 3 * b, DIRS, SOLID), 2 * sh.project(a, DIRS, SOLID) + 3 * sh.project(b, DIRS, SOLID), rtol=1e-10
+    )
+    # A lobe about +x gives, at +x, what a lobe about +z gives at +z.
+    lobe_x = sh.project(np.maximum(DIRS[:, 0], 0)[:, None], DIRS, SOLID)
+    lobe_z = sh.project(np.maximum(DIRS[:, 2], 0)[:, None], DIRS, SOLID)
+    assert sh.irradiance_diffuse(lobe_x, np.array([1.0, 0, 0]))[0] == pytest.approx(
+        sh.irradiance_diffuse(lobe_z, np.array([0, 0, 1.0]))[0], rel=1e-6
+    )
+
+
+def test_grid_positions_and_trilinear_weights():
+    g = grid.ProbeGrid((0, 0, 0), (3, 2, 7), (3, 2, 7))
+    pos = g.positions()
+    assert pos.shape == (42, 3)
+    np.testing.assert_allclose(pos[0], [0.5, 0.5, 0.5])
+    np.testing.assert_allclose(pos[1], [1.5, 0.5, 0.5])  # x fastest
+    rng = np.random.default_rng(0)
+    pts = rng.uniform([0.5, 0.5, 0.5], [2.5, 1.5, 6.5], (500, 3))
+    idx, w = g.trilinear(pts)
+    np.testing.assert_allclose(w.sum(1), 1.0)
+    assert (w >= 0).all()
+    # Trilinear interpolation reproduces any linear function inside the probe hull.
+    f = pos @ np.array([1.0, -2.0, 0.5]) + 3.0
+    np.testing.assert_allclose((w * f[idx]).sum(1), pts @ np.array([1.0, -2.0, 0.5]) + 3.0, atol=1e-12)
+    # Outside the hull weights clamp to the nearest probes and still sum to 1.
+    idx, w = g.trilinear(np.array([[-5.0, -5.0, -5.0], [10, 10, 10]]))
+    np.testing.assert_allclose(w.sum(1), 1.0)
+    assert idx[0, np.argmax(w[0])] == 0 and idx[1, np.argmax(w[1])] == 41
+
+
+def test_single_probe_grid_and_bad_grids():
+    g = grid.ProbeGrid((0, 0, 0), (1, 1, 1), (1, 1, 1))
+    idx, w = g.trilinear(np.random.default_rng(0).random((10, 3)))
+    assert (idx == 0).all() and np.allclose(w.sum(1), 1)
+    for res in [(0, 1, 1), (-1, 2, 2), (1, 1)]:
+        with pytest.raises(ValueError):
+            grid.ProbeGrid((0, 0, 0), (1, 1, 1), res)
+    with pytest.raises(ValueError):
+        grid.ProbeGrid((0, 0, 0), (0, 1, 1), (1, 1, 1))
+
+
+def brute_form_factor(point, normal, polygon, n=512):
+    # Integrate cos / pi over the directions that hit the polygon (fine cube-map quadrature).
+    d = cubemap.texel_directions(n).reshape(-1, 3)
+    w = np.tile(cubemap.texel_solid_angles(n).ravel(), 6)
+    p0, e1, e2 = polygon[0], polygon[1] - polygon[0], polygon[3] - polygon[0]
+    nrm = np.cross(e1, e2)
+    t = ((p0 - point) @ nrm) / (d @ nrm)
+    hit = point + t[:, None] * d - p0
+    a = hit @ e1 / (e1 @ e1)
+    b = hit @ e2 / (e2 @ e2)
+    inside = (t > 0) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1)
+    return (w * inside * np.maximum(d @ normal, 0)).sum() / np.pi
+
+
+@pytest.mark.parametrize(
+    "point,normal",
+    [
+        ((0.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+        ((0.3, -0.2, 0.0), (0.0, 0.6, 0.8)),
+        ((0.0, 0.0, 0.5), (1.0, 0.0, 0.0)),  # polygon straddles the horizon: clipped
+        ((2.0, 0.0, 0.9), (-1.0, 0.0, 0.0)),
+    ],
+)
+def test_polygon_form_factor_matches_brute_force(point, normal):
+    poly = lights.area_polygon("SQUARE", 1.0, 1.0) + np.array([0.0, 0.0, 1.0])
+    got = lights.polygon_form_factor(np.array([point]), np.array([normal]), poly)[0]
+    assert got == pytest.approx(brute_form_factor(np.array(point), np.array(normal), poly), abs=2e-3)
+
+
+def test_disk_polygon_has_exact_area_and_spot_cone():
+    poly = lights.area_polygon("DISK", 2.0, 2.0)
+    x, y = poly[:, 0], poly[:, 1]
+    assert 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))) == pytest.approx(np.pi)
+    spot = lights.Light("SPOT", np.ones(3), np.zeros(3), np.array([0, 0, -1.0]), spot_size=np.radians(60), spot_blend=0.5)
+    a = lights.spot_attenuation(spot, np.array([[0, 0, -1.0], [np.sin(0.45), 0, -np.cos(0.45)], [1.0, 0, 0]]))
+    assert a[0] == 1.0 and 0 < a[1] < 1 and a[2] == 0
+
+
+def test_engine_imports_without_bpy():
+    code = (
+        "import sys; sys.modules['bpy'] = None; sys.modules['gpu'] = None; sys.modules['mathutils'] = None\n"
+        "import cubegi_engine.sh, cubegi_engine.cubemap, cubegi_engine.grid, cubegi_engine.lights,"
+        " cubegi_engine.transport, cubegi_engine.bake, cubegi_engine.cli\n"
+    )
+    import os
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    subprocess.run([sys.executable, "-c", code], cwd=root, check=True)

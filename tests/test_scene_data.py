@@ -1,0 +1,99 @@
+"""Scene to arrays: albedo from textures and colour attributes, emission, world, lights,
+modifiers, instances and objects hidden from render."""
+
+import bpy
+import numpy as np
+import pytest
+
+import scenes
+
+
+def _collect(cubegi):
+    return cubegi.cubegi_addon.scene_data.collect(bpy.context)
+
+
+def _quad(name, x0, mat=None):
+    v, f = scenes.grid_patch((x0, 0, 0), (1, 0, 0), (0, 1, 0), 1, 1)
+    return scenes.mesh_object(name, v, f, mat)
+
+
+def test_albedo_from_image_texture_at_uvs(empty_scene, cubegi):
+    ob = _quad("Quad", 0.0)
+    uv = ob.data.uv_layers.new(name="UVMap")
+    image = bpy.data.images.new("Tex", 2, 1, float_buffer=True)  # left texel red, right blue
+    image.colorspace_settings.name = "Linear Rec.709"
+    image.pixels.foreach_set(np.array([1, 0, 0, 1, 0, 0, 1, 1], dtype=np.float32))
+    mat = scenes.material("Textured", (0.5, 0.5, 0.5))
+    tree = mat.node_tree
+    tex = tree.nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    tex.interpolation = "Closest"
+    bsdf = next(n for n in tree.nodes if n.type == "BSDF_PRINCIPLED")
+    tree.links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
+    ob.data.materials.append(mat)
+    # Put every corner's UV in the left (red) or right (blue) texel by its x.
+    co = np.array([ob.data.vertices[l.vertex_index].co.x for l in ob.data.loops])
+    uvs = np.stack([np.where(co < 0.5, 0.25, 0.75), np.full_like(co, 0.5)], axis=1)
+    uv.data.foreach_set("uv", uvs.astype(np.float32).ravel())
+    arrays = _collect(cubegi).arrays
+    left = arrays.points[:, 0] < 0.5
+    np.testing.assert_allclose(arrays.albedo[left], [[1, 0, 0]] * left.sum(), atol=1e-6)
+    np.testing.assert_allclose(arrays.albedo[~left], [[0, 0, 1]] * (~left).sum(), atol=1e-6)
+
+
+def test_albedo_from_colour_attribute_emission_and_fallback(empty_scene, cubegi):
+    a = _quad("A", 0.0)
+    attr = a.data.color_attributes.new("Col", "FLOAT_COLOR", "POINT")
+    attr.data.foreach_set("color", np.tile([0.1, 0.6, 0.3, 1.0], len(a.data.vertices)).astype(np.float32))
+    mat = scenes.material("Attr", (0.5, 0.5, 0.5))
+    node = mat.node_tree.nodes.new("ShaderNodeVertexColor")
+    node.layer_name = "Col"
+    bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    mat.node_tree.links.new(node.outputs["Color"], bsdf.inputs["Base Color"])
+    a.data.materials.append(mat)
+    _quad("B", 2.0, scenes.material("Glow", (0.2, 0.2, 0.2), emission=(1.0, 0.5, 0.25), strength=4.0))
+    c = _quad("C", 4.0)
+    odd = bpy.data.materials.new("Odd")
+    odd.diffuse_color = (0.3, 0.2, 0.1, 1.0)
+    if odd.node_tree is None:
+        odd.use_nodes = True
+    tree = odd.node_tree
+    out = next(n for n in tree.nodes if n.type == "OUTPUT_MATERIAL")
+    tree.links.new(tree.nodes.new("ShaderNodeBsdfGlass").outputs[0], out.inputs["Surface"])
+    c.data.materials.append(odd)
+    scenes.set_world((0.2, 0.3, 0.4))
+    collected = _collect(cubegi)
+    arr = collected.arrays
+    x = arr.points[:, 0]
+    np.testing.assert_allclose(arr.albedo[x < 1.5], [[0.1, 0.6, 0.3]] * (x < 1.5).sum(), atol=1e-6)
+    np.testing.assert_allclose(arr.emission[(x > 1.5) & (x < 3.5)], [[4.0, 2.0, 1.0]] * 4, atol=1e-6)
+    np.testing.assert_allclose(arr.albedo[x > 3.5], [[0.3, 0.2, 0.1]] * 4, atol=1e-6)
+    assert any("Odd" in n for n in collected.notes)
+    np.testing.assert_allclose(arr.sky, [0.2, 0.3, 0.4], atol=1e-6)
+
+
+def test_modifiers_instances_and_hidden_objects(empty_scene, cubegi):
+    base = _quad("Base", 0.0)
+    base.modifiers.new("Subsurf", "SUBSURF").levels = 1  # changes vertex count: lights, not baked
+    mirror_src = _quad("Deformed", 2.0)
+    mirror_src.modifiers.new("Disp", "DISPLACE").strength = 0.5  # same count: baked
+    hidden = _quad("Hidden", 4.0)
+    hidden.hide_render = True
+    coll = bpy.data.collections.new("Inst")
+    inst_src = _quad("InstSrc", 0.0)
+    bpy.context.scene.collection.objects.unlink(inst_src)
+    coll.objects.link(inst_src)
+    empty = bpy.data.objects.new("Instancer", None)
+    empty.instance_type = "COLLECTION"
+    empty.instance_collection = coll
+    empty.location = (10, 0, 0)
+    bpy.context.scene.collection.objects.link(empty)
+    bpy.context.view_layer.update()
+    collected = _collect(cubegi)
+    baked = {t.object_name for t in collected.targets}
+    assert baked == {"Deformed"}
+    x = collected.arrays.points[:, 0]
+    assert ((x >= 10) & (x <= 11)).sum() == 4  # the instance lights the scene
+    assert not ((x >= 4) & (x <= 5)).any()  # hidden from render: not there
+    assert collected.arrays.points[(x >= 2) & (x <= 3)][:, 2].max() == pytest.approx(0.25)  # displaced: strength x (1 - midlevel 0.5)
+    assert any("Base" in n for n in collected.notes)

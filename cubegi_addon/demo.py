@@ -111,7 +111,7 @@ def build_room(subdivision=1):
     suz.scale = (0.3, 0.3, 0.3)
     coll.objects.link(suz)
 
-    for name, loc, power in (("Lamp A", (0.8, -2.5, 2.5), 120.0), ("Lamp B", (-0.9, 2.6, 2.5), 90.0)):
+    for name, loc, power in (("Lamp A", (0.8, -2.5, 2.5), 40.0), ("Lamp B", (-0.9, 2.6, 2.5), 30.0)):
         data = bpy.data.lights.new(name, "POINT")
         data.energy = power
         data.color = (1.0, 0.93, 0.82)
@@ -139,6 +139,10 @@ def build_room(subdivision=1):
     scene.cubegi.bounces = 5
     world = bpy.data.worlds.new("World")
     world.color = (0.0, 0.0, 0.0)
+    if world.node_tree is not None:  # a new world's Background node defaults to grey
+        for node in world.node_tree.nodes:
+            if node.type == "BACKGROUND":
+                node.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
     scene.world = world
     bpy.context.view_layer.update()
     return scene

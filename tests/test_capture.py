@@ -78,7 +78,8 @@ def test_draw_every_bounce_matches_capture_once(empty_scene, cubegi):
     near, far = transport.clip_planes(arrays.scale)
     n = 32
     cap = transport.capture_cubes(renderer, g.positions(), n, near, far)
-    linear = transport.Transport(arrays, g, cap).project(transport.Transport(arrays, g, cap).texel_radiance(radiance))
+    operators = transport.Transport(arrays, g, cap)
+    linear = operators.project(operators.texel_radiance(radiance))
     drawn = transport.reference_coefficients(renderer, g, arrays, radiance, n, near, far)
     scale = np.abs(drawn[:, 0]).mean()
     # Both sample the same surfaces at the same texel centres; they differ only by float32

@@ -128,13 +128,9 @@ def build_room(subdivision=1):
     coll.objects.link(cam)
     scene.camera = cam
 
-    grid = bpy.data.objects.new("CubeGI Probe Grid", None)
-    grid.empty_display_type = "CUBE"
-    grid.location = (0.0, 0.0, h / 2)
-    grid.scale = (w / 2, l / 2, h / 2)
-    coll.objects.link(grid)
-    grid.cubegi.is_probe_grid = True
-    grid.cubegi.resolution = DEMO_GRID
+    from .pipeline import new_probe_grid
+
+    new_probe_grid(coll, (-w / 2, -l / 2, 0.0), (w / 2, l / 2, h), DEMO_GRID)
     scene.cubegi.cube_size = 32
     scene.cubegi.bounces = 5
     world = bpy.data.worlds.new("World")

@@ -95,14 +95,7 @@ class CUBEGI_OT_add_probe_grid(bpy.types.Operator):
             lo, hi = allp.min(axis=0), allp.max(axis=0)
         else:
             lo, hi = -np.ones(3), np.ones(3)
-        ob = bpy.data.objects.new("CubeGI Probe Grid", None)
-        ob.empty_display_type = "CUBE"
-        ob.empty_display_size = 1.0
-        ob.location = tuple(0.5 * (lo + hi))
-        ob.scale = tuple(np.maximum(0.5 * (hi - lo), 1e-3))
-        ob.cubegi.is_probe_grid = True
-        ob.cubegi.resolution = self.resolution
-        context.collection.objects.link(ob)
+        pipeline.new_probe_grid(context.collection, lo, hi, self.resolution)
         return {"FINISHED"}
 
 

@@ -26,6 +26,22 @@ def probe_grid_objects(scene):
     return [ob for ob in scene.objects if ob.type == "EMPTY" and getattr(ob, "cubegi", None) and ob.cubegi.is_probe_grid]
 
 
+def new_probe_grid(collection, lo, hi, resolution, name="CubeGI Probe Grid"):
+    """Link a probe grid Empty whose cube spans ``lo``..``hi``; returns the object."""
+    import bpy
+
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    ob = bpy.data.objects.new(name, None)
+    ob.empty_display_type = "CUBE"
+    ob.empty_display_size = 1.0
+    ob.location = tuple(0.5 * (lo + hi))
+    ob.scale = tuple(np.maximum(0.5 * (hi - lo), 1e-6))
+    collection.objects.link(ob)
+    ob.cubegi.is_probe_grid = True
+    ob.cubegi.resolution = tuple(int(r) for r in resolution)
+    return ob
+
+
 def grid_bounds_of(ob):
     """World-space axis-aligned box of a probe grid object's cube (rotation is ignored)."""
     s = ob.empty_display_size

@@ -20,6 +20,8 @@ from ..cubegi_engine.transport import SceneArrays
 # know): the material's viewport display colour; for a face with no material, this grey
 # (Blender's default surface).
 DEFAULT_ALBEDO = (0.8, 0.8, 0.8)
+# Shadow maps per area light: a stratified AREA_SHADOW_SIDE x AREA_SHADOW_SIDE set of points.
+AREA_SHADOW_SIDE = 4
 
 
 @dataclass
@@ -295,7 +297,7 @@ def _light(ob_eval, matrix):
         poly = local @ m[:3, :3].T + pos
         e = np.cross(np.roll(poly, -1, axis=0) - poly[0], poly - poly[0])
         area = 0.5 * float(np.linalg.norm(e.sum(axis=0)))
-        samples = area_samples(data.shape, data.size, data.size_y, 4) @ m[:3, :3].T + pos
+        samples = area_samples(data.shape, data.size, data.size_y, AREA_SHADOW_SIDE) @ m[:3, :3].T + pos
         return Light("AREA", polygon=poly, area=area, samples=samples, **common)
     return None
 

@@ -45,7 +45,6 @@ class BakeSettings:
     visibility: bool = True
     shadow_size: int = 512
     sun_shadow_size: int = 2048
-    area_shadow_samples: int = 4  # per side: 4 x 4 shadow maps per area light
     area_shadow_size: int = 128
 
     def validate(self):
@@ -90,12 +89,11 @@ def area_weighted_mean(values, areas):
     return (values * areas[:, None]).sum(axis=0) / total
 
 
-def direct_from_lights(scene, renderer, settings, point_ids=None):
+def direct_from_lights(scene, renderer, settings):
     """Diffuse light ``(s, 3)`` from every light, with shadows from depth maps."""
     s = len(scene.points)
     out = np.zeros((s, 3))
-    if point_ids is None:
-        point_ids = np.arange(s)
+    point_ids = np.arange(s)
     scale = scene.scale
     near, far = clip_planes(scale)
     for light in scene.lights:
@@ -221,10 +219,12 @@ def bake_steps(scene, grid, renderer, settings=None):
     return BakeResult(direct, bounces, timings, records, grid, transport.probe_valid)
 
 
-def run(steps):
-    """Drain a generator of :class:`Progress` and return its result."""
+def run(steps, progress=None):
+    """Drain a generator of :class:`Progress`, calling ``progress`` on each; return its result."""
     while True:
         try:
-            next(steps)
+            step = next(steps)
         except StopIteration as stop:
             return stop.value
+        if progress is not None:
+            progress(step)

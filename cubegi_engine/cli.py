@@ -111,15 +111,10 @@ def bake_open_file(settings, resolution, lit=False, progress=_print_progress):
     """Bake the file open in bpy with the extension loaded; returns the report."""
     import bpy
 
+    from .bake import run
+
     ext = load_extension()
-    steps = ext.cubegi_addon.pipeline.bake_steps(bpy.context, settings, resolution, lit=lit)
-    while True:
-        try:
-            step = next(steps)
-        except StopIteration as stop:
-            return stop.value
-        if progress:
-            progress(step)
+    return run(ext.cubegi_addon.pipeline.bake_steps(bpy.context, settings, resolution, lit=lit), progress)
 
 
 def _settings(args):

@@ -97,3 +97,20 @@ def test_modifiers_instances_and_hidden_objects(empty_scene, cubegi):
     assert not ((x >= 4) & (x <= 5)).any()  # hidden from render: not there
     assert collected.arrays.points[(x >= 2) & (x <= 3)][:, 2].max() == pytest.approx(0.25)  # displaced: strength x (1 - midlevel 0.5)
     assert any("Base" in n for n in collected.notes)
+
+
+def test_bake_takes_its_grid_from_the_probe_grid_object(empty_scene, cubegi):
+    import json
+
+    v, f = scenes.box_mesh((-2, -1, 0), (2, 1, 2), (4, 2, 2), inward=True)
+    scenes.mesh_object("Room", v, f)
+    scenes.add_light("POINT", (0.3, 0.2, 1.5), 50.0)
+    assert bpy.ops.cubegi.add_probe_grid(resolution=(3, 2, 1)) == {"FINISHED"}
+    grid = next(o for o in bpy.context.scene.objects if o.type == "EMPTY")
+    assert grid.cubegi.is_probe_grid
+    assert bpy.ops.cubegi.bake(bounces=1) == {"FINISHED"}
+    report = json.loads(bpy.context.scene.cubegi.last_report)
+    assert report["grid"]["resolution"] == [3, 2, 1]
+    assert "probe grid object" in report["grid"]["source"]
+    np.testing.assert_allclose(report["grid"]["lo"], [-2, -1, 0], atol=1e-5)
+    np.testing.assert_allclose(report["grid"]["hi"], [2, 1, 2], atol=1e-5)

@@ -3,7 +3,10 @@
 Output contract: FLOAT_COLOR attributes on the POINT domain, ``CubeGI_direct``,
 ``CubeGI_bounce_1`` .. ``CubeGI_bounce_N`` and ``CubeGI`` (the sum of the bounces), holding
 diffuse light (irradiance / pi); optionally ``CubeGI_lit``, the lit colour (albedo times
-direct plus indirect light) for display and export. Nothing else of the mesh is touched.
+direct plus indirect light) for display and export. A bake with a Cycles reference also
+writes ``CubeGI_ref_direct`` and ``CubeGI_ref_indirect`` (the same quantities from Cycles);
+a bake without one leaves earlier reference attributes alone. Nothing else of the mesh is
+touched.
 """
 
 import re
@@ -14,7 +17,10 @@ PREFIX = "CubeGI"
 DIRECT = "CubeGI_direct"
 TOTAL = "CubeGI"
 LIT = "CubeGI_lit"
+REF_DIRECT = "CubeGI_ref_direct"
+REF_INDIRECT = "CubeGI_ref_indirect"
 _OWN = re.compile(r"^CubeGI(_direct|_lit|_bounce_\d+)?$")
+_REF = re.compile(r"^CubeGI_ref_(direct|indirect)$")
 
 
 def bounce_name(k):
@@ -24,6 +30,15 @@ def bounce_name(k):
 def is_own(name):
     """True for the names a bake writes (and a new bake replaces)."""
     return bool(_OWN.match(name))
+
+
+def is_reference(name):
+    """True for the Cycles reference attributes (replaced only by a bake with a reference)."""
+    return bool(_REF.match(name))
+
+
+def is_any(name):
+    return is_own(name) or is_reference(name)
 
 
 def vertex_values(target, point_values):
@@ -42,16 +57,19 @@ def sanitise(values):
     return np.clip(v, 0.0, np.finfo(np.float32).max)
 
 
-def clear(mesh):
-    """Remove CubeGI's own attributes from ``mesh``; returns their names."""
-    names = [a.name for a in mesh.attributes if is_own(a.name)]
+def clear(mesh, which=is_own):
+    """Remove the attributes of ``mesh`` whose names ``which`` accepts; returns their names."""
+    names = [a.name for a in mesh.attributes if which(a.name)]
     for name in names:
         mesh.attributes.remove(mesh.attributes[name])
     return names
 
 
 def write(mesh, layers):
-    """Replace CubeGI's attributes of ``mesh`` by ``layers``: a dict name -> ``(v, 3)``."""
+    """Replace CubeGI's attributes of ``mesh`` by ``layers``: a dict name -> ``(v, 3)``.
+
+    The bake's own names are always replaced; the reference names only when ``layers`` has
+    them."""
     prepared = {}
     for name, values in layers.items():
         v = sanitise(values)
@@ -60,7 +78,8 @@ def write(mesh, layers):
         rgba = np.ones((len(v), 4), dtype=np.float32)
         rgba[:, :3] = v
         prepared[name] = rgba
-    clear(mesh)
+    with_reference = any(is_reference(n) for n in prepared)
+    clear(mesh, is_any if with_reference else is_own)
     for name, rgba in prepared.items():
         attr = mesh.attributes.new(name, "FLOAT_COLOR", "POINT")
         attr.data.foreach_set("color", rgba.ravel())
@@ -78,7 +97,7 @@ def snapshot(mesh):
     """CubeGI's own attributes of ``mesh`` as they are now, for :func:`restore`."""
     saved = []
     for a in mesh.attributes:
-        if is_own(a.name):
+        if is_any(a.name):
             width = 4 if a.data_type in {"FLOAT_COLOR", "BYTE_COLOR"} else None
             key = "color" if width else "value"
             data = np.empty(len(a.data) * (width or 1), dtype=np.float32)
@@ -89,7 +108,7 @@ def snapshot(mesh):
 
 def restore(mesh, saved):
     """Put back what :func:`snapshot` saw, removing anything CubeGI wrote since."""
-    clear(mesh)
+    clear(mesh, is_any)
     for name, data_type, domain, key, data in saved:
         attr = mesh.attributes.new(name, data_type, domain)
         attr.data.foreach_set(key, data)

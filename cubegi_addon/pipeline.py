@@ -12,9 +12,10 @@ import time
 import numpy as np
 
 from ..cubegi_engine import __version__
-from ..cubegi_engine.bake import BakeSettings, area_weighted_mean, bake_steps as engine_bake_steps
+from ..cubegi_engine import metrics
+from ..cubegi_engine.bake import BakeSettings, Progress, area_weighted_mean, bake_steps as engine_bake_steps
 from ..cubegi_engine.grid import ProbeGrid, fit_bounds
-from . import attributes, scene_data
+from . import attributes, reference, scene_data
 from .gpu_capture import GpuRenderer
 
 # Probes of a fitted grid: cells of about an eighth of the scene's longest side.
@@ -70,8 +71,12 @@ def resolve_grid(scene, arrays, resolution=None):
     return ProbeGrid(lo, hi, fit_bounds(lo, hi, max_probes=MAX_FITTED_PROBES)), "fitted to scene bounds"
 
 
-def bake_steps(context, settings=None, resolution=None, lit=False):
-    """Bake the context's scene. A generator of engine Progress; returns the report dict."""
+def bake_steps(context, settings=None, resolution=None, lit=False, reference_samples=None):
+    """Bake the context's scene. A generator of engine Progress; returns the report dict.
+
+    With ``reference_samples``, Cycles also bakes the same light into ``CubeGI_ref_direct``
+    and ``CubeGI_ref_indirect`` and the report gives CubeGI's error against it.
+    """
     settings = settings or BakeSettings()
     settings.validate()
     t0 = time.perf_counter()
@@ -98,15 +103,30 @@ def bake_steps(context, settings=None, resolution=None, lit=False):
         if lit:
             layers[attributes.LIT] = attributes.vertex_values(target, arrays.albedo * (result.direct + indirect))
         layers_per_target.append(layers)
+    t_layers = time.perf_counter() - t
+    cubegi_seconds = time.perf_counter() - t0  # before the write, for the reference report
+
+    reference_report = None
+    if reference_samples:
+        steps = 3 + settings.bounces
+        yield Progress("reference", steps, steps + 1, f"Cycles reference at {reference_samples} samples")
+        ref_layers, ref_seconds = reference.reference_layers(context, collected.targets, reference_samples)
+        reference_report = _reference_report(collected.targets, layers_per_target, ref_layers, reference_samples, ref_seconds, cubegi_seconds)
+        for layers, ref in zip(layers_per_target, ref_layers):
+            layers.update(ref)
+
+    t = time.perf_counter()
     write_all(context, collected.targets, layers_per_target)
-    t_write = time.perf_counter() - t
+    t_write = t_layers + time.perf_counter() - t
 
     areas = arrays.point_areas()
     names = list(layers_per_target[0].keys())
     for rec in result.bounce_records:
         rec["attribute"] = attributes.bounce_name(rec["bounce"])
     timings = dict(result.timings)
-    timings.update(collect=t_collect, gpu_setup=t_setup, write=t_write, total=time.perf_counter() - t0)
+    # CubeGI's own time: everything but the Cycles reference.
+    total = time.perf_counter() - t0 - (reference_report["seconds"] if reference_report else 0.0)
+    timings.update(collect=t_collect, gpu_setup=t_setup, write=t_write, total=total)
     return {
         "cubegi_version": __version__,
         "settings": {
@@ -114,6 +134,8 @@ def bake_steps(context, settings=None, resolution=None, lit=False):
             "bounces": settings.bounces,
             "visibility": settings.visibility,
             "shadow_size": settings.shadow_size,
+            "tolerance": settings.tolerance,
+            "add_tail": settings.add_tail,
         },
         "grid": {
             "resolution": list(grid.resolution),
@@ -138,9 +160,37 @@ def bake_steps(context, settings=None, resolution=None, lit=False):
         },
         "bounces": result.bounce_records,
         "indirect": {"mean_light": area_weighted_mean(indirect, areas).tolist(), "attribute": attributes.TOTAL},
+        "tail": result.tail_report,
+        # The share of the full indirect light the computed bounces miss (estimated from the
+        # observed rate); with tail.added it is in CubeGI as the tail.
+        "estimated_remaining_error": result.tail_report["estimated_remaining"],
         "timings": timings,
         "total_seconds": timings["total"],
+        "reference": reference_report,
         "attributes": names,
+        "warnings": [w for w in (result.tail_report.get("warning"),) if w],
+    }
+
+
+def _reference_report(targets, ours, theirs, samples, ref_seconds, cubegi_seconds):
+    import bpy
+
+    areas = np.concatenate([scene_data.vertex_areas(bpy.data.objects[t.object_name]) for t in targets])
+
+    def stack(layers, name):
+        return np.concatenate([layer[name] for layer in layers])
+
+    errors = metrics.compare(
+        stack(ours, attributes.DIRECT), stack(ours, attributes.TOTAL),
+        stack(theirs, attributes.REF_DIRECT), stack(theirs, attributes.REF_INDIRECT), areas,
+    )
+    return {
+        "renderer": "cycles",
+        "samples": int(samples),
+        "seconds": ref_seconds,
+        "cubegi_seconds": cubegi_seconds,
+        "attributes": [attributes.REF_DIRECT, attributes.REF_INDIRECT],
+        "errors": errors,
     }
 
 

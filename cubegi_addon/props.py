@@ -1,7 +1,7 @@
 """CubeGI's settings on scenes (``Scene.cubegi``) and probe grid objects (``Object.cubegi``)."""
 
 import bpy
-from bpy.props import BoolProperty, IntProperty, IntVectorProperty, PointerProperty, StringProperty
+from bpy.props import BoolProperty, FloatProperty, IntProperty, IntVectorProperty, PointerProperty, StringProperty
 
 from ..cubegi_engine.bake import MAX_CUBE_SIZE, MIN_CUBE_SIZE
 
@@ -19,6 +19,14 @@ class CubeGISceneSettings(bpy.types.PropertyGroup):
         name="Probe Visibility",
         description="Leave out, per vertex, the probes that cannot see it (stops light leaking through thin walls)",
         default=True,
+    )
+    tolerance: FloatProperty(
+        name="Tolerance",
+        description="Stop once the estimated missing share of the indirect light is below this; Bounces is the cap (0: run all bounces)",
+        default=0.0, min=0.0, max=0.5, subtype="FACTOR",
+    )
+    add_tail: BoolProperty(
+        name="Add Tail", description="Add the estimated light after the last bounce to CubeGI (the total)", default=True
     )
     last_report: StringProperty(name="Last Report", description="JSON report of the last bake", default="")
 

@@ -5,26 +5,57 @@ Cycles writes, with the colour pass off, the diffuse light a white surface refle
 the selection and active colour attributes are put back afterwards.
 """
 
+import time
+
 import bpy
 
 from . import attributes
 
-REF_NAMES = {"DIRECT": "CubeGI_ref_direct", "INDIRECT": "CubeGI_ref_indirect"}
+REF_NAMES = {"DIRECT": attributes.REF_DIRECT, "INDIRECT": attributes.REF_INDIRECT}
 _TMP = "CubeGI_ref_tmp"
+MIN_SAMPLES, MAX_SAMPLES = 1, 1 << 20
+# Cycles' defaults stop diffuse paths after 4 bounces, clamp bright indirect samples and
+# skip faint lights: each biases a reference. Paths run until Russian roulette ends them.
+_CYCLES_SETTINGS = {
+    "samples": 128,
+    "seed": 0,
+    "device": "CPU",
+    "max_bounces": 1024,
+    "diffuse_bounces": 1024,
+    "sample_clamp_direct": 0.0,
+    "sample_clamp_indirect": 0.0,
+    "light_sampling_threshold": 0.0,
+    "use_adaptive_sampling": False,
+    "use_denoising": False,
+}
+
+
+def reference_layers(context, targets, samples, seed=0):
+    """Cycles' direct and indirect diffuse light for each bake target, as attribute layers.
+
+    Returns ``(layers per target, seconds)``; writes nothing (the caller writes all of a
+    bake's layers at once).
+    """
+    if not MIN_SAMPLES <= int(samples) <= MAX_SAMPLES:
+        raise ValueError(f"reference samples must be between {MIN_SAMPLES} and {MAX_SAMPLES}, got {samples}")
+    objects = [bpy.data.objects[t.object_name] for t in targets]
+    t0 = time.perf_counter()
+    baked = bake_reference(context, objects, samples=int(samples), seed=seed)
+    seconds = time.perf_counter() - t0
+    layers = [{REF_NAMES[p]: baked[p][t.object_name] for p in baked} for t in targets]
+    return layers, seconds
 
 
 def bake_reference(context, meshes, passes=("DIRECT", "INDIRECT"), samples=128, seed=0):
-    """Bake Cycles' ``passes`` into ``CubeGI_ref_*`` POINT attributes of ``meshes``' objects.
+    """Bake Cycles' ``passes`` for the mesh objects ``meshes``, per vertex.
 
-    meshes: the mesh objects to bake. Returns ``{pass: {object name: (v, 3) array}}``.
+    Returns ``{pass: {object name: (v, 3) array}}``; the meshes keep no trace of it.
     """
     scene = context.scene
     view_layer = context.view_layer
     saved = {
         "engine": scene.render.engine,
-        "samples": scene.cycles.samples,
-        "seed": scene.cycles.seed,
-        "device": scene.cycles.device,
+        **{name: getattr(scene.cycles, name) for name in _CYCLES_SETTINGS},
         "use_pass_color": scene.render.bake.use_pass_color,
         "target": scene.render.bake.target,
         "selected": [o for o in view_layer.objects if o.select_get()],
@@ -34,9 +65,10 @@ def bake_reference(context, meshes, passes=("DIRECT", "INDIRECT"), samples=128, 
     out = {p: {} for p in passes}
     try:
         scene.render.engine = "CYCLES"
+        for name, value in _CYCLES_SETTINGS.items():
+            setattr(scene.cycles, name, value)
         scene.cycles.samples = samples
         scene.cycles.seed = seed
-        scene.cycles.device = "CPU"
         scene.render.bake.use_pass_color = False
         scene.render.bake.target = "VERTEX_COLORS"
         for o in view_layer.objects:
@@ -59,9 +91,8 @@ def bake_reference(context, meshes, passes=("DIRECT", "INDIRECT"), samples=128, 
             if name and name in o.data.color_attributes:
                 o.data.color_attributes.active_color = o.data.color_attributes[name]
         scene.render.engine = saved["engine"]
-        scene.cycles.samples = saved["samples"]
-        scene.cycles.seed = saved["seed"]
-        scene.cycles.device = saved["device"]
+        for name in _CYCLES_SETTINGS:
+            setattr(scene.cycles, name, saved[name])
         scene.render.bake.use_pass_color = saved["use_pass_color"]
         scene.render.bake.target = saved["target"]
         for o in view_layer.objects:

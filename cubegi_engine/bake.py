@@ -14,10 +14,12 @@ from typing import Protocol
 
 import numpy as np
 
-from . import cubemap, lights as lights_mod
+from . import convergence, cubemap, lights as lights_mod
 from .transport import Transport, capture_cubes, clip_planes
 
 MIN_CUBE_SIZE, MAX_CUBE_SIZE = 4, 512
+# A tail solve that ends with a larger relative residual than this is not trusted.
+SOLVE_GIVE_UP = 1e-2
 
 
 class Renderer(Protocol):
@@ -46,12 +48,19 @@ class BakeSettings:
     shadow_size: int = 512
     sun_shadow_size: int = 2048
     area_shadow_size: int = 128
+    # Stop once the estimated missing share of the indirect light is below this (None: run
+    # all ``bounces``); ``bounces`` stays the cap.
+    tolerance: float = None
+    add_tail: bool = True  # add the light after the last bounce (estimated) to the total
+    solve_tolerance: float = 1e-5
 
     def validate(self):
         if not MIN_CUBE_SIZE <= int(self.cube_size) <= MAX_CUBE_SIZE:
             raise ValueError(f"cube-map size must be between {MIN_CUBE_SIZE} and {MAX_CUBE_SIZE}, got {self.cube_size}")
         if int(self.bounces) < 0:
             raise ValueError(f"bounces must be 0 or more, got {self.bounces}")
+        if self.tolerance is not None and not 0.0 < float(self.tolerance) < 1.0:
+            raise ValueError(f"tolerance must be between 0 and 1 (a share of the light), got {self.tolerance}")
 
 
 @dataclass
@@ -73,12 +82,21 @@ class BakeResult:
     bounce_records: list = field(default_factory=list)
     grid: object = None
     probe_valid: np.ndarray = None
+    tail: np.ndarray = None  # (s, 3) light after the last bounce, when estimated
+    tail_report: dict = field(default_factory=dict)
 
     @property
-    def indirect(self):
+    def bounce_sum(self):
         if not self.bounces:
             return np.zeros_like(self.direct)
         return np.sum(self.bounces, axis=0)
+
+    @property
+    def indirect(self):
+        """The indirect light: the bounces, plus the tail when it is to be added."""
+        if self.tail is not None and self.tail_report.get("added"):
+            return self.bounce_sum + self.tail
+        return self.bounce_sum
 
 
 def area_weighted_mean(values, areas):
@@ -110,7 +128,7 @@ def direct_from_lights(scene, renderer, settings):
         else:
             cap = capture_cubes(renderer, light.position[None], settings.shadow_size, near, far)
             vis = lights_mod.shadow_visibility(
-                pts, nrm, light.position, cap.tid[0], cap.dist[0], cap.backface[0], scene.triangles, ids, scale
+                pts, nrm, light.position, cap.tid[0], cap.dist[0], cap.backface[0], scene.triangles, scene.points, ids, scale
             )
         value[lit] *= vis[:, None]
         out += value
@@ -127,7 +145,7 @@ def _sun_visibility(scene, renderer, settings, light, pts, nrm, ids):
     n = settings.sun_shadow_size
     tid, _, dist, back = renderer.render(vp[None], eye[None], axis[None], n)
     return lights_mod.ortho_visibility(
-        pts, nrm, vp, axis, eye, tid[0], dist[0], back[0], scene.triangles, ids, radius, scene.scale
+        pts, nrm, vp, axis, eye, tid[0], dist[0], back[0], scene.triangles, scene.points, ids, radius, scene.scale
     )
 
 
@@ -146,7 +164,8 @@ def _area_visibility(scene, renderer, settings, light, pts, nrm, ids, near, far)
         cos_l = np.maximum(0.0, -(rel @ light.direction)) / np.sqrt(np.maximum(d2, 1e-300))
         w = cos_r * cos_l / np.maximum(d2, 1e-300) + 1e-12
         vis = lights_mod.shadow_visibility(
-            pts, nrm, eye, cap.tid[k], cap.dist[k], cap.backface[k], scene.triangles, ids, scene.scale
+            pts, nrm, eye, cap.tid[k], cap.dist[k], cap.backface[k], scene.triangles, scene.points, ids, scene.scale,
+            reach=0,
         )
         num += w * vis
         den += w
@@ -186,10 +205,14 @@ def bake_steps(scene, grid, renderer, settings=None):
     yield Progress("direct", 2, total, "direct light done", light=direct)
 
     bounces, records = [], []
-    previous = direct
     albedo = scene.albedo.astype(np.float32)
     light_sum = direct.copy()
-    for b in range(1, settings.bounces + 1):
+    previous, previous_mean = direct, area_weighted_mean(direct, areas)
+    coeffs = None
+    indirect_mean = np.zeros(3)
+    remaining = 1.0 if np.any(direct > 0) else 0.0
+    cap = settings.bounces
+    for b in range(1, cap + 1):
         t0 = time.perf_counter()
         texels = transport.texel_radiance(albedo * previous)
         t1 = time.perf_counter()
@@ -198,6 +221,10 @@ def bake_steps(scene, grid, renderer, settings=None):
         light = transport.interpolate(coeffs).astype(np.float64)
         t3 = time.perf_counter()
         mean = area_weighted_mean(light, areas)
+        ratio = convergence.ratios(previous_mean, mean)
+        light_sum = light_sum + light
+        indirect_mean = indirect_mean + mean
+        remaining = convergence.remaining_share(indirect_mean, mean, ratio)
         records.append(
             {
                 "bounce": b,
@@ -207,16 +234,84 @@ def bake_steps(scene, grid, renderer, settings=None):
                 "interpolate_seconds": t3 - t2,
                 "mean_light": mean.tolist(),
                 "mean": float(mean.mean()),
+                "ratio": ratio.tolist(),
+                "ratio_mean": float(mean.sum() / previous_mean.sum()) if previous_mean.sum() > 0 else 0.0,
+                "estimated_remaining": remaining,
             }
         )
         bounces.append(light)
-        light_sum += light
-        previous = light
-        yield Progress("bounce", 2 + b, total, f"bounce {b}/{settings.bounces}: mean light {mean.mean():.4g}", light=light_sum)
+        previous, previous_mean = light, mean
+        yield Progress(
+            "bounce", 2 + b, total,
+            f"bounce {b}/{cap}: mean light {mean.mean():.4g}, x{records[-1]['ratio_mean']:.3f} of the bounce before, "
+            f"about {100 * remaining:.2g}% of the indirect light still missing",
+            light=light_sum,
+        )
+        if settings.tolerance is not None and remaining < settings.tolerance:
+            break
 
     timings["bounces"] = sum(r["seconds"] for r in records)
+    t = time.perf_counter()
+    tail = _tail(transport, albedo, coeffs, bounces, records, remaining, areas, settings)
+    timings["tail"] = time.perf_counter() - t
+    result = BakeResult(direct, bounces, timings, records, grid, transport.probe_valid, tail["light"], tail["report"])
+    if tail["report"]["added"]:
+        yield Progress(
+            "tail", total, total,
+            f"light after bounce {len(bounces)} {tail['report']['method']}: "
+            f"{100 * tail['report']['share_of_indirect']:.2g}% of the indirect light, added",
+            light=direct + result.indirect,
+        )
     timings["total"] = time.perf_counter() - t_start
-    return BakeResult(direct, bounces, timings, records, grid, transport.probe_valid)
+    return result
+
+
+def _tail(transport, albedo, last_coeffs, bounces, records, remaining, areas, settings):
+    """The light after the last bounce: estimated, solved for, or left out (see convergence)."""
+    report = {"estimated_remaining": remaining, "method": "none", "added": False, "warning": None}
+    if not bounces:
+        return {"light": None, "report": report}
+    ratio = np.asarray(records[-1]["ratio"])
+    last = bounces[-1]
+    if not convergence.converges(ratio):
+        report["warning"] = (
+            f"the bounces do not converge: each keeps {100 * float(ratio.max()):.2f}% of the light before "
+            f"(albedo 1 in a closed room?); stopped at {len(bounces)} bounces and no tail is added"
+        )
+        report["estimated_remaining"] = 1.0
+        return {"light": None, "report": report}
+    if remaining <= 0.0:
+        return {"light": None, "report": report}
+    if remaining <= convergence.GEOMETRIC_TAIL_LIMIT:
+        light = convergence.geometric_tail(last, ratio)
+        report["method"] = "geometric"
+    else:
+        light, iterations, residual = _solve_tail(transport, albedo, last_coeffs, settings.solve_tolerance)
+        report.update(method="solved", iterations=iterations, relative_residual=residual)
+        if not residual <= SOLVE_GIVE_UP:
+            report["warning"] = f"the tail solve stopped at relative residual {residual:.2g}; no tail is added"
+            return {"light": None, "report": report}
+    light = np.maximum(np.nan_to_num(light, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
+    report["mean_light"] = area_weighted_mean(light, areas).tolist()
+    indirect_mean = float(sum(r["mean"] for r in records))
+    tail_mean = float(np.mean(report["mean_light"]))
+    report["share_of_indirect"] = tail_mean / (indirect_mean + tail_mean) if indirect_mean + tail_mean > 0 else 0.0
+    report["added"] = bool(settings.add_tail)
+    return {"light": light, "report": report}
+
+
+def _solve_tail(transport, albedo, coeffs, tol):
+    """``sum_{k>N} T^k d`` from bounce N's probe coefficients, by GMRES on (I - M)."""
+    shape = coeffs.shape
+
+    def bounce(c):
+        light = transport.interpolate(c.reshape(shape).astype(np.float32), clamp=False)
+        return transport.project(transport.texel_radiance(albedo * light)).astype(np.float64).ravel()
+
+    first = bounce(coeffs.astype(np.float64).ravel())  # c_{N+1}
+    total, iterations, residual = convergence.gmres(lambda x: x - bounce(x), first, tol=tol)
+    light = transport.interpolate(total.reshape(shape).astype(np.float32), clamp=False)
+    return light.astype(np.float64), iterations, residual
 
 
 def run(steps, progress=None):

@@ -51,6 +51,13 @@ def _bake_options(p, demo=False):
     p.add_argument("--cube-size", type=int, default=32, help="cube-map face size in texels (default 32)")
     p.add_argument("--bounces", type=int, default=5, help="indirect bounces (default 5)")
     p.add_argument("--no-visibility", action="store_true", help="plain trilinear interpolation (lets light leak)")
+    p.add_argument(
+        "--tolerance", type=float,
+        help="stop once the estimated missing share of the indirect light is below this (e.g. 0.01); --bounces stays the cap",
+    )
+    p.add_argument("--no-tail", action="store_true", help="do not add the estimated light after the last bounce to CubeGI")
+    p.add_argument("--reference", choices=["cycles"], help="also bake a path-traced reference and report CubeGI's error against it")
+    p.add_argument("--reference-samples", type=int, default=256, help="Cycles samples for --reference (default 256)")
     if not demo:
         p.add_argument("--report", help="write the bake report (JSON) here")
         p.add_argument("--lit", action="store_true", help="also write CubeGI_lit (albedo x all light)")
@@ -65,6 +72,10 @@ def _check_bake_args(args):
         raise CliError(f"--cube-size must be between {MIN_CUBE_SIZE} and {MAX_CUBE_SIZE}, got {args.cube_size}")
     if args.bounces < 0:
         raise CliError(f"--bounces must be 0 or more, got {args.bounces}")
+    if args.tolerance is not None and not 0.0 < args.tolerance < 1.0:
+        raise CliError(f"--tolerance must be between 0 and 1 (a share of the light), got {args.tolerance}")
+    if args.reference and args.reference_samples < 1:
+        raise CliError(f"--reference-samples must be 1 or more, got {args.reference_samples}")
 
 
 def _check_io(args):
@@ -107,20 +118,28 @@ def _print_progress(step):
     print(f"cubegi: [{step.done}/{step.total}] {step.message}", flush=True)
 
 
-def bake_open_file(settings, resolution, lit=False, progress=_print_progress):
+def bake_open_file(settings, resolution, lit=False, reference_samples=None, progress=_print_progress):
     """Bake the file open in bpy with the extension loaded; returns the report."""
     import bpy
 
     from .bake import run
 
     ext = load_extension()
-    return run(ext.cubegi_addon.pipeline.bake_steps(bpy.context, settings, resolution, lit=lit), progress)
+    steps = ext.cubegi_addon.pipeline.bake_steps(bpy.context, settings, resolution, lit=lit, reference_samples=reference_samples)
+    return run(steps, progress)
 
 
 def _settings(args):
     from .bake import BakeSettings
 
-    return BakeSettings(cube_size=args.cube_size, bounces=args.bounces, visibility=not args.no_visibility)
+    return BakeSettings(
+        cube_size=args.cube_size, bounces=args.bounces, visibility=not args.no_visibility,
+        tolerance=args.tolerance, add_tail=not args.no_tail,
+    )
+
+
+def _reference_samples(args):
+    return args.reference_samples if args.reference else None
 
 
 def cmd_bake(args):
@@ -130,7 +149,9 @@ def cmd_bake(args):
 
     load_extension()
     bpy.ops.wm.open_mainfile(filepath=src, load_ui=False)
-    report = bake_open_file(_settings(args), tuple(args.grid) if args.grid else None, lit=args.lit)
+    report = bake_open_file(
+        _settings(args), tuple(args.grid) if args.grid else None, lit=args.lit, reference_samples=_reference_samples(args)
+    )
     report["input"], report["output"] = src, dst
     save_atomically(bpy, dst)
     if args.report:
@@ -138,14 +159,40 @@ def cmd_bake(args):
     _summary(report)
 
 
+def summary_lines(report):
+    """The report in a few lines of text (the CLI prints them; the add-on shows them)."""
+    tail = report["tail"]
+    lines = [
+        f"baked {len(report['scene']['meshes_baked'])} meshes, {report['grid']['probes']} probes, "
+        f"{len(report['bounces'])} bounces in {report['total_seconds']:.3f} s"
+    ]
+    for rec in report["bounces"]:
+        lines.append(
+            f"  bounce {rec['bounce']}: {rec['seconds'] * 1e3:.1f} ms, mean light {rec['mean']:.4g}, "
+            f"x{rec['ratio_mean']:.3f} of the one before"
+        )
+    missing = f"estimated missing indirect light after bounce {len(report['bounces'])}: {100 * report['estimated_remaining_error']:.3g}%"
+    if tail.get("added"):
+        missing += f" ({tail['method']}, added to CubeGI)"
+    elif tail.get("method", "none") != "none":
+        missing += " (not added)"
+    lines.append(missing)
+    ref = report.get("reference")
+    if ref:
+        lines.append(f"Cycles reference, {ref['samples']} samples: {ref['seconds']:.2f} s against CubeGI's {ref['cubegi_seconds']:.2f} s")
+        for part in ("direct", "indirect", "total"):
+            e = ref["errors"][part]
+            lines.append(
+                f"  {part:8s} rel. RMSE {100 * e['rel_rmse']:6.2f}%  bias {100 * e['rel_bias']:+6.2f}%  p95 {100 * e['p95_rel']:6.2f}%"
+            )
+    lines += [f"warning: {w}" for w in report.get("warnings", [])]
+    lines += [f"note: {n}" for n in report["scene"]["notes"]]
+    return lines
+
+
 def _summary(report):
-    print(
-        f"cubegi: baked {len(report['scene']['meshes_baked'])} meshes, {report['grid']['probes']} probes, "
-        f"{len(report['bounces'])} bounces in {report['total_seconds']:.3f} s",
-        flush=True,
-    )
-    for note in report["scene"]["notes"]:
-        print(f"cubegi: note: {note}", flush=True)
+    for line in summary_lines(report):
+        print(f"cubegi: {line}", flush=True)
 
 
 def cmd_demo(args):
@@ -157,7 +204,7 @@ def cmd_demo(args):
     demo = importlib.import_module(f"{PACKAGE}.cubegi_addon.demo")
     demo.build_room()
     resolution = tuple(args.grid) if args.grid else None
-    report = bake_open_file(_settings(args), resolution, lit=True)
+    report = bake_open_file(_settings(args), resolution, lit=True, reference_samples=_reference_samples(args))
     blend = os.path.join(args.out, "room.blend")
     save_atomically(bpy, blend)
     ext.cubegi_addon.pipeline.write_report(report, os.path.join(args.out, "report.json"))

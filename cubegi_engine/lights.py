@@ -162,62 +162,111 @@ def unshadowed(light, points, normals):
     raise ValueError(f"unknown light kind {light.kind!r}")
 
 
-def shadow_visibility(points, normals, eye, face_tid, face_dist, face_back, triangles, point_ids, scale):
+def shadow_visibility(points, normals, eye, face_tid, face_dist, face_back, triangles, vertices, point_ids, scale, reach=1):
     """Whether each receiver sees ``eye``, from a depth cube map rendered at ``eye``.
 
     points, normals: ``(s, 3)``; face_tid: ``(6, n, n)`` triangle index seen per texel (-1:
     nothing); face_dist: ``(6, n, n)`` distance to it; face_back: ``(6, n, n)`` the texel
-    sees a back face; triangles: ``(t, 3)`` point indices;
-    point_ids: ``(s,)`` index of each receiver in the point arrays; scale: scene size.
+    sees a back face; triangles: ``(t, 3)`` indices into vertices ``(v, 3)``; point_ids:
+    ``(s,)`` index of each receiver in the point arrays; scale: scene size; reach: how many
+    texels around the receiver's own are asked (0: its own only).
 
-    A receiver is lit if the texel in its direction sees one of its own triangles, or if it
-    is no farther than the recorded depth plus a bias of one texel footprint (larger at
-    grazing angles) and 1e-4 of the scene size. The receiver is first lifted off its
-    surface by one texel footprint. Returns ``(s,)`` float64 in {0, 1}.
+    The receiver is lifted off its surface by a quarter of a texel's footprint and looked up
+    in the map (see :func:`_occluded`). Returns ``(s,)`` float64 in {0, 1}.
     """
     n = face_dist.shape[-1]
     rel = points - eye
     d = np.linalg.norm(rel, axis=1)
     footprint = d * (2.0 / n)
-    lifted = points + normals * footprint[:, None]
+    lifted = points + normals * (LIFT * footprint)[:, None]
     rel2 = lifted - eye
     d2 = np.linalg.norm(rel2, axis=1)
+    u = rel2 / np.maximum(d2, 1e-300)[:, None]
     face, row, col, _, _ = cubemap.direction_to_texel(np.where(d2[:, None] > 0, rel2, 1.0), n)
-    seen = face_dist[face, row, col]
-    tid = face_tid[face, row, col]
-    back = face_back[face, row, col]
     cos = np.abs(np.einsum("sc,sc->s", normals, rel / np.maximum(d, 1e-300)[:, None]))
-    return _depth_test(d2, d, seen, tid, back, cos, footprint, triangles, point_ids, scale).astype(np.float64)
+    maps = (face_tid, face_dist, face_back)
+    occluded = _occluded(maps, face, row, col, eye[None, :], u, d2, cos, footprint, triangles, vertices, point_ids, scale, reach)
+    return (~occluded).astype(np.float64)
 
 
-def _depth_test(depth, plain_depth, seen, tid, back, cos, footprint, triangles, point_ids, scale):
-    # Lit if nearer than the recorded surface plus a slope-scaled bias (which keeps a
-    # surface from shadowing itself), or if the texel records one of the receiver's own
-    # triangles. A receiver the light reaches faces it, so a texel that sees a surface from
-    # behind sees another surface; at the receiver's depth that surface touches it (a
-    # wall's edge under a ceiling) and shadows it, as it does a ray leaving that point.
-    bias = footprint / np.maximum(cos, 0.2) + 1e-4 * scale
-    own = (tid >= 0) & np.any(triangles[np.maximum(tid, 0)] == point_ids[:, None], axis=1)
-    front_lit = ~back & (depth <= seen + bias)
-    back_lit = back & (plain_depth < seen - 0.5 * footprint)
-    return front_lit | back_lit | own
+# How far (in texel footprints at the receiver) a receiver is lifted along its normal
+# before its shadow-map lookup: enough to step off its own curved surface, well below the
+# gap under a rug.
+LIFT = 0.25
 
 
-def ortho_visibility(points, normals, view_proj, axis, eye, tid_map, dist_map, back_map, triangles, point_ids, half_width, scale):
+def _plane_depth(origins, u, tid, triangles, vertices):
+    """Distance along rays ``origins + t u`` to the plane of triangle ``tid`` (nan where there
+    is none or the ray grazes the plane). Arrays broadcast over a trailing neighbour axis."""
+    ok = tid >= 0
+    tri = triangles[np.maximum(tid, 0)]
+    a = vertices[tri[..., 0]]
+    nrm = np.cross(vertices[tri[..., 1]] - a, vertices[tri[..., 2]] - a)
+    denom = np.einsum("...c,...c->...", u, nrm)
+    num = np.einsum("...c,...c->...", a - origins, nrm)
+    ok &= np.abs(denom) > 1e-3 * np.linalg.norm(nrm, axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = num / np.where(ok, denom, 1.0)
+    return np.where(ok, t, np.nan)
+
+
+def _occluded(maps, face, row, col, origins, u, depth, cos, footprint, triangles, vertices, point_ids, scale, reach=1):
+    """Whether something lies between the light and each (lifted) receiver.
+
+    The map says which triangles lie towards the light in the receiver's texel and its
+    neighbours within ``reach`` texels (on the same face); each one's depth is its plane intersected with the
+    receiver's exact ray, not the texel's depth. So an occluder closer to the receiver than
+    a texel's footprint (a rug on a floor) still shadows it, and a receiver on the line
+    where two surfaces meet is decided by the surface's plane, not by which side of a
+    texel edge it falls. A triangle of the receiver's own never shadows it.
+
+    * A front face in the receiver's own texel shadows it if its plane is nearer along the
+      ray by more than a small slope-scaled bias (which keeps a curved surface from
+      shadowing itself) and the texel's depth is not clearly behind the receiver. (Front
+      faces in the neighbouring texels are not asked: they would widen every shadow.)
+    * A back face: a receiver the light reaches faces it, so a texel that sees a surface
+      from behind sees another surface; up to the receiver's depth that surface shadows it
+      (a wall's edge under a ceiling, a floor's edge under a wall the light is behind), as
+      it does a ray leaving that point.
+    """
+    tid_map, dist_map, back_map = maps
+    n = dist_map.shape[-1]
+    steps = range(-reach, reach + 1)
+    offsets = np.array([(dr, dc) for dr in steps for dc in steps])
+    r = np.clip(row[:, None] + offsets[None, :, 0], 0, n - 1)
+    c = np.clip(col[:, None] + offsets[None, :, 1], 0, n - 1)
+    f = np.broadcast_to(face[:, None], r.shape) if np.ndim(face) else face
+    tid = tid_map[f, r, c]
+    seen = dist_map[f, r, c].astype(np.float64)
+    back = back_map[f, r, c]
+    plane = _plane_depth(origins[:, None, :], u[:, None, :] if u.ndim == 2 else u, tid, triangles, vertices)
+    own = np.any(triangles[np.maximum(tid, 0)] == point_ids[:, None, None], axis=2)
+    depth = depth[:, None]
+    bias = (0.1 * footprint / np.maximum(cos, 0.2) + 1e-5 * scale)[:, None]
+    slope = (footprint / np.maximum(cos, 0.2) + 1e-4 * scale)[:, None]
+    nearer = np.where(np.isnan(plane), seen, plane)
+    centre = np.all(offsets == 0, axis=1)[None, :]
+    front_occ = centre & ~back & (nearer < depth - bias) & (seen < depth + slope)
+    back_occ = back & (nearer < depth + bias)
+    return np.any((tid >= 0) & ~own & (front_occ | back_occ), axis=1)
+
+
+def ortho_visibility(
+    points, normals, view_proj, axis, eye, tid_map, dist_map, back_map, triangles, vertices, point_ids, half_width, scale
+):
     """Like :func:`shadow_visibility` for a sun: one orthographic depth map along ``axis``."""
     n = dist_map.shape[-1]
-    footprint = 2.0 * half_width / n
-    lifted = points + normals * footprint
+    footprint = np.full(len(points), 2.0 * half_width / n)
+    lifted = points + normals * (LIFT * footprint)[:, None]
     clip = np.concatenate([lifted, np.ones((len(points), 1))], axis=1) @ view_proj.T
     ndc = clip[:, :2] / clip[:, 3:4]
     col = np.clip(((ndc[:, 0] + 1.0) * 0.5 * n).astype(np.int64), 0, n - 1)
     row = np.clip(((ndc[:, 1] + 1.0) * 0.5 * n).astype(np.int64), 0, n - 1)
     depth = (lifted - eye) @ axis
-    seen = dist_map[row, col]
-    tid = tid_map[row, col]
-    back = back_map[row, col]
     cos = np.abs(normals @ axis)
     inside = (np.abs(ndc) <= 1.0).all(axis=1)
-    plain = (points - eye) @ axis
-    lit = _depth_test(depth, plain, seen, tid, back, cos, footprint, triangles, point_ids, scale)
-    return (lit | ~inside).astype(np.float64)
+    origins = lifted - depth[:, None] * axis
+    u = np.broadcast_to(axis, (len(points), 1, 3))
+    maps = (tid_map[None], dist_map[None], back_map[None])
+    occluded = _occluded(maps, 0, row, col, origins, u, depth, cos, footprint, triangles, vertices, point_ids, scale)
+    return (~occluded | ~inside).astype(np.float64)

@@ -43,3 +43,12 @@ def errors(estimate, reference, areas):
         "p95_rel": _weighted_quantile(rel, a, 0.95),
         "reference_mean": float(mean_r),
     }
+
+
+def compare(direct, indirect, ref_direct, ref_indirect, areas):
+    """:func:`errors` of the direct, indirect and total (direct + indirect) light."""
+    return {
+        "direct": errors(direct, ref_direct, areas),
+        "indirect": errors(indirect, ref_indirect, areas),
+        "total": errors(np.asarray(direct) + np.asarray(indirect), np.asarray(ref_direct) + np.asarray(ref_indirect), areas),
+    }

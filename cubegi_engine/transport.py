@@ -151,15 +151,15 @@ class Transport:
             c = c + self.sky_projection[:, :, None] * np.asarray(sky, dtype=np.float32)[None, None, :]
         return c
 
-    def interpolate(self, coeffs):
+    def interpolate(self, coeffs, clamp=True):
         """Diffuse light ``(s, 3)`` at every point from probe coefficients ``(p, 9, 3)``.
 
         Low-order SH can ring below zero next to a small bright source; light is never
-        negative, so the result is clamped at zero.
+        negative, so the result is clamped at zero (``clamp=False`` keeps the map linear).
         """
         g = coeffs[self.index].reshape(len(self.index), 72, 3)
         out = np.einsum("sk,skc->sc", self.point_weights, g, optimize=True)
-        return np.maximum(out, 0.0)
+        return np.maximum(out, 0.0) if clamp else out
 
     def gather_light(self, radiance, sky=None):
         """One full transport step: point radiance (and sky) to diffuse light at the points."""

@@ -38,7 +38,7 @@ def test_cli_bakes_a_saved_file(saved_scene, tmp_path, cubegi):
     src, counts = saved_scene
     before = src.read_bytes()
     out, report = tmp_path / "out.blend", tmp_path / "report.json"
-    r = _cli("bake", str(src), "-o", str(out), "--grid", "3", "3", "2", "--bounces", "3", "--report", str(report))
+    r = _cli("bake", str(src), "-o", str(out), "--grid", "3", "3", "2", "--bounces", "3", "--no-tail", "--report", str(report))
     assert r.returncode == 0, r.stderr
     assert "bounce 3/3" in r.stdout
     assert src.read_bytes() == before  # the input is never written
@@ -78,6 +78,45 @@ def test_cli_rebake_replaces_only_its_own_attributes(saved_scene, tmp_path):
     assert "CubeGI_bounce_2" not in names and "CubeGI_bounce_3" not in names
 
 
+def test_cli_reference_writes_its_attributes_and_errors(saved_scene, tmp_path, cubegi):
+    import json
+
+    src, counts = saved_scene
+    out, report = tmp_path / "out.blend", tmp_path / "report.json"
+    r = _cli(
+        "bake", str(src), "-o", str(out), "--grid", "3", "3", "2", "--tolerance", "0.05", "--bounces", "20",
+        "--reference", "cycles", "--reference-samples", "16", "--report", str(report),
+    )
+    assert r.returncode == 0, r.stderr
+    rep = json.loads(report.read_text())
+    # Stopped by the tolerance before the cap, and says how much was missing.
+    assert len(rep["bounces"]) < 20 and rep["estimated_remaining_error"] < 0.05
+    assert "estimated missing indirect light" in r.stdout and "Cycles reference, 16 samples" in r.stdout
+    ref = rep["reference"]
+    assert ref["samples"] == 16 and ref["seconds"] > 0 and ref["cubegi_seconds"] > 0
+    for part in ("direct", "indirect", "total"):
+        e = ref["errors"][part]
+        assert set(e) == {"rel_rmse", "rel_bias", "p95_rel", "reference_mean"}
+        assert e["reference_mean"] > 0 and np.isfinite(list(e.values())).all()
+    # Direct light is the part CubeGI computes exactly but for shadow edges: within 10% at
+    # 16 samples (measured 3-4%); a broken comparison (wrong vertex order) is off by 50%+.
+    assert abs(ref["errors"]["direct"]["rel_bias"]) < 0.1 and ref["errors"]["direct"]["rel_rmse"] < 0.25
+
+    bpy.ops.wm.open_mainfile(filepath=str(out))
+    attributes = cubegi.cubegi_addon.attributes
+    for ob_name, count in counts.items():
+        mesh = bpy.data.objects[ob_name].data
+        for name in ("CubeGI_ref_direct", "CubeGI_ref_indirect"):
+            attr = mesh.attributes[name]
+            assert attr.data_type == "FLOAT_COLOR" and attr.domain == "POINT" and len(attr.data) == count
+        assert "CubeGI_ref_tmp" not in mesh.attributes
+    # A bake without a reference keeps the reference attributes.
+    again = tmp_path / "again.blend"
+    assert _cli("bake", str(out), "-o", str(again), "--grid", "2", "2", "2", "--bounces", "1").returncode == 0
+    bpy.ops.wm.open_mainfile(filepath=str(again))
+    assert "CubeGI_ref_indirect" in bpy.data.objects["Room"].data.attributes
+
+
 @pytest.mark.parametrize(
     "args,needle",
     [
@@ -88,6 +127,9 @@ def test_cli_rebake_replaces_only_its_own_attributes(saved_scene, tmp_path):
         (["bake", "{src}", "-o", "{tmp}/o.blend", "--grid", "0", "2", "2"], "--grid"),
         (["bake", "{src}", "-o", "{tmp}/o.blend", "--cube-size", "2"], "--cube-size"),
         (["bake", "{src}", "-o", "{tmp}/o.blend", "--bounces", "-1"], "--bounces"),
+        (["bake", "{src}", "-o", "{tmp}/o.blend", "--tolerance", "0"], "--tolerance"),
+        (["bake", "{src}", "-o", "{tmp}/o.blend", "--tolerance", "1.5"], "--tolerance"),
+        (["bake", "{src}", "-o", "{tmp}/o.blend", "--reference", "cycles", "--reference-samples", "0"], "--reference-samples"),
     ],
 )
 def test_cli_bad_input_is_one_line_and_writes_nothing(saved_scene, tmp_path, args, needle):

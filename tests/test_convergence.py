@@ -1,0 +1,77 @@
+"""Convergence estimates and error measures against hand-computed values (pure numpy)."""
+
+import numpy as np
+import pytest
+
+from cubegi_engine import convergence, metrics
+
+
+def test_ratios_per_channel_and_zero_safe():
+    r = convergence.ratios([2.0, 0.0, 4.0], [1.0, 0.0, 3.0])
+    np.testing.assert_allclose(r, [0.5, 0.0, 0.75])
+
+
+def test_remaining_share_of_a_geometric_series_is_exact():
+    # Bounces a r^k, k = 1..n: computed sum a r (1 - r^n) / (1 - r), rest a r^(n+1) / (1 - r),
+    # so the missing share of the whole (a r / (1 - r)) is r^n.
+    a, n = 2.0, 4
+    r = np.array([0.3, 0.6, 0.9])
+    bounces = [a * r**k for k in range(1, n + 1)]
+    share = convergence.remaining_share(np.sum(bounces, axis=0), bounces[-1], r)
+    rest = a * r ** (n + 1) / (1 - r)
+    whole = a * r / (1 - r)
+    assert share == pytest.approx(rest.sum() / whole.sum(), rel=1e-12)
+    tail = convergence.geometric_tail(np.tile(bounces[-1], (5, 1)), r)
+    np.testing.assert_allclose(tail, np.tile(rest, (5, 1)), rtol=1e-12)
+
+
+def test_divergent_series_reports_everything_missing_and_adds_nothing():
+    r = np.array([0.5, 1.0, 1.2])
+    assert not convergence.converges(r)
+    assert convergence.remaining_share([1.0, 1.0, 1.0], [0.1, 0.1, 0.1], r) == 1.0
+    tail = convergence.geometric_tail(np.ones((2, 3)), r)
+    np.testing.assert_allclose(tail, [[1.0, 0.0, 0.0]] * 2)
+
+
+def test_no_light_means_nothing_missing():
+    assert convergence.remaining_share(np.zeros(3), np.zeros(3), np.zeros(3)) == 0.0
+
+
+def test_gmres_solves_a_neumann_system():
+    # (I - M) x = b with M of spectral radius 0.99: the sum of all powers of M applied to b.
+    rng = np.random.default_rng(1)
+    q, _ = np.linalg.qr(rng.normal(size=(40, 40)))
+    m = q @ np.diag(np.linspace(0.99, -0.2, 40)) @ q.T
+    b = rng.normal(size=40)
+    x, iterations, residual = convergence.gmres(lambda v: v - m @ v, b, tol=1e-10, max_iter=40)
+    np.testing.assert_allclose(x, np.linalg.solve(np.eye(40) - m, b), rtol=1e-7, atol=1e-9)
+    assert residual <= 1e-10 and iterations <= 40
+    assert convergence.gmres(lambda v: v, np.zeros(3))[0].tolist() == [0.0, 0.0, 0.0]
+
+
+def test_error_measures_by_hand():
+    # Grey values; areas 1, 1, 2. Reference mean (1 + 2 + 2*4) / 4 = 2.75.
+    ref = np.array([1.0, 2.0, 4.0])
+    est = np.array([2.0, 2.0, 3.0])
+    areas = np.array([1.0, 1.0, 2.0])
+    e = metrics.errors(est[:, None].repeat(3, 1), ref[:, None].repeat(3, 1), areas)
+    assert e["reference_mean"] == pytest.approx(2.75)
+    # Squared errors 1, 0, 1 weighted 1, 1, 2: 3 / 4.
+    assert e["rel_rmse"] == pytest.approx(np.sqrt(0.75) / 2.75)
+    # Estimate mean (2 + 2 + 6) / 4 = 2.5: bias -0.25 / 2.75.
+    assert e["rel_bias"] == pytest.approx(-0.25 / 2.75)
+    # |relative errors| 1.0, 0.0, 0.25 with weights 1, 1, 2 (sorted 0, 0.25, 1.0; cumulative
+    # 1, 3, 4): the 95th percentile of weight 3.8 falls on 1.0.
+    assert e["p95_rel"] == pytest.approx(1.0)
+    # Channels are averaged first.
+    rgb = metrics.errors(np.array([[1.0, 2.0, 3.0]]), np.array([[2.0, 2.0, 2.0]]), np.ones(1))
+    assert rgb["rel_rmse"] == 0.0 and rgb["rel_bias"] == 0.0
+
+
+def test_compare_adds_direct_and_indirect_for_the_total():
+    areas = np.ones(2)
+    c = metrics.compare(np.array([1.0, 1.0]), np.array([1.0, 3.0]), np.array([1.0, 1.0]), np.array([1.0, 1.0]), areas)
+    assert c["direct"]["rel_rmse"] == 0.0
+    assert c["indirect"]["rel_bias"] == pytest.approx(1.0)  # (4 - 2) / 2
+    assert c["total"]["rel_bias"] == pytest.approx(0.5)  # (6 - 4) / 4
+    assert metrics.errors(np.ones(3), np.zeros(3), np.ones(3))["rel_rmse"] == 0.0

@@ -40,7 +40,7 @@ def reference_layers(context, targets, samples, seed=0):
         raise ValueError(f"reference samples must be between {MIN_SAMPLES} and {MAX_SAMPLES}, got {samples}")
     objects = [bpy.data.objects[t.object_name] for t in targets]
     t0 = time.perf_counter()
-    baked = bake_reference(context, objects, samples=int(samples), seed=seed)
+    baked, _ = bake_reference(context, objects, samples=int(samples), seed=seed)
     seconds = time.perf_counter() - t0
     layers = [{REF_NAMES[p]: baked[p][t.object_name] for p in baked} for t in targets]
     return layers, seconds
@@ -49,7 +49,8 @@ def reference_layers(context, targets, samples, seed=0):
 def bake_reference(context, meshes, passes=("DIRECT", "INDIRECT"), samples=128, seed=0):
     """Bake Cycles' ``passes`` for the mesh objects ``meshes``, per vertex.
 
-    Returns ``{pass: {object name: (v, 3) array}}``; the meshes keep no trace of it.
+    Returns ``({pass: {object name: (v, 3) array}}, {pass: seconds})``; the meshes keep no
+    trace of it.
     """
     scene = context.scene
     view_layer = context.view_layer
@@ -63,6 +64,7 @@ def bake_reference(context, meshes, passes=("DIRECT", "INDIRECT"), samples=128, 
         "active_colour": {o.name: o.data.color_attributes.active_color_name for o in meshes},
     }
     out = {p: {} for p in passes}
+    seconds = {}
     try:
         scene.render.engine = "CYCLES"
         for name, value in _CYCLES_SETTINGS.items():
@@ -79,7 +81,9 @@ def bake_reference(context, meshes, passes=("DIRECT", "INDIRECT"), samples=128, 
             o.select_set(True)
         view_layer.objects.active = meshes[0]
         for p in passes:
+            t = time.perf_counter()
             bpy.ops.object.bake(type="DIFFUSE", pass_filter={p}, target="VERTEX_COLORS", use_clear=True)
+            seconds[p] = time.perf_counter() - t
             for o in meshes:
                 out[p][o.name] = attributes.read(o.data, _TMP)
     finally:
@@ -98,4 +102,4 @@ def bake_reference(context, meshes, passes=("DIRECT", "INDIRECT"), samples=128, 
         for o in view_layer.objects:
             o.select_set(o in saved["selected"])
         view_layer.objects.active = saved["active"]
-    return out
+    return out, seconds

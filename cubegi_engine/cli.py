@@ -1,4 +1,5 @@
-"""Command line: ``python -m cubegi_engine bake IN.blend -o OUT.blend ...`` and ``demo``.
+"""Command line: ``python -m cubegi_engine bake IN.blend -o OUT.blend ...``, ``demo`` and
+``benchmark``.
 
 Argument checks run before bpy is imported, so bad input fails fast with one line. The bake
 itself runs the add-on's operator code inside the ``bpy`` module.
@@ -43,6 +44,10 @@ def _parser():
     d.add_argument("--out", default="out/demo", help="folder for room.blend, room.png and report.json")
     d.add_argument("--no-render", action="store_true", help="skip the PNG")
     _bake_options(d, demo=True)
+    m = sub.add_parser("benchmark", help="measure CubeGI's error against run time, and Cycles' (writes results.json/.md and a plot)")
+    m.add_argument("--out", default="out/benchmark", help="folder for the results (and the cached Cycles references)")
+    m.add_argument("--quick", action="store_true", help="a small sweep that runs in a few minutes (a smoke test)")
+    m.add_argument("--scenes", nargs="+", help="only these scenes (default: all)")
     return p
 
 
@@ -216,10 +221,20 @@ def cmd_demo(args):
         print(f"cubegi: wrote {png}")
 
 
+def cmd_benchmark(args):
+    os.makedirs(args.out, exist_ok=True)
+    if not os.access(args.out, os.W_OK):
+        raise CliError(f"output folder is not writable: {args.out}")
+    load_extension()
+    bench = importlib.import_module(f"{PACKAGE}.cubegi_addon.benchmark")
+    bench.run(args.out, quick=args.quick, scenes=args.scenes, log=lambda m: print(f"cubegi: {m}", flush=True))
+    print(f"cubegi: wrote {', '.join(os.path.join(args.out, f) for f in ('results.json', 'results.md', 'error_vs_time.png'))}")
+
+
 def main(argv=None):
     args = _parser().parse_args(argv)
     try:
-        {"bake": cmd_bake, "demo": cmd_demo}[args.command](args)
+        {"bake": cmd_bake, "demo": cmd_demo, "benchmark": cmd_benchmark}[args.command](args)
     except CliError as exc:
         print(f"cubegi: error: {exc}", file=sys.stderr)
         return 2

@@ -1,7 +1,7 @@
 """CubeGI against Cycles, baked inside the test, on a small Cornell-box-like scene.
 
-The box is 2 m on a side, open at the front (-Y), with a red left and a green right wall and
-two blocks standing a little above the floor. Lights sit off the 0.1 m lattice of the
+The box (``bench_scenes.cornell``) is 2 m on a side, open at the front (-Y), with a red left
+and a green right wall and two blocks standing a little above the floor. Lights sit off the 0.1 m lattice of the
 geometry: a shadow boundary that passes exactly through a row of vertices (or a sun exactly
 edge-on to a wall) makes those vertices a coin toss for any method. Cycles bakes the same vertices' DIRECT and
 INDIRECT diffuse light (colour pass off) with a fixed seed.
@@ -39,26 +39,8 @@ INDIRECT_RMSE_TOL = 0.30
 
 
 def cornell_box():
-    white = scenes.material("White", (0.75, 0.75, 0.75))
-    red = scenes.material("Red", (0.65, 0.06, 0.05))
-    green = scenes.material("Green", (0.12, 0.45, 0.09))
-    n = 10
-    pieces = [
-        ("Floor", (-1, -1, 0), (2, 0, 0), (0, 2, 0), white),
-        ("Ceiling", (-1, -1, 2), (0, 2, 0), (2, 0, 0), white),
-        ("Back", (-1, 1, 0), (2, 0, 0), (0, 0, 2), white),
-        ("Left", (-1, -1, 0), (0, 2, 0), (0, 0, 2), red),
-        ("Right", (1, -1, 0), (0, 0, 2), (0, 2, 0), green),
-    ]
-    obs = []
-    for name, o, u, v, mat in pieces:
-        verts, faces = scenes.grid_patch(o, u, v, n, n)
-        obs.append(scenes.mesh_object(name, verts, faces, mat))
-    for name, lo, hi in (("Tall", (-0.67, 0.03, 0.02), (-0.13, 0.57, 1.17)), ("Short", (0.17, -0.57, 0.02), (0.73, -0.03, 0.57))):
-        verts, faces = scenes.box_mesh(lo, hi, (3, 3, 3), inward=False)
-        obs.append(scenes.mesh_object(name, verts, faces, white))
-    scenes.set_world((0.0, 0.0, 0.0))
-    return obs
+    scenes.cornell(light=False)
+    return [ob for ob in bpy.context.scene.objects if ob.type == "MESH"]
 
 
 LIGHTS = {
@@ -80,7 +62,7 @@ def _bake_both(cubegi, obs, passes, samples):
     scene_data = cubegi.cubegi_addon.scene_data
     attributes = cubegi.cubegi_addon.attributes
     assert bpy.ops.cubegi.bake(bounces=4, grid=(4, 4, 4), cube_size=32) == {"FINISHED"}
-    ref = reference.bake_reference(bpy.context, obs, passes=passes, samples=samples)
+    ref, _ = reference.bake_reference(bpy.context, obs, passes=passes, samples=samples)
     areas = np.concatenate([scene_data.vertex_areas(o) for o in obs])
     ours = {
         "DIRECT": np.concatenate([attributes.read(o.data, "CubeGI_direct") for o in obs]),
@@ -104,8 +86,8 @@ def test_direct_light_matches_cycles(empty_scene, cubegi, light):
 
 
 def test_indirect_light_matches_cycles(empty_scene, cubegi):
-    obs = cornell_box()
-    scenes.add_light("AREA", (0, 0, 1.98), 80.0, shape="SQUARE", size=0.6)
+    scenes.cornell(light=True)
+    obs = [ob for ob in bpy.context.scene.objects if ob.type == "MESH"]
     err = _bake_both(cubegi, obs, ("DIRECT", "INDIRECT"), samples=256)
     print(err)
     assert abs(err["INDIRECT"]["rel_bias"]) < INDIRECT_BIAS_TOL, err

@@ -1,0 +1,173 @@
+"""The benchmark: CubeGI's error against run time, and Cycles' curve on the same machine.
+
+For each scene: a high-sample Cycles reference (cached on disk, the samples in the file
+name), then CubeGI over grid spacing x cube-map size x bounces, then Cycles vertex bakes at
+increasing samples. Every run is scored against the reference with the same measures
+(:mod:`cubegi_engine.metrics`); :mod:`cubegi_engine.benchmark` analyses the records.
+"""
+
+import itertools
+import json
+import os
+import platform
+import time
+
+import bpy
+import numpy as np
+
+from ..cubegi_engine import __version__, benchmark as analysis, metrics
+from ..cubegi_engine.grid import fit_bounds
+from . import attributes, bench_scenes, demo, reference, scene_data
+
+SCENES = {
+    "room": demo.build_room,
+    "cornell": bench_scenes.cornell,
+    "courtyard": bench_scenes.courtyard,
+    "white_box_0.95": bench_scenes.white_box,
+    "thin_wall": bench_scenes.thin_wall,
+}
+
+# Grid spacing is given as cells along the scene's longest side.
+FULL = {
+    "cells_along_longest": (4, 8, 12),
+    "cube_sizes": (16, 32, 64),
+    "bounces": ((2, False), (5, True)),
+    "cycles_samples": (1, 4, 16, 64, 256),
+    "reference_samples": 1024,
+}
+QUICK = {
+    "cells_along_longest": (6,),
+    "cube_sizes": (16,),
+    "bounces": ((5, True),),
+    "cycles_samples": (1, 4),
+    "reference_samples": 16,
+}
+
+
+def _meshes():
+    return sorted((ob for ob in bpy.context.scene.objects if ob.type == "MESH"), key=lambda ob: ob.name)
+
+
+def _bounds(objects):
+    pts = []
+    for ob in objects:
+        m = np.array(ob.matrix_world)
+        pts.append((np.array([list(c) + [1.0] for c in ob.bound_box]) @ m.T)[:, :3])
+    pts = np.concatenate(pts)
+    return pts.min(axis=0), pts.max(axis=0)
+
+
+def _stack(objects, values_by_name):
+    return np.concatenate([values_by_name[ob.name] for ob in objects])
+
+
+def cached_reference(cache_dir, scene_name, samples, objects, log=print):
+    """The scene's Cycles reference ``{"direct", "indirect"}`` per vertex (stacked over
+    ``objects``), from ``cache_dir/<scene>-cycles-<samples>spp.npz`` or baked and saved there."""
+    os.makedirs(cache_dir, exist_ok=True)
+    path = os.path.join(cache_dir, f"{scene_name}-cycles-{samples}spp.npz")
+    counts = np.array([len(ob.data.vertices) for ob in objects])
+    if os.path.exists(path):
+        data = np.load(path)
+        if np.array_equal(data["counts"], counts):
+            log(f"benchmark: {scene_name}: reference from {path}")
+            return {"direct": data["direct"], "indirect": data["indirect"], "seconds": float(data["seconds"])}
+    log(f"benchmark: {scene_name}: baking the Cycles reference at {samples} samples")
+    baked, seconds = reference.bake_reference(bpy.context, objects, samples=samples, seed=0)
+    ref = {"direct": _stack(objects, baked["DIRECT"]), "indirect": _stack(objects, baked["INDIRECT"]), "seconds": sum(seconds.values())}
+    tmp = path + ".tmp.npz"
+    np.savez(tmp, counts=counts, **ref)
+    os.replace(tmp, path)
+    return ref
+
+
+def _record(scene_name, method, settings, seconds, by_part, ours_direct, ours_indirect, ref, areas, extra=None):
+    rec = {
+        "scene": scene_name,
+        "method": method,
+        "settings": settings,
+        "seconds": seconds,
+        "seconds_by_part": by_part,
+        "errors": metrics.compare(ours_direct, ours_indirect, ref["direct"], ref["indirect"], areas),
+    }
+    rec.update(extra or {})
+    return rec
+
+
+def run_scene(scene_name, config, cache_dir, log=print):
+    """All runs of one scene: a list of records."""
+    SCENES[scene_name]()
+    objects = _meshes()
+    areas = np.concatenate([scene_data.vertex_areas(ob) for ob in objects])
+    ref = cached_reference(cache_dir, scene_name, config["reference_samples"], objects, log)
+    lo, hi = _bounds(objects)
+    records = []
+    # A first bake compiles the shaders; it is not timed.
+    bpy.ops.cubegi.bake(bounces=1, cube_size=8, grid=(2, 2, 2))
+    for cells, cube, (bounces, tail) in itertools.product(config["cells_along_longest"], config["cube_sizes"], config["bounces"]):
+        res = fit_bounds(lo, hi, spacing=float(np.max(hi - lo)) / cells, max_probes=1 << 14)
+        assert bpy.ops.cubegi.bake(grid=res, cube_size=cube, bounces=bounces, add_tail=tail) == {"FINISHED"}
+        rep = json.loads(bpy.context.scene.cubegi.last_report)
+        direct = _stack(objects, {ob.name: attributes.read(ob.data, attributes.DIRECT) for ob in objects})
+        indirect = _stack(objects, {ob.name: attributes.read(ob.data, attributes.TOTAL) for ob in objects})
+        t = rep["total_seconds"]
+        settings = {"grid": "x".join(map(str, res)), "cube": cube, "bounces": bounces, "tail": tail}
+        extra = {"probes": int(np.prod(res)), "timings": rep["timings"], "estimated_remaining_error": rep["estimated_remaining_error"]}
+        records.append(_record(scene_name, "cubegi", settings, t, {"indirect": t, "total": t}, direct, indirect, ref, areas, extra))
+        e = records[-1]["errors"]
+        log(
+            f"benchmark: {scene_name}: CubeGI {analysis.describe(settings)}: {t:.2f} s, "
+            f"indirect RMSE {100 * e['indirect']['rel_rmse']:.1f}%, total RMSE {100 * e['total']['rel_rmse']:.1f}%"
+        )
+    for k, samples in enumerate(config["cycles_samples"]):
+        baked, seconds = reference.bake_reference(bpy.context, objects, samples=samples, seed=1 + k)
+        direct, indirect = _stack(objects, baked["DIRECT"]), _stack(objects, baked["INDIRECT"])
+        total = sum(seconds.values())
+        by_part = {"indirect": seconds["INDIRECT"], "total": total}
+        records.append(_record(scene_name, "cycles", {"samples": samples}, total, by_part, direct, indirect, ref, areas))
+        e = records[-1]["errors"]
+        log(
+            f"benchmark: {scene_name}: Cycles {samples} samples: {total:.2f} s, "
+            f"indirect RMSE {100 * e['indirect']['rel_rmse']:.1f}%, total RMSE {100 * e['total']['rel_rmse']:.1f}%"
+        )
+    return records
+
+
+def run(out_dir, quick=False, scenes=None, log=print):
+    """Run the benchmark and write ``results.json``, ``results.md``, ``error_vs_time.png``."""
+    config = QUICK if quick else FULL
+    os.makedirs(out_dir, exist_ok=True)
+    names = list(scenes or SCENES)
+    unknown = [n for n in names if n not in SCENES]
+    if unknown:
+        raise ValueError(f"unknown benchmark scene(s) {', '.join(unknown)}; known: {', '.join(SCENES)}")
+    t0 = time.perf_counter()
+    records = []
+    for name in names:
+        records += run_scene(name, config, os.path.join(out_dir, "cache"), log)
+    meta = {
+        "cubegi": __version__,
+        "blender": bpy.app.version_string,
+        "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, {platform.system()}",
+        "gpu": _gpu_name(),
+        "mode": "quick" if quick else "full",
+        "reference samples": config["reference_samples"],
+        "wall seconds": round(time.perf_counter() - t0, 1),
+    }
+    with open(os.path.join(out_dir, "results.json"), "w") as fh:
+        json.dump({"meta": meta, "config": config, "records": records}, fh, indent=1)
+    with open(os.path.join(out_dir, "results.md"), "w") as fh:
+        fh.write(analysis.markdown(records, meta))
+    png = os.path.join(out_dir, "error_vs_time.png")
+    if not analysis.plot(records, png):
+        log("benchmark: matplotlib is not installed; error_vs_time.png was not drawn")
+    return records
+
+
+def _gpu_name():
+    try:
+        import gpu
+
+        return f"{gpu.platform.renderer_get()} ({gpu.platform.backend_type_get()})"
+    except Exception:  # the GPU module is not up outside a bake
+        return "unknown"

@@ -75,3 +75,45 @@ def irradiance_diffuse(coeffs, normals):
     coeffs: ``(..., 9, c)``; normals: ``(..., 3)`` broadcastable. Returns ``(..., c)``.
     """
     return np.einsum("...k,...kc->...c", diffuse_basis(normals), coeffs)
+
+
+# Deringing. Order-2 SH of a small bright source rings: the irradiance it gives dips below
+# zero on the far side (to -3.7% of its peak for a single direction). Scaling band 1 by
+# sqrt(3)/2 and band 2 by 0.8 makes the order-2 irradiance of any single direction, and so
+# of any non-negative radiance (a positive sum of directions), non-negative everywhere:
+# with c = cos(angle to the source) the windowed response is proportional to
+# 1 + sqrt(3) c + (3 c^2 - 1) / 2 * 5/4 * 0.8, whose minimum over c is 0 (at c = -1/sqrt(3)).
+# Band 0 is untouched, so the mean of the irradiance over all normals does not change.
+DERING_WINDOW = np.array([1.0, np.sqrt(3.0) / 2.0, 0.8])[BAND_OF_COEFF]  # (9,)
+
+
+def _fibonacci_sphere(k):
+    i = np.arange(k) + 0.5
+    z = 1.0 - 2.0 * i / k
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    a = np.pi * (1.0 + 5.0**0.5) * i
+    return np.stack([r * np.cos(a), r * np.sin(a), z], axis=1)
+
+
+_DERING_DIRS = diffuse_basis(_fibonacci_sphere(512))  # (512, 9)
+
+
+DERING_MARGIN = 0.02
+
+
+def dering(coeffs):
+    """Window the coefficients ``(..., 9, c)`` of each probe whose diffuse light goes negative
+    in some direction (checked on 512 directions, with a margin of 2% of its mean) by
+    ``DERING_WINDOW``; the others are left as they are. Returns ``(coefficients, deringed (..., c) bool)``.
+
+    The full window, not a partial one, is applied: it is what makes the light
+    non-negative for every direction, not only the checked ones.
+    """
+    c = np.asarray(coeffs)
+    e0 = np.einsum("dk,...kc->...dc", _DERING_DIRS, c)
+    # Near zero counts as ringing: the minimum can fall between the checked directions.
+    rings = e0.min(axis=-2) < DERING_MARGIN * np.abs(e0).mean(axis=-2)  # (..., c)
+    if not rings.any():
+        return c, rings
+    window = np.where(rings[..., None, :], DERING_WINDOW.astype(c.dtype)[:, None], 1.0)
+    return c * window.astype(c.dtype), rings

@@ -154,9 +154,13 @@ class Transport:
     def interpolate(self, coeffs, clamp=True):
         """Diffuse light ``(s, 3)`` at every point from probe coefficients ``(p, 9, 3)``.
 
-        Low-order SH can ring below zero next to a small bright source; light is never
-        negative, so the result is clamped at zero (``clamp=False`` keeps the map linear).
+        Low-order SH can ring below zero next to a small bright source: probes that ring are
+        deringed first (:func:`sh.dering`), and the result is clamped at zero against what
+        is left between the checked directions. ``clamp=False`` skips both and keeps the
+        map linear (for the tail solve).
         """
+        if clamp:
+            coeffs, _ = sh.dering(coeffs)
         g = coeffs[self.index].reshape(len(self.index), 72, 3)
         out = np.einsum("sk,skc->sc", self.point_weights, g, optimize=True)
         return np.maximum(out, 0.0) if clamp else out

@@ -133,6 +133,11 @@ class GpuRenderer:
     """Draws one fixed set of triangles into many square views (see the Renderer protocol).
 
     points: ``(s, 3)`` world positions; triangles: ``(t, 3)`` point indices.
+
+    The GPU works in a unit frame: positions are uploaded as ``(p - centre) / size`` of the
+    scene's bounding box, and every view is re-expressed in that frame (see :meth:`_local`).
+    So a scene drawn at 1 mm or at 10 km gives the GPU the same float32 numbers, and the
+    same texels, and distances come back in world units.
     """
 
     def __init__(self, points, triangles):
@@ -141,13 +146,25 @@ class GpuRenderer:
         if len(triangles) > MAX_TRIANGLES:
             raise ValueError(f"the scene has {len(triangles)} triangles; capture supports up to {MAX_TRIANGLES}")
         self.triangles = triangles
-        self.corner_pos = np.asarray(points, dtype=np.float32)[triangles].reshape(-1, 3)
+        pts = np.asarray(points, dtype=np.float64)
+        lo, hi = (pts.min(axis=0), pts.max(axis=0)) if len(pts) else (np.zeros(3), np.ones(3))
+        self.centre = 0.5 * (lo + hi)
+        self.unit = max(float(np.max(hi - lo)), 1e-300)
+        self.corner_pos = ((pts - self.centre) / self.unit).astype(np.float32)[triangles].reshape(-1, 3)
         t = len(triangles)
         bary = np.tile(np.array([[0, 0], [1, 0], [0, 1]], dtype=np.float32), (t, 1))
         tid = np.repeat(np.arange(t, dtype=np.float32), 3)
         self.id_shader = _id_shader()
         self.id_batch = batch_for_shader(self.id_shader, "TRIS", {"pos": self.corner_pos, "bary": bary, "tid": tid})
         self._colour_shader = None
+
+    def _local(self, view_proj):
+        """A world view-projection as one for unit-frame positions, scaled to entries <= 1
+        (a uniform scale of a projective matrix does not change what it draws)."""
+        to_world = np.diag([self.unit, self.unit, self.unit, 1.0])
+        to_world[:3, 3] = self.centre
+        m = np.asarray(view_proj, dtype=np.float64) @ to_world
+        return m / np.abs(m).max()
 
     def _draw_views(self, view_projs, size, draw_one):
         """Draw every view into atlas tiles; yields ``(first_view, tiles (k, n, n, 4))``."""
@@ -189,8 +206,8 @@ class GpuRenderer:
         shader.bind()
 
         def draw_one(k):
-            shader.uniform_float("view_proj", _column_major(view_projs[k]))
-            shader.uniform_float("eye", tuple(float(x) for x in eyes[k]))
+            shader.uniform_float("view_proj", _column_major(self._local(view_projs[k])))
+            shader.uniform_float("eye", tuple(float(x) for x in (np.asarray(eyes[k]) - self.centre) / self.unit))
             if axes is None:
                 shader.uniform_float("axis", (0.0, 0.0, 1.0))
                 shader.uniform_float("ortho", 0.0)
@@ -207,7 +224,7 @@ class GpuRenderer:
             b1, b2 = tiles[..., 1], tiles[..., 2]
             bary[sl] = np.stack([1.0 - b1 - b2, b1, b2], axis=-1)
             hit = code != 0
-            dist[sl] = np.where(hit, tiles[..., 3], np.inf)
+            dist[sl] = np.where(hit, np.where(hit, tiles[..., 3], 0.0) * np.float32(self.unit), np.inf)
         return tid, bary, dist, back
 
     def render_colour(self, view_projs, size, point_radiance):
@@ -220,7 +237,7 @@ class GpuRenderer:
         shader.bind()
 
         def draw_one(k):
-            shader.uniform_float("view_proj", _column_major(view_projs[k]))
+            shader.uniform_float("view_proj", _column_major(self._local(view_projs[k])))
             batch.draw(shader)
 
         for first, tiles in self._draw_views(view_projs, size, draw_one):

@@ -93,6 +93,9 @@ def bake_steps(context, settings=None, resolution=None, lit=False, reference_sam
     result = yield from engine_bake_steps(arrays, grid, renderer, settings)
 
     t = time.perf_counter()
+    if collected.dark is not None:
+        for values in [result.direct, *result.bounces] + ([result.tail] if result.tail is not None else []):
+            values[collected.dark] = 0.0
     layers_per_target = []
     indirect = result.indirect
     for target in collected.targets:

@@ -44,6 +44,7 @@ class CollectedScene:
     arrays: SceneArrays
     targets: list
     notes: list = field(default_factory=list)
+    dark: np.ndarray = None  # (s,) bool: points with NaN or Inf coordinates, which get no light
 
 
 def _render_visible_objects(view_layer):
@@ -302,6 +303,9 @@ def _light(ob_eval, matrix):
     return None
 
 
+NON_MESH_GEOMETRY = {"CURVE", "SURFACE", "FONT", "META", "CURVES", "POINTCLOUD", "VOLUME"}
+
+
 def collect(context, depsgraph=None):
     """The scene's arrays and the meshes to write back to.
 
@@ -316,6 +320,7 @@ def collect(context, depsgraph=None):
     parts, targets, lights = [], [], []
     offset = 0
     claimed_meshes = set()
+    non_mesh, with_surface = {}, set()
     for inst in depsgraph.object_instances:
         ob = inst.object
         original = ob.original
@@ -327,18 +332,25 @@ def collect(context, depsgraph=None):
             if light is not None:
                 lights.append(light)
             continue
-        if ob.type not in {"MESH", "CURVE", "SURFACE", "FONT", "META"}:
+        if ob.type in NON_MESH_GEOMETRY:
+            # Blender evaluates curves, text, surfaces and metaballs to a mesh that it lists
+            # as an instance of the same object: that one is used.
+            non_mesh.setdefault(original.name, original.type)
+            continue
+        if ob.type != "MESH":
             continue
         data = _mesh_arrays(ob, inst.matrix_world, notes)
         if data is None:
             continue
         pts = _shading_points(data)
+        pts["name"] = original.name
         parts.append(pts)
         loop_point = pts["loop_point"] + offset
         offset += len(pts["points"])
-        if inst.is_instance or ob.type != "MESH":
-            if ob.type != "MESH":
-                notes.append(f"{original.name}: {ob.type.lower()} object lit and lighting others, but not baked")
+        if original.type != "MESH":
+            with_surface.add(original.name)
+            continue
+        if inst.is_instance:
             continue
         mesh = original.data
         if mesh.name in claimed_meshes:
@@ -350,6 +362,11 @@ def collect(context, depsgraph=None):
         claimed_meshes.add(mesh.name)
         targets.append(MeshTarget(original.name, mesh.name, loop_point, data["loop_vertex"], len(mesh.vertices)))
 
+    for name, kind in non_mesh.items():
+        if name in with_surface:
+            notes.append(f"{name}: {kind.lower()} object lit and lighting others, but not baked")
+        else:
+            notes.append(f"{name}: {kind.lower()} object has no surface; skipped")
     if not parts:
         raise ValueError("the scene has no visible geometry to bake")
     tri_offsets = np.cumsum([0] + [len(p["points"]) for p in parts[:-1]])
@@ -362,7 +379,30 @@ def collect(context, depsgraph=None):
         sky=_world_radiance(scene),
         lights=lights,
     )
-    return CollectedScene(arrays, targets, notes)
+    dark = _set_aside_non_finite(arrays, parts, notes)
+    return CollectedScene(arrays, targets, notes, dark)
+
+
+def _set_aside_non_finite(arrays, parts, notes):
+    """Points with NaN or Inf coordinates (or normals) leave the geometry: their triangles
+    are dropped and they are parked at a finite point, to get no light. Returns the mask."""
+    bad = ~(np.isfinite(arrays.points).all(axis=1) & np.isfinite(arrays.normals).all(axis=1))
+    if not bad.any():
+        return None
+    if bad.all():
+        raise ValueError("every vertex of the scene has NaN or Inf coordinates")
+    owners = np.repeat(np.arange(len(parts)), [len(p["points"]) for p in parts])
+    for k in np.unique(owners[bad]):
+        count = int((bad & (owners == k)).sum())
+        notes.append(f"{parts[k]['name']}: {count} vertices with NaN or Inf coordinates get no light and cast no shadow")
+    arrays.triangles = arrays.triangles[~bad[arrays.triangles].any(axis=1)]
+    if len(arrays.triangles) == 0:
+        raise ValueError("no triangle of the scene has finite coordinates")
+    arrays.points[bad] = arrays.points[~bad][0]
+    arrays.normals[bad] = (0.0, 0.0, 1.0)
+    arrays.albedo[bad] = 0.0
+    arrays.emission[bad] = 0.0
+    return bad
 
 
 def vertex_areas(ob):

@@ -1,0 +1,96 @@
+"""Bad or odd input through the operator: a correct result or one clear error, never NaN."""
+
+import json
+
+import bpy
+import numpy as np
+import pytest
+
+import scenes
+
+
+def _bake(**kw):
+    return bpy.ops.cubegi.bake(bounces=2, grid=(2, 2, 2), cube_size=8, **kw)
+
+
+def _all_values(cubegi):
+    read = cubegi.cubegi_addon.attributes.read
+    out = {}
+    for ob in bpy.context.scene.objects:
+        if ob.type == "MESH":
+            for name in ("CubeGI_direct", "CubeGI"):
+                if name in ob.data.attributes:
+                    out[(ob.name, name)] = read(ob.data, name)
+    return out
+
+
+def _notes():
+    return json.loads(bpy.context.scene.cubegi.last_report)["scene"]["notes"]
+
+
+def test_empty_scene_is_one_clear_error(empty_scene, cubegi):
+    with pytest.raises(RuntimeError, match="no visible geometry"):
+        _bake()
+
+
+def test_no_lights_and_a_black_world_give_zeros(empty_scene, cubegi):
+    scenes.cornell(light=False)
+    assert _bake() == {"FINISHED"}
+    values = _all_values(cubegi)
+    assert values and all((v == 0).all() for v in values.values())
+
+
+def test_nan_and_inf_vertices_get_no_light_and_spoil_nothing(empty_scene, cubegi):
+    scenes.cornell(light=True)
+    mesh = bpy.data.objects["Tall"].data
+    mesh.vertices[0].co = (float("nan"), 0.0, 0.0)
+    mesh.vertices[1].co = (0.0, float("inf"), 0.0)
+    assert _bake() == {"FINISHED"}
+    values = _all_values(cubegi)
+    assert all(np.isfinite(v).all() and (v >= 0).all() for v in values.values())
+    tall = values[("Tall", "CubeGI_direct")]
+    assert (tall[:2] == 0).all() and tall[2:].max() > 0
+    assert values[("Floor", "CubeGI_direct")].mean() > 0
+    assert any("NaN or Inf" in n and n.startswith("Tall") for n in _notes())
+
+
+def test_degenerate_meshes_bake_finite(empty_scene, cubegi):
+    scenes.cornell(light=True)
+    # zero-area faces and a duplicated vertex
+    scenes.mesh_object("Degenerate", [(0, 0, 0.5), (0.5, 0, 0.5), (1, 0, 0.5), (0, 0, 0.5)], [(0, 1, 2), (0, 1, 3)])
+    scenes.mesh_object("NoFaces", [(0, 0, 1), (0.1, 0, 1)], [])
+    me = bpy.data.meshes.new("Loose")  # a triangle, a loose edge and loose vertices
+    me.from_pydata([(0, 0, 1), (0.5, 0, 1), (0.3, 0.3, 1), (0.9, 0.9, 1.5), (0.8, 0.9, 1.5), (0.1, 0.1, 0.1)], [(3, 4)], [(0, 1, 2)])
+    bpy.context.scene.collection.objects.link(bpy.data.objects.new("Loose", me))
+    assert _bake() == {"FINISHED"}
+    values = _all_values(cubegi)
+    assert all(np.isfinite(v).all() and (v >= 0).all() for v in values.values())
+    assert values[("Floor", "CubeGI_direct")].mean() > 0
+
+
+def test_curves_and_text_light_the_scene_and_are_noted(empty_scene, cubegi):
+    scenes.cornell(light=True)
+    bpy.ops.curve.primitive_bezier_circle_add(location=(0, 0, 1))
+    bpy.ops.object.text_add(location=(0, 0.5, 1))
+    assert _bake() == {"FINISHED"}
+    notes = _notes()
+    assert any(n.startswith("Text: font object lit and lighting others") for n in notes), notes
+    assert any(n.startswith("B\u00e9zierCircle: curve object has no surface") for n in notes), notes
+
+
+def test_objects_hidden_from_render_are_left_out(empty_scene, cubegi):
+    scenes.cornell(light=True)
+    bpy.data.objects["Tall"].hide_render = True
+    assert _bake() == {"FINISHED"}
+    assert "CubeGI" not in bpy.data.objects["Tall"].data.attributes
+    assert "Tall" not in json.loads(bpy.context.scene.cubegi.last_report)["scene"]["meshes_baked"]
+
+
+@pytest.mark.parametrize("kw,needle", [(dict(cube_size=2), "cube-map size"), (dict(cube_size=1024), "cube-map size")])
+def test_out_of_range_settings_are_refused_and_change_nothing(empty_scene, cubegi, kw, needle):
+    scenes.cornell(light=True)
+    before = {ob.name: sorted(a.name for a in ob.data.attributes) for ob in bpy.context.scene.objects if ob.type == "MESH"}
+    with pytest.raises(RuntimeError, match=needle):
+        bpy.ops.cubegi.bake(**kw)
+    after = {ob.name: sorted(a.name for a in ob.data.attributes) for ob in bpy.context.scene.objects if ob.type == "MESH"}
+    assert after == before

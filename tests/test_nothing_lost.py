@@ -1,0 +1,86 @@
+"""A failure at any stage of a bake leaves every mesh's attributes and the materials exactly
+as they were (forced here by making each stage raise)."""
+
+import bpy
+import numpy as np
+import pytest
+
+import scenes
+
+
+class Boom(Exception):
+    pass
+
+
+def _state():
+    """Every mesh attribute's name, type, domain and bytes, and every material's node tree."""
+    state = {}
+    for mesh in bpy.data.meshes:
+        for a in mesh.attributes:
+            if a.data_type in {"FLOAT_COLOR", "BYTE_COLOR"}:
+                key, width = "color", 4
+            elif a.data_type == "FLOAT_VECTOR":
+                key, width = "vector", 3
+            elif a.data_type in {"FLOAT", "INT", "BOOLEAN"}:
+                key, width = "value", 1
+            else:
+                continue
+            dtype = {"INT": np.int32, "BOOLEAN": bool}.get(a.data_type, np.float32)
+            data = np.empty(len(a.data) * width, dtype=dtype)
+            a.data.foreach_get(key, data)
+            state[(mesh.name, a.name)] = (a.data_type, a.domain, data.tobytes())
+    for mat in bpy.data.materials:
+        nodes = mat.node_tree.nodes if mat.node_tree else []
+        state[("material", mat.name)] = sorted((n.name, n.bl_idname) for n in nodes)
+    return state
+
+
+@pytest.fixture
+def baked_once(empty_scene, cubegi):
+    """The Cornell box with a user attribute and a first bake in place."""
+    scenes.cornell(light=True)
+    bpy.data.objects["Tall"].data.attributes.new("user_data", "FLOAT", "POINT").data[0].value = 7.0
+    assert bpy.ops.cubegi.bake(bounces=2, grid=(2, 2, 2), cube_size=8) == {"FINISHED"}
+    return cubegi
+
+
+def _fail_at(monkeypatch, cubegi, stage):
+    pipeline = cubegi.cubegi_addon.pipeline
+    engine_bake = __import__("cubegi.cubegi_engine.bake", fromlist=["x"])
+    transport = __import__("cubegi.cubegi_engine.transport", fromlist=["x"])
+
+    def boom(*a, **k):
+        raise Boom(stage)
+
+    if stage == "collect":
+        monkeypatch.setattr(pipeline.scene_data, "collect", boom)
+    elif stage == "gpu":
+        monkeypatch.setattr(pipeline, "GpuRenderer", boom)
+    elif stage == "capture":
+        monkeypatch.setattr(engine_bake, "capture_cubes", boom)
+    elif stage == "direct":
+        monkeypatch.setattr(engine_bake, "direct_from_lights", boom)
+    elif stage == "bounce":
+        monkeypatch.setattr(transport.Transport, "texel_radiance", boom)
+    elif stage == "reference":
+        monkeypatch.setattr(pipeline.reference, "reference_layers", boom)
+    elif stage == "write":  # the first mesh is written, the second fails
+        real = pipeline.attributes.write
+        calls = []
+
+        def second_fails(mesh, layers):
+            calls.append(mesh.name)
+            if len(calls) == 2:
+                raise Boom("write")
+            real(mesh, layers)
+
+        monkeypatch.setattr(pipeline.attributes, "write", second_fails)
+
+
+@pytest.mark.parametrize("stage", ["collect", "gpu", "capture", "direct", "bounce", "reference", "write"])
+def test_a_failed_bake_changes_nothing(baked_once, monkeypatch, stage):
+    before = _state()
+    _fail_at(monkeypatch, baked_once, stage)
+    with pytest.raises((Boom, RuntimeError)):
+        bpy.ops.cubegi.bake(bounces=3, grid=(3, 3, 3), cube_size=8, reference_samples=2)
+    assert _state() == before

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..cubegi_engine import __version__
 from ..cubegi_engine import metrics
-from ..cubegi_engine.bake import BakeSettings, Progress, area_weighted_mean, bake_steps as engine_bake_steps
+from ..cubegi_engine.bake import BakeSettings, Progress, area_weighted_mean, bake_steps as engine_bake_steps, check_memory
 from ..cubegi_engine.grid import ProbeGrid, fit_bounds
 from . import attributes, reference, scene_data
 from .gpu_capture import GpuRenderer
@@ -87,6 +87,7 @@ def bake_steps(context, settings=None, resolution=None, lit=False, reference_sam
     if not collected.targets:
         raise ValueError("no mesh in the scene can receive baked light")
 
+    check_memory(grid.count, settings.cube_size, len(arrays.points))
     t = time.perf_counter()
     renderer = GpuRenderer(arrays.points, arrays.triangles)
     t_setup = time.perf_counter() - t

@@ -172,10 +172,44 @@ def _area_visibility(scene, renderer, settings, light, pts, nrm, ids, near, far)
     return num / den
 
 
+# Bytes per cube-map texel while a bake runs: the capture (triangle, barycentrics, distance,
+# back-face flag), the gather tables (corners, weights) and the gather's temporaries.
+BYTES_PER_TEXEL = 80
+BYTES_PER_POINT = 8 * 8 * 9 * 4 + 400  # interpolation weights and per-point arrays
+
+
+def memory_estimate(probes, cube_size, points):
+    """Bytes a bake of ``probes`` cube maps of ``cube_size`` over ``points`` needs, roughly."""
+    return int(probes) * 6 * int(cube_size) ** 2 * BYTES_PER_TEXEL + int(points) * BYTES_PER_POINT
+
+
+def physical_memory():
+    """This machine's memory in bytes (None where it cannot be told)."""
+    try:
+        import os
+
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_memory(probes, cube_size, points, limit=None):
+    """Refuse, with the estimate, a bake that would need more than half the memory."""
+    need = memory_estimate(probes, cube_size, points)
+    total = limit if limit is not None else physical_memory()
+    if total and need > 0.5 * total:
+        raise ValueError(
+            f"{probes} probes at {cube_size}x{cube_size} would need about {need / 2**30:.1f} GiB, more than half of "
+            f"this machine's {total / 2**30:.1f} GiB; use fewer probes or a smaller cube-map size"
+        )
+    return need
+
+
 def bake_steps(scene, grid, renderer, settings=None):
     """Bake ``scene`` on ``grid``; a generator of :class:`Progress`, returning a BakeResult."""
     settings = settings or BakeSettings()
     settings.validate()
+    check_memory(grid.count, settings.cube_size, len(scene.points))
     t_start = time.perf_counter()
     timings = {}
     total = 3 + settings.bounces

@@ -94,3 +94,30 @@ def test_out_of_range_settings_are_refused_and_change_nothing(empty_scene, cubeg
         bpy.ops.cubegi.bake(**kw)
     after = {ob.name: sorted(a.name for a in ob.data.attributes) for ob in bpy.context.scene.objects if ob.type == "MESH"}
     assert after == before
+
+
+def test_a_grid_too_large_for_memory_is_refused_with_the_estimate(empty_scene, cubegi):
+    scenes.cornell(light=True)
+    before = sorted(a.name for a in bpy.data.objects["Floor"].data.attributes)
+    with pytest.raises(RuntimeError, match=r"would need about [\d.]+ GiB"):
+        bpy.ops.cubegi.bake(grid=(200, 200, 200), cube_size=64)
+    assert sorted(a.name for a in bpy.data.objects["Floor"].data.attributes) == before
+
+
+def test_memory_estimate_by_hand():
+    from cubegi_engine import bake
+
+    # 10 probes of 6 x 32^2 texels at 80 bytes, 100 points at 8 x 8 x 9 x 4 + 400 = 2704 bytes.
+    assert bake.memory_estimate(10, 32, 100) == 10 * 6 * 1024 * 80 + 100 * 2704
+    with pytest.raises(ValueError, match="more than half"):
+        bake.check_memory(10, 32, 100, limit=2 * bake.memory_estimate(10, 32, 100) - 2)
+    assert bake.check_memory(10, 32, 100, limit=10**12) > 0
+
+
+@pytest.mark.parametrize("res", [(1, 1, 1), (1, 1, 2)])
+def test_one_probe_or_a_line_of_probes_bakes(empty_scene, cubegi, res):
+    scenes.cornell(light=True)
+    assert bpy.ops.cubegi.bake(bounces=2, grid=res, cube_size=8) == {"FINISHED"}
+    values = _all_values(cubegi)
+    assert all(np.isfinite(v).all() for v in values.values())
+    assert values[("Floor", "CubeGI")].mean() > 0

@@ -30,7 +30,7 @@ SCENES = {
 # Grid spacing is given as cells along the scene's longest side.
 FULL = {
     "cells_along_longest": (4, 8, 12),
-    "cube_sizes": (16, 32, 64),
+    "cube_sizes": (8, 16, 32),
     "bounces": ((2, False), (5, True)),
     "cycles_samples": (1, 4, 16, 64, 256),
     "reference_samples": 1024,

@@ -1,11 +1,11 @@
 """CubeGI's Blender side: properties, operators, the GPU capture and the bpy glue.
 
-Registers in dependency order (properties, then operators) and unregisters in reverse.
+Registers in dependency order (properties, operators, panel) and unregisters in reverse.
 """
 
-from . import attributes, operators, pipeline, props, reference, scene_data
+from . import attributes, operators, panel, pipeline, props, reference, scene_data
 
-_modules = (props, operators)
+_modules = (props, operators, panel)
 
 
 def register():

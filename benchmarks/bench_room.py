@@ -51,7 +51,7 @@ def main():
     print(f"Room: {best['scene']['triangles']} triangles, {best['scene']['points']} shading points, "
           f"{best['grid']['probes']} probes {tuple(best['grid']['resolution'])}, cube 32, {args.bounces} bounces")
     print(f"best of {args.repeat}:")
-    for key in ("collect", "gpu_setup", "capture", "tables", "direct_lights", "direct_probes", "bounces", "write", "total"):
+    for key in ("collect", "gpu_setup", "capture", "tables", "direct_lights", "direct_probes", "bounces", "tail", "write", "total"):
         print(f"  {key:14s} {tm[key] * 1000:8.1f} ms")
     for b in best["bounces"]:
         print(f"  bounce {b['bounce']}: {b['seconds'] * 1000:6.2f} ms = gather {b['gather_seconds'] * 1000:.2f} + "

@@ -278,7 +278,7 @@ def bake_steps(scene, grid, renderer, settings=None):
         yield Progress(
             "bounce", 2 + b, total,
             f"bounce {b}/{cap}: mean light {mean.mean():.4g}, x{records[-1]['ratio_mean']:.3f} of the bounce before, "
-            f"about {100 * remaining:.2g}% of the indirect light still missing",
+            f"about {100 * remaining:.3g}% of the indirect light still missing",
             light=light_sum,
         )
         if settings.tolerance is not None and remaining < settings.tolerance:

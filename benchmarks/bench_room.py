@@ -60,7 +60,7 @@ def main():
     # The paper's way, same process: draw every probe's cube map with the lit colours.
     collected = addon.scene_data.collect(bpy.context)
     arrays = collected.arrays
-    grid, _ = addon.pipeline.resolve_grid(bpy.context.scene, arrays)
+    grid, _, _ = addon.pipeline.resolve_grid(bpy.context.scene, arrays)
     renderer = addon.gpu_capture.GpuRenderer(arrays.points, arrays.triangles)
     near, far = transport.clip_planes(arrays.scale)
     radiance = np.asarray(arrays.albedo) * 0.5

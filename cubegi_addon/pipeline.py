@@ -52,23 +52,28 @@ def grid_bounds_of(ob):
 
 
 def resolve_grid(scene, arrays, resolution=None):
-    """The probe grid of a bake, and where it came from.
+    """The probe grid of a bake, where it came from, and the share of points outside it.
 
     ``resolution`` (3 ints) overrides the resolution; the bounds come from the scene's probe
-    grid object if it has one, else from the geometry's bounding box.
+    grid object if it has one, else from the geometry's bounding box. Points outside a probe
+    grid object get the light of its nearest probes (trilinear weights clamped at its
+    faces); a grid object with no geometry inside is refused.
     """
     grids = probe_grid_objects(scene)
     if grids:
         ob = grids[0]
         lo, hi = grid_bounds_of(ob)
+        inside = np.all((arrays.points >= lo) & (arrays.points <= hi), axis=1)
+        if not inside.any():
+            raise ValueError(f"probe grid {ob.name!r} contains no geometry; move or scale it over the scene")
         res = resolution or tuple(ob.cubegi.resolution)
-        return ProbeGrid(lo, hi, res), f"probe grid object {ob.name!r}"
+        return ProbeGrid(lo, hi, res), f"probe grid object {ob.name!r}", float(1.0 - inside.mean())
     lo, hi = arrays.bounds()
     pad = np.maximum(hi - lo, 1e-9 * max(arrays.scale, 1e-30)) * 1e-3
     lo, hi = lo - pad, hi + pad
     if resolution:
-        return ProbeGrid(lo, hi, resolution), "scene bounds"
-    return ProbeGrid(lo, hi, fit_bounds(lo, hi, max_probes=MAX_FITTED_PROBES)), "fitted to scene bounds"
+        return ProbeGrid(lo, hi, resolution), "scene bounds", 0.0
+    return ProbeGrid(lo, hi, fit_bounds(lo, hi, max_probes=MAX_FITTED_PROBES)), "fitted to scene bounds", 0.0
 
 
 def bake_steps(context, settings=None, resolution=None, lit=False, reference_samples=None):
@@ -82,7 +87,11 @@ def bake_steps(context, settings=None, resolution=None, lit=False, reference_sam
     t0 = time.perf_counter()
     collected = scene_data.collect(context)
     arrays = collected.arrays
-    grid, grid_source = resolve_grid(context.scene, arrays, resolution)
+    grid, grid_source, outside = resolve_grid(context.scene, arrays, resolution)
+    if outside > 0:
+        collected.notes.append(
+            f"{100 * outside:.1f}% of the shading points lie outside the probe grid; they get the light of its nearest probes"
+        )
     t_collect = time.perf_counter() - t0
     if not collected.targets:
         raise ValueError("no mesh in the scene can receive baked light")

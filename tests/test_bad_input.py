@@ -121,3 +121,46 @@ def test_one_probe_or_a_line_of_probes_bakes(empty_scene, cubegi, res):
     values = _all_values(cubegi)
     assert all(np.isfinite(v).all() for v in values.values())
     assert values[("Floor", "CubeGI")].mean() > 0
+
+
+def test_materials_without_nodes_or_with_unknown_shaders_fall_back_to_the_viewport_colour(empty_scene, cubegi):
+    scenes.cornell(light=True)
+    bare = bpy.data.materials.new("Bare")
+    bare.diffuse_color = (0.2, 0.2, 0.2, 1.0)
+    if bare.node_tree is None:
+        bare.use_nodes = True
+    bare.node_tree.nodes.clear()
+    glass = bpy.data.materials.new("Glass")
+    glass.diffuse_color = (0.9, 0.9, 0.9, 1.0)
+    if glass.node_tree is None:
+        glass.use_nodes = True
+    nodes = glass.node_tree.nodes
+    out = next(n for n in nodes if n.type == "OUTPUT_MATERIAL")
+    for n in [n for n in nodes if n != out]:
+        nodes.remove(n)
+    glass.node_tree.links.new(nodes.new("ShaderNodeBsdfGlass").outputs[0], out.inputs["Surface"])
+    bpy.data.objects["Tall"].data.materials[0] = bare
+    bpy.data.objects["Short"].data.materials[0] = glass
+    assert _bake() == {"FINISHED"}
+    notes = _notes()
+    assert any("'Bare': no node surface, using its viewport colour" in n for n in notes), notes
+    assert any("'Glass': shader ShaderNodeBsdfGlass not understood" in n for n in notes), notes
+    assert all(np.isfinite(v).all() for v in _all_values(cubegi).values())
+
+
+def test_a_probe_grid_with_no_geometry_inside_is_refused(empty_scene, cubegi):
+    scenes.cornell(light=True)
+    cubegi.cubegi_addon.pipeline.new_probe_grid(bpy.context.scene.collection, (10, 10, 10), (12, 12, 12), (2, 2, 2))
+    with pytest.raises(RuntimeError, match="contains no geometry"):
+        bpy.ops.cubegi.bake(bounces=1, cube_size=8)
+    assert "CubeGI" not in bpy.data.objects["Floor"].data.attributes
+
+
+def test_geometry_outside_the_grid_gets_the_nearest_probes_and_a_note(empty_scene, cubegi):
+    scenes.cornell(light=True)
+    # A grid over the lower half of the box only.
+    cubegi.cubegi_addon.pipeline.new_probe_grid(bpy.context.scene.collection, (-1, -1, 0), (1, 1, 1), (2, 2, 2))
+    assert bpy.ops.cubegi.bake(bounces=2, cube_size=8) == {"FINISHED"}
+    assert any("lie outside the probe grid" in n for n in _notes())
+    ceiling = cubegi.cubegi_addon.attributes.read(bpy.data.objects["Ceiling"].data, "CubeGI")
+    assert np.isfinite(ceiling).all() and ceiling.mean() > 0

@@ -378,6 +378,7 @@ def collect(context, depsgraph=None):
         triangles=np.concatenate([p["triangles"] + o for p, o in zip(parts, tri_offsets)]).astype(np.int64),
         sky=_world_radiance(scene),
         lights=lights,
+        point_object=np.repeat(np.arange(len(parts)), [len(p["points"]) for p in parts]),
     )
     dark = _set_aside_non_finite(arrays, parts, notes)
     return CollectedScene(arrays, targets, notes, dark)
@@ -391,7 +392,7 @@ def _set_aside_non_finite(arrays, parts, notes):
         return None
     if bad.all():
         raise ValueError("every vertex of the scene has NaN or Inf coordinates")
-    owners = np.repeat(np.arange(len(parts)), [len(p["points"]) for p in parts])
+    owners = arrays.point_object
     for k in np.unique(owners[bad]):
         count = int((bad & (owners == k)).sum())
         notes.append(f"{parts[k]['name']}: {count} vertices with NaN or Inf coordinates get no light and cast no shadow")

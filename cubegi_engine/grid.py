@@ -94,7 +94,7 @@ def fit_bounds(lo, hi, spacing=None, max_probes=4096):
     return tuple(int(r) for r in res)
 
 
-def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals, index, weight):
+def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals, index, weight, cover=None):
     """Trilinear weights with probes that cannot see a point, or are invalid, left out.
 
     A probe is kept for a point if the point, lifted off its surface along the normal by a
@@ -106,6 +106,14 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     probe_pos: ``(p, 3)``; probe_dist: ``(p, 6, n, n)`` distance to the first surface (inf
     where the probe sees sky); probe_valid: ``(p,)`` bool; points, normals: ``(s, 3)``;
     index, weight: ``(s, 8)`` from :meth:`ProbeGrid.trilinear`. Returns new weights ``(s, 8)``.
+
+    ``cover`` = ``(probe_tid (p, 6, n, n), triangles (t, 3), point_object (s,), points)`` adds a
+    test the depth map's tolerance is too coarse for: a triangle of another object (or of
+    the same object, facing away from the point: the far side of a thin wall) that the
+    probe's texel sees towards the point, whose plane the exact ray from the probe crosses
+    in front of the point, inside that triangle, covers the point (a rug over a floor, a
+    thin wall between rooms). A point that every probe misses and some other object covers
+    gets no probe light, instead of falling back to its plain weights.
     """
     n = probe_dist.shape[-1]
     lift = 0.1 * float(np.min(grid.cell_size))
@@ -117,10 +125,57 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     # Tolerance: two texels' worth of angle at that distance plus a hundredth of a cell.
     tol = dist * (4.0 / n) + 0.01 * float(np.min(grid.cell_size))
     visible = dist <= seen + tol
+    covered = np.zeros_like(visible)
+    if cover is not None:
+        covered = _covered(cover, probe_pos[index], points, normals, index, face, row, col, n, grid)
+        visible &= ~covered
     valid = probe_valid[index]
     w = weight * (visible & valid)
     total = w.sum(axis=1, keepdims=True)
     fallback = weight * valid
     fallback_total = fallback.sum(axis=1, keepdims=True)
     w = np.where(total > 1e-9, w, np.where(fallback_total > 1e-9, fallback, weight))
-    return w / w.sum(axis=1, keepdims=True)
+    w = w / w.sum(axis=1, keepdims=True)
+    dark = (total[:, 0] <= 1e-9) & covered.any(axis=1)
+    w[dark] = 0.0
+    return w
+
+
+def _covered(cover, eyes, points, normals, index, face, row, col, n, grid):
+    """``(s, 8)``: another object's triangle lies between each probe and point (see above).
+
+    The texel towards the point and its 8 neighbours are asked which triangles they see;
+    the exact ray from the probe to the point is cut with each one's plane, and it covers
+    the point if the cut lies inside that triangle, in front of the point. (The texel alone
+    may see a neighbour of the triangle the ray really crosses; a cut near but outside the
+    other object must not count, or the floor around a rug would go dark.)
+    """
+    probe_tid, triangles, point_object, vertices = cover
+    q = points[:, None, :] + 1e-3 * float(np.min(grid.cell_size)) * normals[:, None, :]
+    ray = q - eyes
+    d = np.linalg.norm(ray, axis=-1)
+    u = ray / np.maximum(d, 1e-300)[..., None]
+    eps = 1e-4 * float(np.min(grid.cell_size))
+    covered = np.zeros(index.shape, dtype=bool)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            tid = probe_tid[index, face, np.clip(row + dr, 0, n - 1), np.clip(col + dc, 0, n - 1)]
+            tri = triangles[np.maximum(tid, 0)]  # (s, 8, 3)
+            a, b, c = vertices[tri[..., 0]], vertices[tri[..., 1]], vertices[tri[..., 2]]
+            nrm = np.cross(b - a, c - a)
+            # Another object, or the far side of a thin part of the same one (facing away).
+            facing_away = np.einsum("...c,...c->...", nrm, normals[:, None, :]) < -0.5 * np.linalg.norm(nrm, axis=-1)
+            other = (tid >= 0) & ((point_object[tri[..., 0]] != point_object[:, None]) | facing_away) & ~covered
+            if not other.any():
+                continue
+            area2 = np.einsum("...c,...c->...", nrm, nrm)
+            denom = np.einsum("...c,...c->...", u, nrm)
+            ok = other & (np.abs(denom) > 1e-6 * np.sqrt(area2)) & (area2 > 0)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = np.einsum("...c,...c->...", a - eyes, nrm) / np.where(ok, denom, 1.0)
+                x = eyes + t[..., None] * u
+                l1 = np.einsum("...c,...c->...", np.cross(c - b, x - b), nrm) / np.where(ok, area2, 1.0)
+                l2 = np.einsum("...c,...c->...", np.cross(a - c, x - c), nrm) / np.where(ok, area2, 1.0)
+            inside = (l1 >= 0) & (l2 >= 0) & (l1 + l2 <= 1)
+            covered |= ok & (t > 0) & (t < d - eps) & inside
+    return covered

@@ -50,6 +50,7 @@ class SceneArrays:
     triangles: np.ndarray
     sky: np.ndarray = field(default_factory=lambda: np.zeros(3))
     lights: list = field(default_factory=list)
+    point_object: np.ndarray = None  # (s,) int: which object each point belongs to (optional)
 
     def bounds(self):
         return self.points.min(axis=0), self.points.max(axis=0)
@@ -129,7 +130,12 @@ class Transport:
         index, weight = grid.trilinear(scene.points)
         if visibility:
             dist = capture.dist.reshape(p, 6, n, n)
-            weight = visibility_weights(grid, positions, dist, self.probe_valid, scene.points, scene.normals, index, weight)
+            cover = None
+            if scene.point_object is not None:
+                cover = (capture.tid.reshape(p, 6, n, n), scene.triangles, scene.point_object, scene.points)
+            weight = visibility_weights(
+                grid, positions, dist, self.probe_valid, scene.points, scene.normals, index, weight, cover
+            )
         elif not self.probe_valid.all():
             w = weight * self.probe_valid[index]
             total = w.sum(axis=1, keepdims=True)

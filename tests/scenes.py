@@ -7,7 +7,7 @@ import importlib
 
 _NAMES = {
     "material": "bench_scenes", "mesh_object": "bench_scenes", "set_world": "bench_scenes",
-    "add_light": "bench_scenes", "closed_box": "bench_scenes", "cornell": "bench_scenes", "grid_patch": "demo",
+    "add_light": "bench_scenes", "closed_box": "bench_scenes", "cornell": "bench_scenes", "thin_wall": "bench_scenes", "grid_patch": "demo",
 }
 
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..cubegi_engine import __version__, benchmark as analysis, metrics
 from ..cubegi_engine.grid import fit_bounds
-from . import attributes, bench_scenes, demo, reference, scene_data
+from . import attributes, bench_scenes, demo, pipeline, reference, scene_data
 
 SCENES = {
     "room": demo.build_room,
@@ -46,15 +46,6 @@ QUICK = {
 
 def _meshes():
     return sorted((ob for ob in bpy.context.scene.objects if ob.type == "MESH"), key=lambda ob: ob.name)
-
-
-def _bounds(objects):
-    pts = []
-    for ob in objects:
-        m = np.array(ob.matrix_world)
-        pts.append((np.array([list(c) + [1.0] for c in ob.bound_box]) @ m.T)[:, :3])
-    pts = np.concatenate(pts)
-    return pts.min(axis=0), pts.max(axis=0)
 
 
 def _stack(objects, values_by_name):
@@ -100,13 +91,14 @@ def run_scene(scene_name, config, cache_dir, log=print):
     objects = _meshes()
     areas = np.concatenate([scene_data.vertex_areas(ob) for ob in objects])
     ref = cached_reference(cache_dir, scene_name, config["reference_samples"], objects, log)
-    lo, hi = _bounds(objects)
+    lo, hi = pipeline.world_bounds(objects)
     records = []
     # A first bake compiles the shaders; it is not timed.
     bpy.ops.cubegi.bake(bounces=1, cube_size=8, grid=(2, 2, 2))
     for cells, cube, (bounces, tail) in itertools.product(config["cells_along_longest"], config["cube_sizes"], config["bounces"]):
         res = fit_bounds(lo, hi, spacing=float(np.max(hi - lo)) / cells, max_probes=1 << 14)
-        assert bpy.ops.cubegi.bake(grid=res, cube_size=cube, bounces=bounces, add_tail=tail) == {"FINISHED"}
+        if bpy.ops.cubegi.bake(grid=res, cube_size=cube, bounces=bounces, add_tail=tail) != {"FINISHED"}:
+            raise RuntimeError(f"{scene_name}: the bake with {res}, cube {cube}, {bounces} bounces did not finish")
         rep = json.loads(bpy.context.scene.cubegi.last_report)
         direct = _stack(objects, {ob.name: attributes.read(ob.data, attributes.DIRECT) for ob in objects})
         indirect = _stack(objects, {ob.name: attributes.read(ob.data, attributes.TOTAL) for ob in objects})

@@ -103,19 +103,8 @@ class CUBEGI_OT_add_probe_grid(bpy.types.Operator):
     resolution: IntVectorProperty(name="Resolution", description="Probes along X, Y, Z", size=3, default=(4, 4, 2), min=1, max=256)
 
     def execute(self, context):
-        import numpy as np
-
-        pts = []
-        for ob in context.visible_objects:
-            if ob.type == "MESH":
-                m = np.array(ob.matrix_world)
-                bb = np.array([list(c) + [1.0] for c in ob.bound_box]) @ m.T
-                pts.append(bb[:, :3])
-        if pts:
-            allp = np.concatenate(pts)
-            lo, hi = allp.min(axis=0), allp.max(axis=0)
-        else:
-            lo, hi = -np.ones(3), np.ones(3)
+        bounds = pipeline.world_bounds([ob for ob in context.visible_objects if ob.type == "MESH"])
+        lo, hi = bounds if bounds is not None else ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
         pipeline.new_probe_grid(context.collection, lo, hi, self.resolution)
         return {"FINISHED"}
 

@@ -43,6 +43,15 @@ def new_probe_grid(collection, lo, hi, resolution, name="CubeGI Probe Grid"):
     return ob
 
 
+def world_bounds(objects):
+    """World-space axis-aligned box ``(lo, hi)`` of the objects' bounding boxes, or None."""
+    corners = [np.array([list(c) + [1.0] for c in ob.bound_box]) @ np.array(ob.matrix_world).T for ob in objects]
+    if not corners:
+        return None
+    pts = np.concatenate(corners)[:, :3]
+    return pts.min(axis=0), pts.max(axis=0)
+
+
 def grid_bounds_of(ob):
     """World-space axis-aligned box of a probe grid object's cube (rotation is ignored)."""
     s = ob.empty_display_size
@@ -103,9 +112,6 @@ def bake_steps(context, settings=None, resolution=None, lit=False, reference_sam
     result = yield from engine_bake_steps(arrays, grid, renderer, settings)
 
     t = time.perf_counter()
-    if collected.dark is not None:
-        for values in [result.direct, *result.bounces] + ([result.tail] if result.tail is not None else []):
-            values[collected.dark] = 0.0
     layers_per_target = []
     indirect = result.indirect
     for target in collected.targets:

@@ -16,6 +16,7 @@ _TMP = "CubeGI_ref_tmp"
 MIN_SAMPLES, MAX_SAMPLES = 1, 1 << 20
 # Cycles' defaults stop diffuse paths after 4 bounces, clamp bright indirect samples and
 # skip faint lights: each biases a reference. Paths run until Russian roulette ends them.
+# Every setting named here is saved and put back; samples and seed are then set per call.
 _CYCLES_SETTINGS = {
     "samples": 128,
     "seed": 0,

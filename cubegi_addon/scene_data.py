@@ -44,7 +44,6 @@ class CollectedScene:
     arrays: SceneArrays
     targets: list
     notes: list = field(default_factory=list)
-    dark: np.ndarray = None  # (s,) bool: points with NaN or Inf coordinates, which get no light
 
 
 def _render_visible_objects(view_layer):
@@ -380,8 +379,8 @@ def collect(context, depsgraph=None):
         lights=lights,
         point_object=np.repeat(np.arange(len(parts)), [len(p["points"]) for p in parts]),
     )
-    dark = _set_aside_non_finite(arrays, parts, notes)
-    return CollectedScene(arrays, targets, notes, dark)
+    arrays.dark = _set_aside_non_finite(arrays, parts, notes)
+    return CollectedScene(arrays, targets, notes)
 
 
 def _set_aside_non_finite(arrays, parts, notes):

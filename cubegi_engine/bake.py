@@ -8,6 +8,7 @@ the tests.
 show each bounce as it lands) and returns a :class:`BakeResult`.
 """
 
+import os
 import time
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -186,8 +187,6 @@ def memory_estimate(probes, cube_size, points):
 def physical_memory():
     """This machine's memory in bytes (None where it cannot be told)."""
     try:
-        import os
-
         return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (ValueError, OSError, AttributeError):
         return None
@@ -234,6 +233,7 @@ def bake_steps(scene, grid, renderer, settings=None):
     # Cycles); it comes through the probes.
     if np.any(scene.emission > 0) or np.any(scene.sky > 0):
         direct = direct + transport.gather_light(scene.emission, scene.sky)
+    scene.darken(direct)
     timings["direct_probes"] = time.perf_counter() - t
     timings["direct"] = timings["direct_lights"] + timings["direct_probes"]
     yield Progress("direct", 2, total, "direct light done", light=direct)
@@ -252,7 +252,7 @@ def bake_steps(scene, grid, renderer, settings=None):
         t1 = time.perf_counter()
         coeffs = transport.project(texels)
         t2 = time.perf_counter()
-        light = transport.interpolate(coeffs).astype(np.float64)
+        light = scene.darken(transport.interpolate(coeffs).astype(np.float64))
         t3 = time.perf_counter()
         mean = area_weighted_mean(light, areas)
         ratio = convergence.ratios(previous_mean, mean)
@@ -287,6 +287,8 @@ def bake_steps(scene, grid, renderer, settings=None):
     timings["bounces"] = sum(r["seconds"] for r in records)
     t = time.perf_counter()
     tail = _tail(transport, albedo, coeffs, bounces, records, remaining, areas, settings)
+    if tail["light"] is not None:
+        scene.darken(tail["light"])
     timings["tail"] = time.perf_counter() - t
     result = BakeResult(direct, bounces, timings, records, grid, transport.probe_valid, tail["light"], tail["report"])
     if tail["report"]["added"]:

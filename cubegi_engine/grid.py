@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import cubemap
+from .geometry import cut_triangles
 
 
 @dataclass(frozen=True)
@@ -156,26 +157,21 @@ def _covered(cover, eyes, points, normals, index, face, row, col, n, grid):
     d = np.linalg.norm(ray, axis=-1)
     u = ray / np.maximum(d, 1e-300)[..., None]
     eps = 1e-4 * float(np.min(grid.cell_size))
+    p0 = vertices[triangles[:, 0]]
+    tri_normals = np.cross(vertices[triangles[:, 1]] - p0, vertices[triangles[:, 2]] - p0)
+    tri_object = point_object[triangles[:, 0]]
     covered = np.zeros(index.shape, dtype=bool)
     for dr in (-1, 0, 1):
         for dc in (-1, 0, 1):
             tid = probe_tid[index, face, np.clip(row + dr, 0, n - 1), np.clip(col + dc, 0, n - 1)]
-            tri = triangles[np.maximum(tid, 0)]  # (s, 8, 3)
-            a, b, c = vertices[tri[..., 0]], vertices[tri[..., 1]], vertices[tri[..., 2]]
-            nrm = np.cross(b - a, c - a)
+            safe = np.maximum(tid, 0)
             # Another object, or the far side of a thin part of the same one (facing away).
+            nrm = tri_normals[safe]
             facing_away = np.einsum("...c,...c->...", nrm, normals[:, None, :]) < -0.5 * np.linalg.norm(nrm, axis=-1)
-            other = (tid >= 0) & ((point_object[tri[..., 0]] != point_object[:, None]) | facing_away) & ~covered
-            if not other.any():
+            candidate = (tid >= 0) & ~covered & ((tri_object[safe] != point_object[:, None]) | facing_away)
+            pick = np.nonzero(candidate)
+            if not len(pick[0]):
                 continue
-            area2 = np.einsum("...c,...c->...", nrm, nrm)
-            denom = np.einsum("...c,...c->...", u, nrm)
-            ok = other & (np.abs(denom) > 1e-6 * np.sqrt(area2)) & (area2 > 0)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                t = np.einsum("...c,...c->...", a - eyes, nrm) / np.where(ok, denom, 1.0)
-                x = eyes + t[..., None] * u
-                l1 = np.einsum("...c,...c->...", np.cross(c - b, x - b), nrm) / np.where(ok, area2, 1.0)
-                l2 = np.einsum("...c,...c->...", np.cross(a - c, x - c), nrm) / np.where(ok, area2, 1.0)
-            inside = (l1 >= 0) & (l2 >= 0) & (l1 + l2 <= 1)
-            covered |= ok & (t > 0) & (t < d - eps) & inside
+            t, inside, _ = cut_triangles(eyes[pick], u[pick], tid[pick], triangles, vertices)
+            covered[pick] = inside & (t > 0) & (t < d[pick] - eps)
     return covered

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import cubemap
+from .geometry import cut_triangles
 
 DISK_SEGMENTS = 32
 
@@ -185,7 +186,8 @@ def shadow_visibility(points, normals, eye, face_tid, face_dist, face_back, tria
     face, row, col, _, _ = cubemap.direction_to_texel(np.where(d2[:, None] > 0, rel2, 1.0), n)
     cos = np.abs(np.einsum("sc,sc->s", normals, rel / np.maximum(d, 1e-300)[:, None]))
     maps = (face_tid, face_dist, face_back)
-    occluded = _occluded(maps, face, row, col, eye[None, :], u, d2, cos, footprint, triangles, vertices, point_ids, scale, reach)
+    origins = np.broadcast_to(eye, u.shape)
+    occluded = _occluded(maps, face, row, col, origins, u, d2, cos, footprint, triangles, vertices, point_ids, scale, reach)
     return (~occluded).astype(np.float64)
 
 
@@ -193,21 +195,6 @@ def shadow_visibility(points, normals, eye, face_tid, face_dist, face_back, tria
 # before its shadow-map lookup: enough to step off its own curved surface, well below the
 # gap under a rug.
 LIFT = 0.25
-
-
-def _plane_depth(origins, u, tid, triangles, vertices):
-    """Distance along rays ``origins + t u`` to the plane of triangle ``tid`` (nan where there
-    is none or the ray grazes the plane). Arrays broadcast over a trailing neighbour axis."""
-    ok = tid >= 0
-    tri = triangles[np.maximum(tid, 0)]
-    a = vertices[tri[..., 0]]
-    nrm = np.cross(vertices[tri[..., 1]] - a, vertices[tri[..., 2]] - a)
-    denom = np.einsum("...c,...c->...", u, nrm)
-    num = np.einsum("...c,...c->...", a - origins, nrm)
-    ok &= np.abs(denom) > 1e-3 * np.linalg.norm(nrm, axis=-1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = num / np.where(ok, denom, 1.0)
-    return np.where(ok, t, np.nan)
 
 
 def _occluded(maps, face, row, col, origins, u, depth, cos, footprint, triangles, vertices, point_ids, scale, reach=1):
@@ -235,11 +222,11 @@ def _occluded(maps, face, row, col, origins, u, depth, cos, footprint, triangles
     offsets = np.array([(dr, dc) for dr in steps for dc in steps])
     r = np.clip(row[:, None] + offsets[None, :, 0], 0, n - 1)
     c = np.clip(col[:, None] + offsets[None, :, 1], 0, n - 1)
-    f = np.broadcast_to(face[:, None], r.shape) if np.ndim(face) else face
+    f = face[:, None]
     tid = tid_map[f, r, c]
     seen = dist_map[f, r, c].astype(np.float64)
     back = back_map[f, r, c]
-    plane = _plane_depth(origins[:, None, :], u[:, None, :] if u.ndim == 2 else u, tid, triangles, vertices)
+    plane, _, _ = cut_triangles(origins[:, None, :], u[:, None, :], tid, triangles, vertices)
     own = np.any(triangles[np.maximum(tid, 0)] == point_ids[:, None, None], axis=2)
     depth = depth[:, None]
     bias = (0.1 * footprint / np.maximum(cos, 0.2) + 1e-5 * scale)[:, None]
@@ -266,7 +253,8 @@ def ortho_visibility(
     cos = np.abs(normals @ axis)
     inside = (np.abs(ndc) <= 1.0).all(axis=1)
     origins = lifted - depth[:, None] * axis
-    u = np.broadcast_to(axis, (len(points), 1, 3))
+    u = np.broadcast_to(axis, lifted.shape)
     maps = (tid_map[None], dist_map[None], back_map[None])
-    occluded = _occluded(maps, 0, row, col, origins, u, depth, cos, footprint, triangles, vertices, point_ids, scale)
+    face = np.zeros(len(points), dtype=np.int64)
+    occluded = _occluded(maps, face, row, col, origins, u, depth, cos, footprint, triangles, vertices, point_ids, scale)
     return (~occluded | ~inside).astype(np.float64)

@@ -87,7 +87,8 @@ def irradiance_diffuse(coeffs, normals):
 DERING_WINDOW = np.array([1.0, np.sqrt(3.0) / 2.0, 0.8])[BAND_OF_COEFF]  # (9,)
 
 
-def _fibonacci_sphere(k):
+def fibonacci_sphere(k):
+    """``k`` nearly evenly spread unit directions ``(k, 3)``."""
     i = np.arange(k) + 0.5
     z = 1.0 - 2.0 * i / k
     r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
@@ -95,10 +96,8 @@ def _fibonacci_sphere(k):
     return np.stack([r * np.cos(a), r * np.sin(a), z], axis=1)
 
 
-_DERING_DIRS = diffuse_basis(_fibonacci_sphere(512))  # (512, 9)
-
-
-DERING_MARGIN = 0.02
+_DERING_DIRS = diffuse_basis(fibonacci_sphere(512))  # (512, 9)
+DERING_MARGIN = 0.02  # of a probe's mean light: closer to zero than this counts as ringing
 
 
 def dering(coeffs):

@@ -51,6 +51,13 @@ class SceneArrays:
     sky: np.ndarray = field(default_factory=lambda: np.zeros(3))
     lights: list = field(default_factory=list)
     point_object: np.ndarray = None  # (s,) int: which object each point belongs to (optional)
+    dark: np.ndarray = None  # (s,) bool: points that get no light (bad input set aside; optional)
+
+    def darken(self, light):
+        """``light (s, 3)`` with the dark points' rows set to zero (in place); returned."""
+        if self.dark is not None:
+            light[self.dark] = 0.0
+        return light
 
     def bounds(self):
         return self.points.min(axis=0), self.points.max(axis=0)

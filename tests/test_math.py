@@ -16,14 +16,6 @@ SOLID = np.tile(cubemap.texel_solid_angles(N).ravel(), 6)
 QUADRATURE_TOL = 1e-3
 
 
-def fibonacci_sphere(k):
-    i = np.arange(k) + 0.5
-    z = 1 - 2 * i / k
-    r = np.sqrt(1 - z * z)
-    a = np.pi * (1 + 5**0.5) * i
-    return np.stack([r * np.cos(a), r * np.sin(a), z], axis=1)
-
-
 def test_texel_solid_angles_sum_to_4pi():
     for n in (1, 2, 7, 32, 128):
         total = 6 * cubemap.texel_solid_angles(n).sum()
@@ -55,7 +47,7 @@ def test_face_frames_are_right_handed_cameras():
 def test_constant_radiance_gives_its_value():
     c = np.array([0.3, 1.0, 2.5])
     coeffs = sh.project(np.tile(c, (len(DIRS), 1)), DIRS, SOLID)
-    got = sh.irradiance_diffuse(coeffs, fibonacci_sphere(50))
+    got = sh.irradiance_diffuse(coeffs, sh.fibonacci_sphere(50))
     np.testing.assert_allclose(got, np.tile(c, (50, 1)), rtol=1e-9)
 
 
@@ -63,7 +55,7 @@ def test_linear_radiance_gives_exact_irradiance():
     # L(w) = a + b.w  ->  E(n) = pi a + 2 pi / 3 b.n  (bands 0 and 1 are exact).
     a, b = 0.7, np.array([0.2, -0.3, 0.4])
     coeffs = sh.project((a + DIRS @ b)[:, None], DIRS, SOLID)
-    n = fibonacci_sphere(200)
+    n = sh.fibonacci_sphere(200)
     want = a + (2.0 / 3.0) * (n @ b)
     np.testing.assert_allclose(sh.irradiance_diffuse(coeffs, n)[:, 0], want, atol=QUADRATURE_TOL)
 
@@ -79,7 +71,7 @@ def test_clamped_cosine_lobe_coefficients_and_irradiance():
     # Irradiance of that lobe at normal n, by brute force over a fine cube map.
     fine = cubemap.texel_directions(128).reshape(-1, 3)
     fine_w = np.tile(cubemap.texel_solid_angles(128).ravel(), 6)
-    n = fibonacci_sphere(64)
+    n = sh.fibonacci_sphere(64)
     brute = (np.maximum(fine[:, 2], 0)[None] * np.maximum(n @ fine.T, 0) * fine_w).sum(1) / np.pi
     got = sh.irradiance_diffuse(coeffs[:, None], n)[:, 0]
     # Order-2 truncation: R&H report under 3% average error for irradiance; the worst case

@@ -11,7 +11,7 @@ N = 8
 DIRS = cubemap.texel_directions(N).reshape(-1, 3)
 SOLID = np.tile(cubemap.texel_solid_angles(N).ravel(), 6)
 T = len(DIRS)
-NORMALS = sh._fibonacci_sphere(3000)
+NORMALS = sh.fibonacci_sphere(3000)
 
 finite = st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False)
 radiance = arrays(np.float64, (T, 3), elements=finite)
@@ -87,7 +87,7 @@ def test_deringed_irradiance_of_non_negative_radiance_is_never_negative(spec):
 def test_a_single_direction_rings_and_is_windowed_to_zero_at_worst():
     """The worst case, one direction: -3.7% of the peak before, >= 0 after (touching 0)."""
     c = sh.basis(np.array([[0.0, 0.0, 1.0]]))[0][:, None]
-    dense = sh._fibonacci_sphere(40000)
+    dense = sh.fibonacci_sphere(40000)
     raw = sh.irradiance_diffuse(c, dense)[:, 0]
     assert raw.min() / raw.max() < -0.03
     fixed, rings = sh.dering(c)

@@ -14,7 +14,7 @@ import numpy as np
 from ..cubegi_engine import __version__
 from ..cubegi_engine import metrics
 from ..cubegi_engine.bake import BakeSettings, Progress, area_weighted_mean, bake_steps as engine_bake_steps, check_memory
-from ..cubegi_engine.grid import ProbeGrid, fit_bounds
+from ..cubegi_engine.grid import GridSet, ProbeGrid, fit_bounds
 from . import attributes, reference, scene_data
 from .gpu_capture import GpuRenderer
 
@@ -61,28 +61,42 @@ def grid_bounds_of(ob):
 
 
 def resolve_grid(scene, arrays, resolution=None):
-    """The probe grid of a bake, where it came from, and the share of points outside it.
+    """The probe grid(s) of a bake, where they came from, and the share of points outside.
 
-    ``resolution`` (3 ints) overrides the resolution; the bounds come from the scene's probe
-    grid object if it has one, else from the geometry's bounding box. Points outside a probe
-    grid object get the light of its nearest probes (trilinear weights clamped at its
-    faces); a grid object with no geometry inside is refused.
+    ``resolution`` (3 ints) overrides the resolution (of every grid). The bounds come from the
+    scene's probe grid objects if it has any, else from the geometry's bounding box. With
+    several grid objects each point uses the finest grid whose box contains it (see
+    :class:`cubegi_engine.grid.GridSet`); points outside every grid get the light of the
+    nearest grid's nearest probes (trilinear weights clamped at its faces). A grid object
+    with no geometry inside is refused.
     """
-    grids = probe_grid_objects(scene)
-    if grids:
-        ob = grids[0]
-        lo, hi = grid_bounds_of(ob)
-        inside = np.all((arrays.points >= lo) & (arrays.points <= hi), axis=1)
-        if not inside.any():
-            raise ValueError(f"probe grid {ob.name!r} contains no geometry; move or scale it over the scene")
-        res = resolution or tuple(ob.cubegi.resolution)
-        return ProbeGrid(lo, hi, res), f"probe grid object {ob.name!r}", float(1.0 - inside.mean())
+    objects = sorted(probe_grid_objects(scene), key=lambda ob: ob.name)
+    if objects:
+        grids, inside_any = [], np.zeros(len(arrays.points), dtype=bool)
+        for ob in objects:
+            lo, hi = grid_bounds_of(ob)
+            inside = np.all((arrays.points >= lo) & (arrays.points <= hi), axis=1)
+            if not inside.any():
+                raise ValueError(f"probe grid {ob.name!r} contains no geometry; move or scale it over the scene")
+            inside_any |= inside
+            grids.append(ProbeGrid(lo, hi, resolution or tuple(ob.cubegi.resolution)))
+        names = ", ".join(repr(ob.name) for ob in objects)
+        grid = grids[0] if len(grids) == 1 else GridSet(grids)
+        source = f"probe grid object{'s' if len(grids) > 1 else ''} {names}"
+        return grid, source, float(1.0 - inside_any.mean())
     lo, hi = arrays.bounds()
     pad = np.maximum(hi - lo, 1e-9 * max(arrays.scale, 1e-30)) * 1e-3
     lo, hi = lo - pad, hi + pad
     if resolution:
         return ProbeGrid(lo, hi, resolution), "scene bounds", 0.0
     return ProbeGrid(lo, hi, fit_bounds(lo, hi, max_probes=MAX_FITTED_PROBES)), "fitted to scene bounds", 0.0
+
+
+def grid_report(grid):
+    """The grid part of a report: every grid's resolution and box (the first's at top level)."""
+    grids = getattr(grid, "grids", (grid,))
+    each = [{"resolution": list(g.resolution), "lo": list(g.lo), "hi": list(g.hi), "probes": g.count} for g in grids]
+    return dict(each[0], probes=grid.count, grids=each)
 
 
 def bake_steps(context, settings=None, resolution=None, lit=False, reference_samples=None):
@@ -99,7 +113,7 @@ def bake_steps(context, settings=None, resolution=None, lit=False, reference_sam
     grid, grid_source, outside = resolve_grid(context.scene, arrays, resolution)
     if outside > 0:
         collected.notes.append(
-            f"{100 * outside:.1f}% of the shading points lie outside the probe grid; they get the light of its nearest probes"
+            f"{100 * outside:.1f}% of the shading points lie outside every probe grid; they get the light of the nearest grid's nearest probes"
         )
     t_collect = time.perf_counter() - t0
     if not collected.targets:
@@ -157,10 +171,7 @@ def bake_steps(context, settings=None, resolution=None, lit=False, reference_sam
             "add_tail": settings.add_tail,
         },
         "grid": {
-            "resolution": list(grid.resolution),
-            "lo": list(grid.lo),
-            "hi": list(grid.hi),
-            "probes": grid.count,
+            **grid_report(grid),
             "probes_inside_geometry": int((~result.probe_valid).sum()),
             "source": grid_source,
         },

@@ -85,6 +85,9 @@ class BakeResult:
     probe_valid: np.ndarray = None
     tail: np.ndarray = None  # (s, 3) light after the last bounce, when estimated
     tail_report: dict = field(default_factory=dict)
+    # (p, 9, 3) SH radiance seen by each probe, summed over the computed bounces (emitters and
+    # sky included; the tail not): what the probe-sphere display shows.
+    probe_coeffs: np.ndarray = None
 
     @property
     def bounce_sum(self):
@@ -231,8 +234,10 @@ def bake_steps(scene, grid, renderer, settings=None):
     t = time.perf_counter()
     # Light reaching a point straight from emissive surfaces or the sky is direct (as in
     # Cycles); it comes through the probes.
+    probe_coeffs = np.zeros((grid.count, 9, 3), dtype=np.float32)
     if np.any(scene.emission > 0) or np.any(scene.sky > 0):
-        direct = direct + transport.gather_light(scene.emission, scene.sky)
+        probe_coeffs = transport.project(transport.texel_radiance(scene.emission), scene.sky)
+        direct = direct + transport.interpolate(probe_coeffs)
     scene.darken(direct)
     timings["direct_probes"] = time.perf_counter() - t
     timings["direct"] = timings["direct_lights"] + timings["direct_probes"]
@@ -251,6 +256,7 @@ def bake_steps(scene, grid, renderer, settings=None):
         texels = transport.texel_radiance(albedo * previous)
         t1 = time.perf_counter()
         coeffs = transport.project(texels)
+        probe_coeffs = probe_coeffs + coeffs
         t2 = time.perf_counter()
         light = scene.darken(transport.interpolate(coeffs).astype(np.float64))
         t3 = time.perf_counter()
@@ -290,7 +296,9 @@ def bake_steps(scene, grid, renderer, settings=None):
     if tail["light"] is not None:
         scene.darken(tail["light"])
     timings["tail"] = time.perf_counter() - t
-    result = BakeResult(direct, bounces, timings, records, grid, transport.probe_valid, tail["light"], tail["report"])
+    result = BakeResult(
+        direct, bounces, timings, records, grid, transport.probe_valid, tail["light"], tail["report"], probe_coeffs
+    )
     if tail["report"]["added"]:
         yield Progress(
             "tail", total, total,

@@ -48,6 +48,10 @@ class ProbeGrid:
         """Cell edge lengths ``(3,)`` float64."""
         return (np.asarray(self.hi) - np.asarray(self.lo)) / np.asarray(self.resolution)
 
+    def point_cell_edge(self, points):
+        """The smallest cell edge of the grid each point uses, ``(s,)`` float64."""
+        return np.full(len(points), float(np.min(self.cell_size)))
+
     def positions(self):
         """Probe centres ``(count, 3)`` float64, x fastest."""
         lo, h = np.asarray(self.lo), self.cell_size
@@ -77,6 +81,55 @@ class ProbeGrid:
             idx[:, corner] = ia[0] + res[0] * (ia[1] + res[1] * ia[2])
             w[:, corner] = wa[0] * wa[1] * wa[2]
         return idx, w
+
+
+class GridSet:
+    """Several probe grids baked together; each point uses one of them.
+
+    The rule for a point: of the grids whose boxes contain it, the one with the smallest
+    cell volume (the finest); on a tie, the first given. A point inside no grid uses the
+    grid whose box is nearest (the finest of those at the same distance), with clamped
+    trilinear weights at that box's faces. Probes are numbered grid after grid.
+    """
+
+    def __init__(self, grids):
+        self.grids = tuple(grids)
+        if not self.grids:
+            raise ValueError("a grid set needs at least one probe grid")
+        counts = [g.count for g in self.grids]
+        self.offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+        self.count = int(sum(counts))
+
+    def positions(self):
+        return np.concatenate([g.positions() for g in self.grids])
+
+    def assign(self, points):
+        """Which grid each point uses, ``(s,)`` int64 (the rule above)."""
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        gap = np.stack(
+            [np.linalg.norm(np.maximum(np.maximum(np.asarray(g.lo) - p, p - np.asarray(g.hi)), 0.0), axis=1) for g in self.grids],
+            axis=1,
+        )  # (s, g): distance from each point to each grid's box (0 inside)
+        volume = np.array([float(np.prod(g.cell_size)) for g in self.grids])
+        nearest = gap <= gap.min(axis=1, keepdims=True)
+        # Among the nearest boxes, the smallest cells; argmin picks the first on a tie.
+        return np.argmin(np.where(nearest, volume[None, :], np.inf), axis=1)
+
+    def trilinear(self, points):
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        which = self.assign(p)
+        index = np.zeros((len(p), 8), dtype=np.int64)
+        weight = np.zeros((len(p), 8), dtype=np.float64)
+        for g, grid in enumerate(self.grids):
+            sel = which == g
+            if sel.any():
+                i, w = grid.trilinear(p[sel])
+                index[sel], weight[sel] = i + self.offsets[g], w
+        return index, weight
+
+    def point_cell_edge(self, points):
+        edges = np.array([float(np.min(g.cell_size)) for g in self.grids])
+        return edges[self.assign(points)]
 
 
 def fit_bounds(lo, hi, spacing=None, max_probes=4096):
@@ -117,18 +170,18 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     gets no probe light, instead of falling back to its plain weights.
     """
     n = probe_dist.shape[-1]
-    lift = 0.1 * float(np.min(grid.cell_size))
-    q = points[:, None, :] + lift * normals[:, None, :]  # (s, 1, 3)
+    cell = grid.point_cell_edge(points)[:, None]  # (s, 1)
+    q = points[:, None, :] + 0.1 * cell[..., None] * normals[:, None, :]  # (s, 1, 3)
     v = q - probe_pos[index]  # (s, 8, 3)
     dist = np.linalg.norm(v, axis=-1)
     face, row, col, _, _ = cubemap.direction_to_texel(np.where(dist[..., None] > 0, v, 1.0), n)
     seen = probe_dist[index, face, row, col]
     # Tolerance: two texels' worth of angle at that distance plus a hundredth of a cell.
-    tol = dist * (4.0 / n) + 0.01 * float(np.min(grid.cell_size))
+    tol = dist * (4.0 / n) + 0.01 * cell
     visible = dist <= seen + tol
     covered = np.zeros_like(visible)
     if cover is not None:
-        covered = _covered(cover, probe_pos[index], points, normals, index, face, row, col, n, grid)
+        covered = _covered(cover, probe_pos[index], points, normals, index, face, row, col, n, cell)
         visible &= ~covered
     valid = probe_valid[index]
     w = weight * (visible & valid)
@@ -142,7 +195,7 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     return w
 
 
-def _covered(cover, eyes, points, normals, index, face, row, col, n, grid):
+def _covered(cover, eyes, points, normals, index, face, row, col, n, cell):
     """``(s, 8)``: another object's triangle lies between each probe and point (see above).
 
     The texel towards the point and its 8 neighbours are asked which triangles they see;
@@ -152,11 +205,11 @@ def _covered(cover, eyes, points, normals, index, face, row, col, n, grid):
     other object must not count, or the floor around a rug would go dark.)
     """
     probe_tid, triangles, point_object, vertices = cover
-    q = points[:, None, :] + 1e-3 * float(np.min(grid.cell_size)) * normals[:, None, :]
+    q = points[:, None, :] + 1e-3 * cell[..., None] * normals[:, None, :]
     ray = q - eyes
     d = np.linalg.norm(ray, axis=-1)
     u = ray / np.maximum(d, 1e-300)[..., None]
-    eps = 1e-4 * float(np.min(grid.cell_size))
+    eps = 1e-4 * cell
     p0 = vertices[triangles[:, 0]]
     tri_normals = np.cross(vertices[triangles[:, 1]] - p0, vertices[triangles[:, 2]] - p0)
     tri_object = point_object[triangles[:, 0]]
@@ -173,5 +226,5 @@ def _covered(cover, eyes, points, normals, index, face, row, col, n, grid):
             if not len(pick[0]):
                 continue
             t, inside, _ = cut_triangles(eyes[pick], u[pick], tid[pick], triangles, vertices)
-            covered[pick] = inside & (t > 0) & (t < d[pick] - eps)
+            covered[pick] = inside & (t > 0) & (t < d[pick] - eps[pick[0], 0])
     return covered

@@ -178,10 +178,6 @@ class Transport:
         out = np.einsum("sk,skc->sc", self.point_weights, g, optimize=True)
         return np.maximum(out, 0.0) if clamp else out
 
-    def gather_light(self, radiance, sky=None):
-        """One full transport step: point radiance (and sky) to diffuse light at the points."""
-        return self.interpolate(self.project(self.texel_radiance(radiance), sky))
-
 
 def reference_coefficients(renderer, grid, scene, radiance, size, near, far):
     """The paper's way: draw the scene coloured by ``radiance`` ``(s, 3)`` into a cube map at

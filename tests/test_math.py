@@ -125,6 +125,29 @@ def test_single_probe_grid_and_bad_grids():
         grid.ProbeGrid((0, 0, 0), (0, 1, 1), (1, 1, 1))
 
 
+def test_grid_set_uses_the_finest_containing_grid_then_the_nearest():
+    coarse = grid.ProbeGrid((0, 0, 0), (4, 4, 4), (2, 2, 2))
+    fine = grid.ProbeGrid((1, 1, 1), (2, 2, 2), (4, 4, 4))
+    beside = grid.ProbeGrid((10, 0, 0), (11, 1, 1), (1, 1, 1))
+    gs = grid.GridSet([coarse, fine, beside])
+    pts = np.array([[0.5, 0.5, 0.5], [1.5, 1.5, 1.5], [2.0, 2.0, 2.0], [10.5, 0.5, 0.5], [6.0, 0.5, 0.5], [9.5, 0.5, 0.5]])
+    np.testing.assert_array_equal(gs.assign(pts), [0, 1, 1, 2, 0, 2])
+    idx, w = gs.trilinear(pts)
+    np.testing.assert_allclose(w.sum(1), 1.0)
+    # Indices fall in each grid's own range, and match that grid's own weights.
+    assert (idx[0] < 8).all() and ((idx[1] >= 8) & (idx[1] < 72)).all() and (idx[3] == 72).all()
+    i1, w1 = fine.trilinear(pts[1:2])
+    np.testing.assert_array_equal(idx[1], i1[0] + 8)
+    np.testing.assert_allclose(w[1], w1[0])
+    np.testing.assert_allclose(gs.positions()[8:72], fine.positions())
+    np.testing.assert_allclose(gs.point_cell_edge(pts[:2]), [2.0, 0.25])
+    # On a tie (same cells, both contain the point) the first grid wins.
+    twin = grid.GridSet([coarse, grid.ProbeGrid((0, 0, 0), (4, 4, 4), (2, 2, 2))])
+    assert (twin.assign(pts[:3]) == 0).all()
+    with pytest.raises(ValueError):
+        grid.GridSet([])
+
+
 def brute_form_factor(point, normal, polygon, n=512):
     # Integrate cos / pi over the directions that hit the polygon (fine cube-map quadrature).
     d = cubemap.texel_directions(n).reshape(-1, 3)

@@ -1,11 +1,11 @@
 """CubeGI's Blender side: properties, operators, the GPU capture and the bpy glue.
 
-Registers in dependency order (properties, operators, panel) and unregisters in reverse.
+Registers in dependency order (preferences, properties, operators, panel, viewport drawing) and unregisters in reverse.
 """
 
-from . import attributes, operators, panel, pipeline, props, reference, scene_data
+from . import attributes, display, materials, operators, panel, pipeline, prefs, probe_view, props, reference, scene_data
 
-_modules = (props, operators, panel)
+_modules = (prefs, props, operators, panel, probe_view)
 
 
 def register():

@@ -1,8 +1,9 @@
 """CubeGI's colour attributes on meshes: names, writing, clearing.
 
 Output contract: FLOAT_COLOR attributes on the POINT domain, ``CubeGI_direct``,
-``CubeGI_bounce_1`` .. ``CubeGI_bounce_N`` and ``CubeGI`` (the sum of the bounces), holding
-diffuse light (irradiance / pi); optionally ``CubeGI_lit``, the lit colour (albedo times
+``CubeGI_bounce_1`` .. ``CubeGI_bounce_N``, ``CubeGI`` (the sum of the bounces: the indirect
+light) and ``CubeGI_total`` (direct plus indirect), holding diffuse light (irradiance / pi);
+optionally ``CubeGI_lit``, the lit colour (albedo times
 direct plus indirect light) for display and export. A bake with a Cycles reference also
 writes ``CubeGI_ref_direct`` and ``CubeGI_ref_indirect`` (the same quantities from Cycles);
 a bake without one leaves earlier reference attributes alone. Nothing else of the mesh is
@@ -16,10 +17,11 @@ import numpy as np
 PREFIX = "CubeGI"
 DIRECT = "CubeGI_direct"
 TOTAL = "CubeGI"
+TOTAL_LIGHT = "CubeGI_total"
 LIT = "CubeGI_lit"
 REF_DIRECT = "CubeGI_ref_direct"
 REF_INDIRECT = "CubeGI_ref_indirect"
-_OWN = re.compile(r"^CubeGI(_direct|_lit|_bounce_\d+)?$")
+_OWN = re.compile(r"^CubeGI(_direct|_total|_lit|_bounce_\d+)?$")
 _REF = re.compile(r"^CubeGI_ref_(direct|indirect)$")
 
 
@@ -57,6 +59,16 @@ def sanitise(values):
     return np.clip(v, 0.0, np.finfo(np.float32).max)
 
 
+def _rgba(mesh, name, values):
+    """Sanitised ``(v, 3)`` light as the flat float32 RGBA an attribute takes."""
+    v = sanitise(values)
+    if v.shape != (len(mesh.vertices), 3):
+        raise ValueError(f"{mesh.name}: {name} has shape {v.shape}, mesh has {len(mesh.vertices)} vertices")
+    rgba = np.ones((len(v), 4), dtype=np.float32)
+    rgba[:, :3] = v
+    return rgba
+
+
 def clear(mesh, which=is_own):
     """Remove the attributes of ``mesh`` whose names ``which`` accepts; returns their names."""
     names = [a.name for a in mesh.attributes if which(a.name)]
@@ -70,19 +82,23 @@ def write(mesh, layers):
 
     The bake's own names are always replaced; the reference names only when ``layers`` has
     them."""
-    prepared = {}
-    for name, values in layers.items():
-        v = sanitise(values)
-        if v.shape != (len(mesh.vertices), 3):
-            raise ValueError(f"{mesh.name}: {name} has shape {v.shape}, mesh has {len(mesh.vertices)} vertices")
-        rgba = np.ones((len(v), 4), dtype=np.float32)
-        rgba[:, :3] = v
-        prepared[name] = rgba
+    prepared = {name: _rgba(mesh, name, values) for name, values in layers.items()}
     with_reference = any(is_reference(n) for n in prepared)
     clear(mesh, is_any if with_reference else is_own)
     for name, rgba in prepared.items():
         attr = mesh.attributes.new(name, "FLOAT_COLOR", "POINT")
         attr.data.foreach_set("color", rgba.ravel())
+
+
+def put(mesh, name, values):
+    """Create or overwrite the one layer ``name`` of ``mesh`` with ``values (v, 3)``."""
+    rgba = _rgba(mesh, name, values)
+    attr = mesh.attributes.get(name)
+    if attr is None or attr.data_type != "FLOAT_COLOR" or attr.domain != "POINT":
+        if attr is not None:
+            mesh.attributes.remove(attr)
+        attr = mesh.attributes.new(name, "FLOAT_COLOR", "POINT")
+    attr.data.foreach_set("color", rgba.ravel())
 
 
 def read(mesh, name):
@@ -94,7 +110,8 @@ def read(mesh, name):
 
 
 def snapshot(mesh):
-    """CubeGI's own attributes of ``mesh`` as they are now, for :func:`restore`."""
+    """CubeGI's attributes of ``mesh`` as they are now, and which colour attributes are
+    active and the default (render) ones, for :func:`restore`."""
     saved = []
     for a in mesh.attributes:
         if is_any(a.name):
@@ -103,12 +120,19 @@ def snapshot(mesh):
             data = np.empty(len(a.data) * (width or 1), dtype=np.float32)
             a.data.foreach_get(key, data)
             saved.append((a.name, a.data_type, a.domain, key, data))
-    return saved
+    colours = mesh.color_attributes
+    return saved, colours.active_color_name, colours.default_color_name
 
 
-def restore(mesh, saved):
+def restore(mesh, snap):
     """Put back what :func:`snapshot` saw, removing anything CubeGI wrote since."""
+    saved, active, default = snap
     clear(mesh, is_any)
     for name, data_type, domain, key, data in saved:
         attr = mesh.attributes.new(name, data_type, domain)
         attr.data.foreach_set(key, data)
+    colours = mesh.color_attributes
+    if active and active in colours:
+        colours.active_color_name = active
+    if default and default in colours:
+        colours.default_color_name = default

@@ -3,25 +3,57 @@
 import json
 
 import bpy
-from bpy.props import BoolProperty, FloatProperty, IntProperty, IntVectorProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, IntVectorProperty, StringProperty
 
-from ..cubegi_engine.bake import BakeSettings, run
-from . import attributes, pipeline
+from ..cubegi_engine.bake import BakeSettings
+from . import attributes, display, materials, pipeline, prefs, probe_view, props
 
 
 def _settings_from(op, scene):
     s = scene.cubegi
+
     def pick(name):
         return getattr(op, name) if op.properties.is_property_set(name) else getattr(s, name)
+
     tolerance = pick("tolerance")
     return BakeSettings(
         cube_size=pick("cube_size"), bounces=pick("bounces"), visibility=pick("visibility"),
-        tolerance=tolerance if tolerance > 0 else None, add_tail=pick("add_tail"),
+        tolerance=tolerance if tolerance > 0 else None, add_tail=pick("add_tail"), **prefs.capture_settings(),
     )
 
 
+class BakeJob:
+    """One bake driven a step at a time: by the modal operator's timer, or by tests.
+
+    The light so far is on the meshes after every step; :meth:`cancel` (or a failure) puts
+    every mesh back as it was.
+    """
+
+    def __init__(self, context, settings, resolution=None, lit="NONE", reference_samples=None, progressive=True):
+        self.steps = pipeline.bake_steps(
+            context, settings, resolution, lit=None if lit == "NONE" else lit, reference_samples=reference_samples,
+            progressive=progressive,
+        )
+        self.last = None
+        self.report = None
+
+    def step(self):
+        """Run one step; True when the bake is done (the report is in ``self.report``)."""
+        try:
+            self.last = next(self.steps)
+        except StopIteration as stop:
+            self.report = stop.value
+            return True
+        return False
+
+    def cancel(self):
+        self.steps.close()
+
+
 class CUBEGI_OT_bake(bpy.types.Operator):
-    """Bake direct and indirect diffuse light into CubeGI colour attributes on every mesh"""
+    """Bake direct and indirect diffuse light into CubeGI colour attributes on every mesh.
+    From the UI it runs in the background of the window: the light appears bounce by bounce,
+    Esc cancels and leaves everything as it was"""
 
     bl_idname = "cubegi.bake"
     bl_label = "Bake CubeGI"
@@ -30,7 +62,7 @@ class CUBEGI_OT_bake(bpy.types.Operator):
     cube_size: IntProperty(name="Cube-Map Size", description="Cube-map face size (default: the scene's setting)", default=32, min=1)
     bounces: IntProperty(name="Bounces", description="Indirect bounces (default: the scene's setting)", default=5, min=0)
     visibility: BoolProperty(name="Probe Visibility", description="Leave out probes that cannot see a vertex", default=True)
-    grid: IntVectorProperty(name="Grid", description="Probes along X, Y, Z (default: probe grid object, or fitted)", size=3, default=(0, 0, 0))
+    grid: IntVectorProperty(name="Grid", description="Probes along X, Y, Z (default: probe grid objects, or fitted)", size=3, default=(0, 0, 0))
     tolerance: FloatProperty(
         name="Tolerance", description="Stop once the estimated missing share of the indirect light is below this (0: run all bounces)",
         default=0.0, min=0.0, max=0.5,
@@ -39,7 +71,7 @@ class CUBEGI_OT_bake(bpy.types.Operator):
     reference_samples: IntProperty(
         name="Cycles Reference Samples", description="Also bake a Cycles reference with this many samples (0: none)", default=0, min=0
     )
-    lit: BoolProperty(name="Lit Colour", description="Also write CubeGI_lit, albedo times all light", default=False)
+    lit: EnumProperty(name="Lit Colour", description="Also write CubeGI_lit (default: the scene's setting)", items=props.LIT_ITEMS, default="NONE")
     report_path: StringProperty(name="Report", description="Write the bake report (JSON) to this file", default="", subtype="FILE_PATH")
 
     @classmethod
@@ -52,19 +84,77 @@ class CUBEGI_OT_bake(bpy.types.Operator):
             return False
         return True
 
-    def execute(self, context):
-        settings = _settings_from(self, context.scene)
+    def _job(self, context, progressive):
+        lit = self.lit if self.properties.is_property_set("lit") else context.scene.cubegi.lit
         resolution = tuple(self.grid) if any(self.grid) else None
+        return BakeJob(context, _settings_from(self, context.scene), resolution, lit, self.reference_samples or None, progressive)
+
+    def execute(self, context):
         try:
-            report = run(
-                pipeline.bake_steps(context, settings, resolution, lit=self.lit, reference_samples=self.reference_samples or None)
-            )
+            job = self._job(context, progressive=False)
+            while not job.step():
+                pass
         except ValueError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
+        return self._finish(context, job.report)
+
+    def invoke(self, context, event):
+        if bpy.app.background or context.window is None:
+            return self.execute(context)
+        self._view = display.view_state()
+        self._bake = self._job(context, progressive=True)
+        wm = context.window_manager
+        wm.progress_begin(0, 100)
+        self._timer = wm.event_timer_add(0.05, window=context.window)
+        wm.modal_handler_add(self)
+        context.workspace.status_text_set("CubeGI: starting the bake (Esc to cancel)")
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        if event.type == "ESC":
+            self.cancel(context)
+            self.report({"WARNING"}, "CubeGI: bake cancelled; nothing was changed")
+            return {"CANCELLED"}
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        try:
+            done = self._bake.step()
+        except ValueError as exc:
+            self._end(context)
+            display.restore_views(self._view)
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        if done:
+            self._end(context)
+            return self._finish(context, self._bake.report)
+        step = self._bake.last
+        context.window_manager.progress_update(int(100 * step.done / max(step.total, 1)))
+        context.workspace.status_text_set(f"CubeGI [{step.done}/{step.total}]: {step.message} (Esc to cancel)")
+        if step.light is not None:
+            display.show(context.scene)
+        for area in context.screen.areas if context.screen else ():
+            if area.type == "VIEW_3D":
+                area.tag_redraw()
+        return {"RUNNING_MODAL"}
+
+    def cancel(self, context):
+        """Esc, or the window manager ending the bake (a file load): undo every change."""
+        self._bake.cancel()
+        self._end(context)
+        display.restore_views(self._view)
+
+    def _end(self, context):
+        wm = context.window_manager
+        wm.event_timer_remove(self._timer)
+        wm.progress_end()
+        context.workspace.status_text_set(None)
+
+    def _finish(self, context, report):
         for warning in report["warnings"]:
             self.report({"WARNING"}, f"CubeGI: {warning}")
         context.scene.cubegi.last_report = json.dumps(report)
+        display.show(context.scene)
         if self.report_path:
             pipeline.write_report(report, bpy.path.abspath(self.report_path))
         self.report(
@@ -76,36 +166,125 @@ class CUBEGI_OT_bake(bpy.types.Operator):
         return {"FINISHED"}
 
 
+def _object_mode(cls, context):
+    if context.scene is None:
+        cls.poll_message_set("No scene")
+        return False
+    if context.mode != "OBJECT":
+        cls.poll_message_set("Switch to Object Mode first")
+        return False
+    return True
+
+
 class CUBEGI_OT_clear(bpy.types.Operator):
-    """Remove CubeGI's colour attributes from every mesh in the scene"""
+    """Remove CubeGI's colour attributes from every mesh in the scene, and the probes' stored light"""
 
     bl_idname = "cubegi.clear"
     bl_label = "Clear CubeGI"
     bl_options = {"REGISTER", "UNDO"}
 
+    @classmethod
+    def poll(cls, context):
+        if not _object_mode(cls, context):
+            return False
+        if not display.baked_meshes(context.scene):
+            cls.poll_message_set("Nothing to clear: no mesh in the scene has CubeGI attributes")
+            return False
+        return True
+
     def execute(self, context):
-        seen, removed = set(), 0
-        for ob in context.scene.objects:
-            if ob.type == "MESH" and ob.data.name not in seen and ob.data.library is None:
-                seen.add(ob.data.name)
-                removed += len(attributes.clear(ob.data, attributes.is_any))
+        removed = 0
+        for mesh in display.baked_meshes(context.scene):
+            removed += len(attributes.clear(mesh, attributes.is_any))
+        for ob in pipeline.probe_grid_objects(context.scene):
+            probe_view.forget(ob)
         self.report({"INFO"}, f"CubeGI: removed {removed} attributes")
         return {"FINISHED"}
 
 
 class CUBEGI_OT_add_probe_grid(bpy.types.Operator):
-    """Add a CubeGI probe grid fitted to the visible geometry"""
+    """Add a CubeGI probe grid fitted to the visible geometry. Its box sets the grid's bounds;
+    its Resolution sets the probes along each axis"""
 
     bl_idname = "cubegi.add_probe_grid"
     bl_label = "CubeGI Probe Grid"
     bl_options = {"REGISTER", "UNDO"}
 
-    resolution: IntVectorProperty(name="Resolution", description="Probes along X, Y, Z", size=3, default=(4, 4, 2), min=1, max=256)
+    resolution: IntVectorProperty(
+        name="Resolution", description="Probes along X, Y, Z (default: the preferences' New Grid Resolution)",
+        size=3, default=(4, 4, 2), min=1, max=256,
+    )
+
+    @classmethod
+    def poll(cls, context):
+        return _object_mode(cls, context)
 
     def execute(self, context):
+        if not self.properties.is_property_set("resolution"):
+            self.resolution = prefs.get(context).grid_resolution
         bounds = pipeline.world_bounds([ob for ob in context.visible_objects if ob.type == "MESH"])
         lo, hi = bounds if bounds is not None else ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
-        pipeline.new_probe_grid(context.collection, lo, hi, self.resolution)
+        ob = pipeline.new_probe_grid(context.collection, lo, hi, self.resolution)
+        for other in context.selected_objects:
+            other.select_set(False)
+        ob.select_set(True)
+        context.view_layer.objects.active = ob
+        return {"FINISHED"}
+
+
+class CUBEGI_OT_wire_materials(bpy.types.Operator):
+    """Show the baked indirect light in EEVEE and Cycles renders: add it to every material of
+    the scene's meshes as emission (base colour x CubeGI). Nothing else in the materials changes"""
+
+    bl_idname = "cubegi.wire_materials"
+    bl_label = "Show in Renders"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        if not _object_mode(cls, context):
+            return False
+        if not display.baked_meshes(context.scene):
+            cls.poll_message_set("Bake first: no mesh has CubeGI's light to show")
+            return False
+        if not any(not materials.is_wired(m) and materials.wirable(m) is None for m in materials.scene_materials(context.scene)):
+            cls.poll_message_set("No material left to wire (all wired, linked, or none assigned)")
+            return False
+        return True
+
+    def execute(self, context):
+        wired, skipped = 0, []
+        for material in materials.scene_materials(context.scene):
+            problem = materials.wirable(material)
+            if problem:
+                skipped.append(problem)
+            elif materials.wire(material):
+                wired += 1
+        for problem in skipped:
+            self.report({"WARNING"}, f"CubeGI: {problem}; not wired")
+        self.report({"INFO"}, f"CubeGI: wired the baked light into {wired} materials")
+        return {"FINISHED"}
+
+
+class CUBEGI_OT_unwire_materials(bpy.types.Operator):
+    """Remove the baked light from the materials again (undo Show in Renders)"""
+
+    bl_idname = "cubegi.unwire_materials"
+    bl_label = "Remove from Renders"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        if not _object_mode(cls, context):
+            return False
+        if not any(materials.is_wired(m) for m in materials.scene_materials(context.scene)):
+            cls.poll_message_set("No material of the scene has CubeGI's light wired in")
+            return False
+        return True
+
+    def execute(self, context):
+        n = sum(materials.unwire(m) for m in materials.scene_materials(context.scene))
+        self.report({"INFO"}, f"CubeGI: removed the baked light from {n} materials")
         return {"FINISHED"}
 
 
@@ -113,7 +292,7 @@ def menu_add(self, context):
     self.layout.operator(CUBEGI_OT_add_probe_grid.bl_idname, icon="LIGHTPROBE_VOLUME")
 
 
-classes = (CUBEGI_OT_bake, CUBEGI_OT_clear, CUBEGI_OT_add_probe_grid)
+classes = (CUBEGI_OT_bake, CUBEGI_OT_clear, CUBEGI_OT_add_probe_grid, CUBEGI_OT_wire_materials, CUBEGI_OT_unwire_materials)
 _register, _unregister = bpy.utils.register_classes_factory(classes)
 
 

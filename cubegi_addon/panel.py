@@ -1,10 +1,12 @@
-"""The CubeGI tab of the 3D view's sidebar: settings, Bake, Clear and the last bake's report."""
+"""The CubeGI tab of the 3D view's sidebar: grid and bake settings, Bake and Clear, which light
+to display, showing it in renders, and the last bake's report."""
 
 import json
 
 import bpy
 
 from ..cubegi_engine.report import summary_lines
+from . import pipeline
 
 
 def report_lines(scene):
@@ -18,7 +20,9 @@ def report_lines(scene):
         return ["the last report cannot be read; bake again"]
 
 
-class CUBEGI_PT_bake(bpy.types.Panel):
+class VIEW3D_PT_cubegi(bpy.types.Panel):
+    """CubeGI's settings and the Bake and Clear buttons."""
+
     bl_label = "CubeGI"
     bl_space_type = "VIEW_3D"
     bl_region_type = "UI"
@@ -28,23 +32,68 @@ class CUBEGI_PT_bake(bpy.types.Panel):
         layout = self.layout
         layout.use_property_split = True
         layout.use_property_decorate = False
-        settings = context.scene.cubegi
-        col = layout.column()
+        scene = context.scene
+        settings = scene.cubegi
+        grids = pipeline.probe_grid_objects(scene)
+        ob = context.active_object
+        col = layout.column(heading="Probe Grid")
+        if ob is not None and ob in grids:
+            col.prop(ob.cubegi, "resolution")
+            col.prop(ob.cubegi, "show_probes")
+            col.prop(ob.cubegi, "show_irradiance")
+        else:
+            col.label(text=f"{len(grids)} probe grid objects" if grids else "Fitted to the scene (no grid object)")
+        col.operator("cubegi.add_probe_grid", icon="LIGHTPROBE_VOLUME")
+        col = layout.column(heading="Capture")
         col.prop(settings, "cube_size")
+        col.prop(settings, "visibility")
+        col = layout.column(heading="Bounces")
         col.prop(settings, "bounces")
         col.prop(settings, "tolerance")
         col.prop(settings, "add_tail")
-        col.prop(settings, "visibility")
+        layout.prop(settings, "lit")
         row = layout.row(align=True)
         row.operator("cubegi.bake", icon="RENDER_STILL")
         row.operator("cubegi.clear", icon="TRASH")
+
+
+class VIEW3D_PT_cubegi_display(bpy.types.Panel):
+    """Which baked light the viewport shows, and showing it in renders."""
+
+    bl_label = "Display"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "CubeGI"
+    bl_parent_id = "VIEW3D_PT_cubegi"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        settings = context.scene.cubegi
+        layout.prop(settings, "display")
+        if settings.display == "BOUNCE":
+            layout.prop(settings, "display_bounce")
+        row = layout.row(align=True)
+        row.operator("cubegi.wire_materials", icon="MATERIAL")
+        row.operator("cubegi.unwire_materials", icon="X")
+
+
+class VIEW3D_PT_cubegi_report(bpy.types.Panel):
+    """The last bake's report: time, bounces, estimated remaining error."""
+
+    bl_label = "Last Bake"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "CubeGI"
+    bl_parent_id = "VIEW3D_PT_cubegi"
+
+    def draw(self, context):
         lines = report_lines(context.scene)
-        if lines:
-            box = layout.box()
-            box.label(text="Last bake", icon="INFO")
-            for line in lines:
-                box.label(text=line.strip())
+        col = self.layout.column(align=True)
+        for line in lines or ["no bake yet"]:
+            col.label(text=line.strip())
 
 
-classes = (CUBEGI_PT_bake,)
+classes = (VIEW3D_PT_cubegi, VIEW3D_PT_cubegi_display, VIEW3D_PT_cubegi_report)
 register, unregister = bpy.utils.register_classes_factory(classes)

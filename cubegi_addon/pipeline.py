@@ -15,7 +15,7 @@ from ..cubegi_engine import __version__
 from ..cubegi_engine import metrics
 from ..cubegi_engine.bake import BakeSettings, Progress, area_weighted_mean, bake_steps as engine_bake_steps, check_memory
 from ..cubegi_engine.grid import GridSet, ProbeGrid, fit_bounds
-from . import attributes, reference, scene_data
+from . import attributes, probe_view, reference, scene_data
 from .gpu_capture import GpuRenderer
 
 # Probes of a fitted grid: cells of about an eighth of the scene's longest side.
@@ -99,12 +99,81 @@ def grid_report(grid):
     return dict(each[0], probes=grid.count, grids=each)
 
 
-def bake_steps(context, settings=None, resolution=None, lit=False, reference_samples=None):
+class Preview:
+    """The light so far, written to the meshes after every step of a progressive bake.
+
+    It writes ``CubeGI_direct``, then after bounce k ``CubeGI_bounce_k``, ``CubeGI`` and
+    ``CubeGI_total`` as they stand. :meth:`undo` puts every mesh back as it was before the
+    first write (attributes and active colour attributes).
+    """
+
+    def __init__(self):
+        self.meshes, self.targets, self.saved = [], [], []
+        self.direct = self.previous = None
+        self.bounce = 0
+
+    def start(self, targets):
+        import bpy
+
+        self.targets = targets
+        self.meshes = [bpy.data.meshes[t.mesh_name] for t in targets]
+        self.saved = [attributes.snapshot(m) for m in self.meshes]
+
+    def update(self, step):
+        light = step.light
+        if self.direct is None:
+            self.direct = light
+            layers = {attributes.DIRECT: light, attributes.TOTAL_LIGHT: light}
+        else:
+            layers = {attributes.TOTAL_LIGHT: light, attributes.TOTAL: light - self.direct}
+            if step.stage == "bounce":
+                self.bounce += 1
+                layers[attributes.bounce_name(self.bounce)] = light - self.previous
+        self.previous = light
+        for target, mesh in zip(self.targets, self.meshes):
+            for name, values in layers.items():
+                attributes.put(mesh, name, attributes.vertex_values(target, values))
+            mesh.update()
+
+    def undo(self):
+        for mesh, snap in zip(self.meshes, self.saved):
+            attributes.restore(mesh, snap)
+            mesh.update()
+        self.meshes = []
+
+
+def _previewed(steps, preview):
+    """Pass ``steps`` through, showing each new light with ``preview`` (if any)."""
+    while True:
+        try:
+            step = next(steps)
+        except StopIteration as stop:
+            return stop.value
+        if preview is not None and step.light is not None:
+            preview.update(step)
+        yield step
+
+
+def bake_steps(context, settings=None, resolution=None, lit=False, reference_samples=None, progressive=False):
     """Bake the context's scene. A generator of engine Progress; returns the report dict.
 
-    With ``reference_samples``, Cycles also bakes the same light into ``CubeGI_ref_direct``
-    and ``CubeGI_ref_indirect`` and the report gives CubeGI's error against it.
+    ``lit``: False, True or "ALL" (``CubeGI_lit`` = albedo x all light) or "INDIRECT"
+    (albedo x indirect light). With ``reference_samples``, Cycles also bakes the same light into ``CubeGI_ref_direct``
+    and ``CubeGI_ref_indirect`` and the report gives CubeGI's error against it. With
+    ``progressive``, the light so far is written to the meshes after every step (see
+    :class:`Preview`); closing the generator early (a cancel) or a failure puts every mesh
+    back as it was.
     """
+    preview = Preview() if progressive else None
+    try:
+        return (yield from _bake_steps(context, settings, resolution, lit, reference_samples, preview))
+    except BaseException:
+        if preview is not None:
+            preview.undo()
+        raise
+
+
+def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
     settings = settings or BakeSettings()
     settings.validate()
     t0 = time.perf_counter()
@@ -123,7 +192,9 @@ def bake_steps(context, settings=None, resolution=None, lit=False, reference_sam
     t = time.perf_counter()
     renderer = GpuRenderer(arrays.points, arrays.triangles)
     t_setup = time.perf_counter() - t
-    result = yield from engine_bake_steps(arrays, grid, renderer, settings)
+    if preview is not None:
+        preview.start(collected.targets)
+    result = yield from _previewed(engine_bake_steps(arrays, grid, renderer, settings), preview)
 
     t = time.perf_counter()
     layers_per_target = []
@@ -133,8 +204,10 @@ def bake_steps(context, settings=None, resolution=None, lit=False, reference_sam
         for k, b in enumerate(result.bounces, start=1):
             layers[attributes.bounce_name(k)] = attributes.vertex_values(target, b)
         layers[attributes.TOTAL] = attributes.vertex_values(target, indirect)
+        layers[attributes.TOTAL_LIGHT] = attributes.vertex_values(target, result.direct + indirect)
         if lit:
-            layers[attributes.LIT] = attributes.vertex_values(target, arrays.albedo * (result.direct + indirect))
+            light = indirect if lit == "INDIRECT" else result.direct + indirect
+            layers[attributes.LIT] = attributes.vertex_values(target, arrays.albedo * light)
         layers_per_target.append(layers)
     t_layers = time.perf_counter() - t
     cubegi_seconds = time.perf_counter() - t0  # before the write, for the reference report
@@ -150,6 +223,9 @@ def bake_steps(context, settings=None, resolution=None, lit=False, reference_sam
 
     t = time.perf_counter()
     write_all(context, collected.targets, layers_per_target)
+    grid_objects = sorted(probe_grid_objects(context.scene), key=lambda ob: ob.name)
+    if grid_objects:
+        probe_view.store(grid_objects, grid, result.probe_coeffs, result.probe_valid)
     t_write = t_layers + time.perf_counter() - t
 
     areas = arrays.point_areas()
@@ -169,6 +245,7 @@ def bake_steps(context, settings=None, resolution=None, lit=False, reference_sam
             "shadow_size": settings.shadow_size,
             "tolerance": settings.tolerance,
             "add_tail": settings.add_tail,
+            "lit": ("INDIRECT" if lit == "INDIRECT" else "ALL") if lit else "NONE",
         },
         "grid": {
             **grid_report(grid),

@@ -1,9 +1,16 @@
 """CubeGI's settings on scenes (``Scene.cubegi``) and probe grid objects (``Object.cubegi``)."""
 
 import bpy
-from bpy.props import BoolProperty, FloatProperty, IntProperty, IntVectorProperty, PointerProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, IntVectorProperty, PointerProperty, StringProperty
 
 from ..cubegi_engine.bake import MAX_CUBE_SIZE, MIN_CUBE_SIZE
+from . import display
+
+LIT_ITEMS = (
+    ("NONE", "None", "Write no lit colour"),
+    ("ALL", "Direct + Indirect", "CubeGI_lit = albedo x (direct + indirect light): the complete lighting, for export"),
+    ("INDIRECT", "Indirect Only", "CubeGI_lit = albedo x indirect light: for engines that light directly themselves"),
+)
 
 
 class CubeGISceneSettings(bpy.types.PropertyGroup):
@@ -28,6 +35,17 @@ class CubeGISceneSettings(bpy.types.PropertyGroup):
     add_tail: BoolProperty(
         name="Add Tail", description="Add the estimated light after the last bounce to CubeGI (the total)", default=True
     )
+    lit: EnumProperty(
+        name="Lit Colour", description="Also write CubeGI_lit, the lit colour that glTF export carries as COLOR_0",
+        items=LIT_ITEMS, default="NONE",
+    )
+    display: EnumProperty(
+        name="Display", description="Which baked light the viewport shows (as the meshes' active colour attribute)",
+        items=display.ITEMS, default="TOTAL", update=display.on_display_change,
+    )
+    display_bounce: IntProperty(
+        name="Bounce", description="Which bounce to show", default=1, min=1, max=1000, update=display.on_display_change
+    )
     last_report: StringProperty(name="Last Report", description="JSON report of the last bake", default="")
 
 
@@ -35,6 +53,10 @@ class CubeGIObjectSettings(bpy.types.PropertyGroup):
     is_probe_grid: BoolProperty(name="Probe Grid", description="This Empty's cube is a CubeGI probe grid", default=False)
     resolution: IntVectorProperty(
         name="Resolution", description="Probes along X, Y and Z", size=3, default=(4, 4, 2), min=1, max=256
+    )
+    show_probes: BoolProperty(name="Show Probes", description="Draw this grid's probes in the viewport", default=True)
+    show_irradiance: BoolProperty(
+        name="Show Irradiance", description="After a bake, draw each probe as a small sphere shaded with its light", default=True
     )
 
 

@@ -65,7 +65,10 @@ def _bake_options(p, demo=False):
     p.add_argument("--reference-samples", type=int, default=256, help="Cycles samples for --reference (default 256)")
     if not demo:
         p.add_argument("--report", help="write the bake report (JSON) here")
-        p.add_argument("--lit", action="store_true", help="also write CubeGI_lit (albedo x all light)")
+        p.add_argument(
+            "--lit", nargs="?", const="all", choices=("all", "indirect"),
+            help="also write CubeGI_lit: albedo x all light (all, the default) or x indirect light only",
+        )
 
 
 def _check_bake_args(args):
@@ -155,7 +158,7 @@ def cmd_bake(args):
     load_extension()
     bpy.ops.wm.open_mainfile(filepath=src, load_ui=False)
     report = bake_open_file(
-        _settings(args), tuple(args.grid) if args.grid else None, lit=args.lit, reference_samples=_reference_samples(args)
+        _settings(args), tuple(args.grid) if args.grid else None, lit=args.lit.upper() if args.lit else False, reference_samples=_reference_samples(args)
     )
     report["input"], report["output"] = src, dst
     save_atomically(bpy, dst)

@@ -2,37 +2,14 @@
 as they were (forced here by making each stage raise)."""
 
 import bpy
-import numpy as np
 import pytest
 
 import scenes
+from state import scene_state as _state
 
 
 class Boom(Exception):
     pass
-
-
-def _state():
-    """Every mesh attribute's name, type, domain and bytes, and every material's node tree."""
-    state = {}
-    for mesh in bpy.data.meshes:
-        for a in mesh.attributes:
-            if a.data_type in {"FLOAT_COLOR", "BYTE_COLOR"}:
-                key, width = "color", 4
-            elif a.data_type == "FLOAT_VECTOR":
-                key, width = "vector", 3
-            elif a.data_type in {"FLOAT", "INT", "BOOLEAN"}:
-                key, width = "value", 1
-            else:
-                continue
-            dtype = {"INT": np.int32, "BOOLEAN": bool}.get(a.data_type, np.float32)
-            data = np.empty(len(a.data) * width, dtype=dtype)
-            a.data.foreach_get(key, data)
-            state[(mesh.name, a.name)] = (a.data_type, a.domain, data.tobytes())
-    for mat in bpy.data.materials:
-        nodes = mat.node_tree.nodes if mat.node_tree else []
-        state[("material", mat.name)] = sorted((n.name, n.bl_idname) for n in nodes)
-    return state
 
 
 @pytest.fixture

@@ -1,0 +1,131 @@
+"""The probe grids in the 3D viewport: a dot per probe, and after a bake a small sphere per
+probe shaded with its light.
+
+A bake stores each grid object's probe light as hidden ID properties
+(``_cubegi_probe_light``: ``p * 9 * 3`` SH radiance coefficients; ``_cubegi_probe_valid``:
+``p`` flags, 0 for a probe found inside geometry). Probes inside geometry are drawn red and
+get no sphere. Batches are cached and rebuilt when a grid's transform, resolution or light
+changes.
+"""
+
+import bpy
+import gpu
+import numpy as np
+from gpu_extras.batch import batch_for_shader
+
+from ..cubegi_engine.grid import ProbeGrid
+from ..cubegi_engine.spheres import probe_spheres
+from . import prefs
+
+LIGHT_KEY = "_cubegi_probe_light"
+VALID_KEY = "_cubegi_probe_valid"
+PROBE_COLOUR = (0.9, 0.75, 0.2, 1.0)
+INSIDE_COLOUR = (0.9, 0.15, 0.1, 1.0)
+
+_handle = None
+_cache = {}
+
+
+def probe_grid(ob):
+    """The :class:`ProbeGrid` of a grid object as it stands."""
+    from .pipeline import grid_bounds_of
+
+    lo, hi = grid_bounds_of(ob)
+    return ProbeGrid(lo, hi, tuple(ob.cubegi.resolution))
+
+
+def store(objects, grid, coeffs, valid):
+    """Keep each grid object's share of a bake's probe light (grids in ``objects`` order)."""
+    grids = getattr(grid, "grids", (grid,))
+    offsets = getattr(grid, "offsets", (0,))
+    for ob, g, start in zip(objects, grids, offsets):
+        ob[LIGHT_KEY] = np.asarray(coeffs[start : start + g.count], dtype=np.float64).ravel().tolist()
+        ob[VALID_KEY] = [int(v) for v in valid[start : start + g.count]]
+    _cache.clear()
+
+
+def forget(ob):
+    """Drop a grid object's stored probe light."""
+    for key in (LIGHT_KEY, VALID_KEY):
+        if key in ob:
+            del ob[key]
+    _cache.pop(ob.name, None)
+
+
+def stored_light(ob):
+    """``(coeffs (p, 9, 3), valid (p,) bool)`` from the last bake, or None if there is none
+    or the grid's resolution changed since."""
+    if LIGHT_KEY not in ob or VALID_KEY not in ob:
+        return None
+    count = int(np.prod(ob.cubegi.resolution))
+    coeffs = np.array(ob[LIGHT_KEY], dtype=np.float64)
+    valid = np.array(ob[VALID_KEY], dtype=bool)
+    if coeffs.size != count * 27 or valid.size != count:
+        return None
+    return coeffs.reshape(count, 9, 3), valid
+
+
+def sphere_radius(grid, scale):
+    """Sphere radius: ``scale`` (a preference) times the grid's smallest cell edge."""
+    return scale * float(np.min(grid.cell_size))
+
+
+def _batches(ob):
+    key = (tuple(tuple(r) for r in ob.matrix_world), tuple(ob.cubegi.resolution), ob.empty_display_size, ob.cubegi.show_irradiance, prefs.get().sphere_scale)
+    cached = _cache.get(ob.name)
+    if cached is not None and cached[0] == key:
+        return cached[1]
+    grid = probe_grid(ob)
+    positions = grid.positions()
+    stored = stored_light(ob)
+    valid = stored[1] if stored is not None else np.ones(len(positions), dtype=bool)
+    point_shader = gpu.shader.from_builtin("POINT_UNIFORM_COLOR")
+    batches = []
+    for mask, colour in ((valid, PROBE_COLOUR), (~valid, INSIDE_COLOUR)):
+        if mask.any():
+            batch = batch_for_shader(point_shader, "POINTS", {"pos": positions[mask].astype(np.float32)})
+            batches.append((point_shader, batch, colour, "POINTS"))
+    if stored is not None and ob.cubegi.show_irradiance and valid.any():
+        verts, colours, tris = probe_spheres(positions[valid], stored[0][valid], sphere_radius(grid, prefs.get().sphere_scale))
+        shader = gpu.shader.from_builtin("SMOOTH_COLOR")
+        rgba = np.concatenate([np.minimum(colours, 1.0), np.ones((len(colours), 1), np.float32)], axis=1)
+        batch = batch_for_shader(shader, "TRIS", {"pos": verts, "color": rgba}, indices=tris)
+        batches.append((shader, batch, None, "TRIS"))
+    _cache[ob.name] = (key, batches)
+    return batches
+
+
+def draw(scene=None):
+    """Draw every visible probe grid of the scene (the viewport's draw handler)."""
+    from .pipeline import probe_grid_objects
+
+    scene = scene or bpy.context.scene
+    if scene is None:
+        return
+    gpu.state.depth_test_set("LESS_EQUAL")
+    gpu.state.depth_mask_set(True)
+    gpu.state.point_size_set(6.0)
+    for ob in probe_grid_objects(scene):
+        if not ob.visible_get() or not ob.cubegi.show_probes:
+            continue
+        for shader, batch, colour, _ in _batches(ob):
+            shader.bind()
+            if colour is not None:
+                shader.uniform_float("color", colour)
+            batch.draw(shader)
+    gpu.state.point_size_set(1.0)
+    gpu.state.depth_mask_set(False)
+    gpu.state.depth_test_set("NONE")
+
+
+def register():
+    global _handle
+    _handle = bpy.types.SpaceView3D.draw_handler_add(draw, (), "WINDOW", "POST_VIEW")
+
+
+def unregister():
+    global _handle
+    if _handle is not None:
+        bpy.types.SpaceView3D.draw_handler_remove(_handle, "WINDOW")
+        _handle = None
+    _cache.clear()

@@ -1,0 +1,298 @@
+"""The add-on as an artist uses it: registration, polls, the modal bake (driven step by step,
+cancelled midway, undone), the display layers, the probe spheres, the material wiring and
+the preferences."""
+
+import json
+
+import bpy
+import numpy as np
+import pytest
+
+import scenes
+from state import material_state, scene_state
+
+
+@pytest.fixture
+def box(empty_scene, cubegi):
+    """A closed box of albedo 0.5 lit by a point light, with a probe grid object."""
+    scenes.closed_box(albedo=0.5, cells=6)
+    scenes.add_light("POINT", (0.3, -0.2, 0.4), 40.0)
+    assert bpy.ops.cubegi.add_probe_grid(resolution=(2, 2, 2)) == {"FINISHED"}
+    return cubegi
+
+
+# --- registration --------------------------------------------------------------------------
+
+NAMED = (
+    "CUBEGI_OT_bake", "CUBEGI_OT_clear", "CUBEGI_OT_add_probe_grid", "CUBEGI_OT_wire_materials",
+    "CUBEGI_OT_unwire_materials", "VIEW3D_PT_cubegi", "VIEW3D_PT_cubegi_display", "VIEW3D_PT_cubegi_report",
+)
+
+
+def test_unregister_leaves_nothing_behind_and_register_restores_everything(cubegi):
+    addon = cubegi.cubegi_addon
+    classes = [c for m in (addon.prefs, addon.props, addon.operators, addon.panel) for c in m.classes]
+    assert len(classes) == 11 and all(c.is_registered for c in classes)
+    menu = bpy.types.VIEW3D_MT_add
+    assert addon.probe_view._handle is not None
+    cubegi.unregister()
+    try:
+        assert [c for c in classes if c.is_registered] == []
+        assert [c for c in NAMED if getattr(bpy.types, c, None) is not None] == []
+        assert not hasattr(bpy.types.Scene, "cubegi") and not hasattr(bpy.types.Object, "cubegi")
+        assert not any(getattr(f, "__name__", "") == "menu_add" for f in menu._dyn_ui_initialize())
+        assert addon.probe_view._handle is None
+    finally:
+        cubegi.register()
+    assert all(c.is_registered for c in classes) and all(getattr(bpy.types, c, None) for c in NAMED)
+    assert hasattr(bpy.types.Scene, "cubegi") and addon.probe_view._handle is not None
+    assert sum(getattr(f, "__name__", "") == "menu_add" for f in menu._dyn_ui_initialize()) == 1
+
+
+# --- polls explain themselves ----------------------------------------------------------------
+
+def _refusal(op, **kw):
+    with pytest.raises(RuntimeError) as info:
+        op(**kw)
+    return str(info.value)
+
+
+def test_every_operator_says_why_it_refuses(empty_scene, cubegi):
+    assert "no mesh in the scene has CubeGI attributes" in _refusal(bpy.ops.cubegi.clear)
+    assert "Bake first" in _refusal(bpy.ops.cubegi.wire_materials)
+    assert "No material of the scene has CubeGI's light wired in" in _refusal(bpy.ops.cubegi.unwire_materials)
+    scenes.closed_box(albedo=0.5, cells=2)
+    bpy.context.view_layer.objects.active = bpy.data.objects["Box"]
+    bpy.ops.object.mode_set(mode="EDIT")
+    try:
+        for op in (bpy.ops.cubegi.bake, bpy.ops.cubegi.add_probe_grid):
+            assert "Switch to Object Mode" in _refusal(op)
+    finally:
+        bpy.ops.object.mode_set(mode="OBJECT")
+
+
+# --- the bake, step by step ----------------------------------------------------------------
+
+def _job(cubegi, bounces=3):
+    ops = cubegi.cubegi_addon.operators
+    settings = ops.BakeSettings(cube_size=8, bounces=bounces)
+    return ops.BakeJob(bpy.context, settings, progressive=True)
+
+
+def _read(mesh_name, name):
+    from cubegi.cubegi_addon import attributes
+
+    return attributes.read(bpy.data.meshes[mesh_name], name)
+
+
+def test_the_modal_bake_shows_the_light_after_every_bounce_and_ends_as_a_plain_bake(box):
+    job = _job(box)
+    seen = []
+    while not job.step():
+        step = job.last
+        mesh = bpy.data.meshes["Box"]
+        if step.stage == "bounce":
+            k = step.done - 2
+            assert f"CubeGI_bounce_{k}" in mesh.attributes and f"CubeGI_bounce_{k + 1}" not in mesh.attributes
+            seen.append(float(_read("Box", "CubeGI_total").mean()))
+    assert len(seen) == 3 and seen[0] < seen[1] < seen[2]  # the light grows bounce by bounce
+    report = job.report
+    progressive = {n: _read("Box", n) for n in ("CubeGI_direct", "CubeGI", "CubeGI_total", "CubeGI_bounce_3")}
+    assert report["bounces"][-1]["bounce"] == 3
+    # The same bake run straight through (execute) writes the same numbers.
+    assert bpy.ops.cubegi.bake(bounces=3, cube_size=8) == {"FINISHED"}
+    for name, values in progressive.items():
+        np.testing.assert_allclose(_read("Box", name), values, rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(progressive["CubeGI_total"], progressive["CubeGI_direct"] + progressive["CubeGI"], rtol=1e-5)
+
+
+@pytest.mark.parametrize("steps", [0, 1, 2, 3, 4])
+def test_cancelling_the_modal_bake_midway_leaves_the_scene_exactly_as_before(box, steps):
+    assert bpy.ops.cubegi.bake(bounces=1, cube_size=8) == {"FINISHED"}  # an earlier bake to keep
+    mesh = bpy.data.meshes["Box"]
+    mesh.attributes.new("user_colour", "FLOAT_COLOR", "POINT")
+    mesh.color_attributes.active_color_name = "user_colour"
+    before = scene_state()
+    job = _job(box, bounces=4)
+    for _ in range(steps):
+        assert not job.step()
+    if steps >= 3:
+        assert "CubeGI_bounce_2" not in before and "CubeGI_bounce_1" in mesh.attributes
+    job.cancel()
+    assert scene_state() == before
+
+
+def test_invoke_in_background_runs_to_completion_and_undo_takes_the_bake_back(box):
+    bpy.ops.ed.undo_push(message="before the bake")
+    before = scene_state()
+    # (INVOKE_DEFAULT, undo=True) is how a button calls it: the bake becomes one undo step.
+    assert bpy.ops.cubegi.bake("INVOKE_DEFAULT", True, bounces=2, cube_size=8) == {"FINISHED"}
+    assert "CubeGI_bounce_2" in bpy.data.meshes["Box"].attributes
+    assert json.loads(bpy.context.scene.cubegi.last_report)["bounces"][-1]["bounce"] == 2
+    bpy.ops.ed.undo()
+    assert scene_state() == before
+
+
+# --- what the viewport shows -----------------------------------------------------------------
+
+def test_the_display_setting_picks_the_active_colour_attribute_and_the_viewport_shows_it(box):
+    settings = bpy.context.scene.cubegi
+    assert bpy.ops.cubegi.bake(bounces=2, cube_size=8, lit="ALL") == {"FINISHED"}
+    colours = bpy.data.meshes["Box"].color_attributes
+    assert colours.active_color_name == "CubeGI_total"
+    for display, name in (("DIRECT", "CubeGI_direct"), ("INDIRECT", "CubeGI"), ("LIT", "CubeGI_lit"), ("TOTAL", "CubeGI_total")):
+        settings.display = display
+        assert colours.active_color_name == name
+    settings.display = "BOUNCE"
+    settings.display_bounce = 2
+    assert colours.active_color_name == "CubeGI_bounce_2"
+    spaces = box.cubegi_addon.display.view_spaces()
+    assert spaces and all(s.shading.color_type == "VERTEX" for s in spaces)
+
+
+def test_probes_store_their_light_and_draw_as_spheres_shaded_with_it(box):
+    import gpu
+    from mathutils import Matrix
+
+    probe_view = box.cubegi_addon.probe_view
+    grid = next(o for o in bpy.context.scene.objects if o.type == "EMPTY")
+    assert probe_view.stored_light(grid) is None
+    assert bpy.ops.cubegi.bake(bounces=2, cube_size=8) == {"FINISHED"}
+    coeffs, valid = probe_view.stored_light(grid)
+    assert coeffs.shape == (8, 9, 3) and valid.all() and np.isfinite(coeffs).all() and coeffs[:, 0].min() > 0
+    # A camera looking down -Z at one probe from above sees its sphere's top: the light a
+    # surface facing +Z gets there (evaluated from the stored SH).
+    from cubegi.cubegi_engine import sh
+
+    pos = probe_view.probe_grid(grid).positions()
+    k = 7  # a top probe
+    expected = sh.irradiance_diffuse(coeffs[k], np.array([0.0, 0.0, 1.0]))
+    radius = probe_view.sphere_radius(probe_view.probe_grid(grid), box.cubegi_addon.prefs.get().sphere_scale)
+    eye = pos[k] + np.array([0.0, 0.0, 3 * radius])
+    view = Matrix.Translation(-eye)
+    proj = Matrix(np.array(box.cubegi_engine.cubemap.orthographic(0.5 * radius, 0.1 * radius, 10 * radius)).tolist())
+    off = gpu.types.GPUOffScreen(16, 16, format="RGBA32F")
+    with off.bind():
+        fb = gpu.state.active_framebuffer_get()
+        fb.clear(color=(0.0, 0.0, 0.0, 0.0), depth=1.0)
+        with gpu.matrix.push_pop(), gpu.matrix.push_pop_projection():
+            gpu.matrix.load_matrix(view)
+            gpu.matrix.load_projection_matrix(proj)
+            probe_view.draw(bpy.context.scene)
+        pixels = np.asarray(fb.read_color(0, 0, 16, 16, 4, 0, "FLOAT")).ravel(order="F").reshape(16, 16, 4)
+    off.free()
+    centre = pixels[6:10, 6:10, :3].reshape(-1, 3).mean(axis=0)
+    np.testing.assert_allclose(centre, np.minimum(expected, 1.0), rtol=0.05, atol=1e-3)
+    assert bpy.ops.cubegi.clear() == {"FINISHED"} and probe_view.stored_light(grid) is None
+
+
+# --- renders ---------------------------------------------------------------------------------
+
+def test_material_wiring_round_trips_and_adds_albedo_times_light_as_emission(box):
+    mats = box.cubegi_addon.materials
+    assert bpy.ops.cubegi.bake(bounces=2, cube_size=8) == {"FINISHED"}
+    mat = bpy.data.objects["Box"].active_material
+    # A texture-like link into Base Color must survive and feed the emission too.
+    rgb = mat.node_tree.nodes.new("ShaderNodeRGB")
+    rgb.outputs[0].default_value = (0.25, 0.5, 1.0, 1.0)
+    bsdf = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+    mat.node_tree.links.new(rgb.outputs[0], bsdf.inputs["Base Color"])
+    before = material_state(mat)
+    assert bpy.ops.cubegi.wire_materials() == {"FINISHED"}
+    assert mats.is_wired(mat) and material_state(mat) != before
+    nodes = mat.node_tree.nodes
+    assert nodes[mats.ATTRIBUTE].attribute_name == "CubeGI"
+    assert nodes[mats.MULTIPLY].inputs["A"].links[0].from_node == rgb
+    assert nodes[mats.ADD].inputs[0].links[0].from_node == bsdf
+    assert "No material left to wire" in _refusal(bpy.ops.cubegi.wire_materials)
+    assert bpy.ops.cubegi.unwire_materials() == {"FINISHED"}
+    assert material_state(mat) == before
+
+
+def test_a_wired_material_renders_base_colour_times_the_baked_light(empty_scene, cubegi, tmp_path):
+    """Cycles, no lights, a black world and no bounces: a pixel is exactly the emission."""
+    mats = cubegi.cubegi_addon.materials
+    verts = [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)]
+    mat = scenes.material("Plane", (0.8, 0.4, 0.2))
+    ob = scenes.mesh_object("Plane", verts, [(0, 1, 2, 3)], mat)
+    cubegi.cubegi_addon.attributes.put(ob.data, "CubeGI", np.full((4, 3), 0.5))
+    mats.wire(mat)
+    scene = bpy.context.scene
+    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    scene.collection.objects.link(cam)
+    cam.location = (0, 0, 3)
+    scene.camera = cam
+    scene.render.engine = "CYCLES"
+    scene.cycles.samples = 1
+    scene.cycles.max_bounces = 0
+    scene.render.resolution_x = scene.render.resolution_y = 8
+    scene.view_settings.view_transform = "Standard"
+    scene.render.image_settings.file_format = "OPEN_EXR"
+    scene.render.filepath = str(tmp_path / "wired.exr")
+    bpy.ops.render.render(write_still=True)
+    img = bpy.data.images.load(str(tmp_path / "wired.exr"))
+    px = np.empty(8 * 8 * 4, dtype=np.float32)
+    img.pixels.foreach_get(px)
+    centre = px.reshape(8, 8, 4)[3:5, 3:5, :3].reshape(-1, 3).mean(axis=0)
+    np.testing.assert_allclose(centre, [0.4, 0.2, 0.1], rtol=0.02)
+
+
+# --- the panel and the preferences -----------------------------------------------------------
+
+class _Layout:
+    """Records what a panel's draw puts in its layout."""
+
+    def __init__(self):
+        self.props, self.operators, self.labels = [], [], []
+
+    def column(self, **_):
+        return self
+
+    row = box = column
+
+    def prop(self, data, name, **_):
+        self.props.append(name)
+
+    def operator(self, idname, **_):
+        self.operators.append(idname)
+
+    def label(self, text="", **_):
+        self.labels.append(text)
+
+
+def _draw(panel):
+    layout = _Layout()
+    getattr(bpy.types, panel).draw(type("Panel", (), {"layout": layout})(), bpy.context)
+    return layout
+
+
+def test_the_panels_show_grid_and_bake_settings_display_choice_and_the_last_report(box):
+    grid = next(o for o in bpy.context.scene.objects if o.type == "EMPTY")
+    bpy.context.view_layer.objects.active = grid
+    main = _draw("VIEW3D_PT_cubegi")
+    assert {"resolution", "show_probes", "show_irradiance", "cube_size", "bounces", "tolerance", "add_tail", "visibility", "lit"} <= set(main.props)
+    assert main.operators == ["cubegi.add_probe_grid", "cubegi.bake", "cubegi.clear"]
+    shown = _draw("VIEW3D_PT_cubegi_display")
+    assert shown.props == ["display"] and shown.operators == ["cubegi.wire_materials", "cubegi.unwire_materials"]
+    bpy.context.scene.cubegi.display = "BOUNCE"
+    assert _draw("VIEW3D_PT_cubegi_display").props == ["display", "display_bounce"]
+    assert _draw("VIEW3D_PT_cubegi_report").labels == ["no bake yet"]
+    assert bpy.ops.cubegi.bake(bounces=3, cube_size=8) == {"FINISHED"}
+    text = "\n".join(_draw("VIEW3D_PT_cubegi_report").labels)
+    assert "3 bounces in" in text and "bounce 3:" in text and "estimated missing indirect light after bounce 3" in text
+
+
+def test_preferences_set_new_grids_and_the_capture(box, monkeypatch):
+    prefs = box.cubegi_addon.prefs
+    defaults = prefs.get()
+    assert tuple(defaults.grid_resolution) == (4, 4, 2) and defaults.shadow_size == 512
+
+    class Mine:
+        grid_resolution = (3, 1, 2)
+        shadow_size, sun_shadow_size, area_shadow_size, sphere_scale = 64, 128, 32, 0.2
+
+    monkeypatch.setattr(prefs, "get", lambda context=None: Mine())
+    assert bpy.ops.cubegi.add_probe_grid() == {"FINISHED"}
+    assert tuple(bpy.context.active_object.cubegi.resolution) == (3, 1, 2)
+    assert bpy.ops.cubegi.bake(bounces=1, cube_size=8) == {"FINISHED"}
+    assert json.loads(bpy.context.scene.cubegi.last_report)["settings"]["shadow_size"] == 64

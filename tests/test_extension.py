@@ -14,3 +14,57 @@ def test_manifest_validates_with_blenders_tool():
     tool = os.path.join(bpy.utils.system_resource("SCRIPTS"), "addons_core", "bl_pkg", "cli", "blender_ext.py")
     r = subprocess.run([sys.executable, tool, "validate", ROOT], capture_output=True, text=True)
     assert r.returncode == 0 and "Success" in r.stdout, r.stdout + r.stderr
+
+
+INSTALLED_BAKE = r"""
+import os, sys
+import bpy
+import numpy as np
+
+zip_path = sys.argv[1]
+bpy.ops.wm.read_factory_settings(use_empty=True)
+assert bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default", enable_on_install=True) == {"FINISHED"}
+import bl_ext.user_default.cubegi as installed
+where = os.path.dirname(installed.__file__)
+assert where.startswith(os.environ["BLENDER_USER_RESOURCES"]), where
+assert not os.path.exists(os.path.join(where, "tests")) and os.path.exists(os.path.join(where, "cubegi_engine", "sh.py"))
+assert "bl_ext.user_default.cubegi" in bpy.context.preferences.addons
+from bl_ext.user_default.cubegi.cubegi_addon import bench_scenes as scenes
+scenes.closed_box(albedo=0.5, cells=4)
+scenes.add_light("POINT", (0.3, -0.2, 0.4), 10.0)
+assert bpy.ops.cubegi.bake(bounces=2, cube_size=8, grid=(2, 2, 2)) == {"FINISHED"}
+assert bpy.types.CUBEGI_OT_bake.__module__.startswith("bl_ext.user_default.cubegi")
+mesh = bpy.data.objects["Box"].data
+values = np.empty(len(mesh.vertices) * 4, dtype=np.float32)
+mesh.attributes["CubeGI"].data.foreach_get("color", values)
+assert np.isfinite(values).all() and values.reshape(-1, 4)[:, :3].mean() > 0
+prefs = bpy.context.preferences.addons["bl_ext.user_default.cubegi"].preferences
+assert tuple(prefs.grid_resolution) == (4, 4, 2)
+repo_index = next(i for i, r in enumerate(bpy.context.preferences.extensions.repos) if r.module == "user_default")
+assert bpy.ops.extensions.package_uninstall(repo_index=repo_index, pkg_id="cubegi") == {"FINISHED"}
+assert not os.path.exists(where), where
+assert getattr(bpy.types, "CUBEGI_OT_bake", None) is None and not hasattr(bpy.types.Scene, "cubegi")
+print("INSTALLED-BAKE-OK", where)
+"""
+
+
+def test_the_built_zip_installs_bakes_and_uninstalls(tmp_path):
+    """The build command makes a zip without the dev files; Blender installs it into a
+    temporary user folder, the installed copy bakes, and uninstalling removes it all."""
+    r = subprocess.run(
+        [sys.executable, os.path.join(ROOT, "scripts", "build_extension.py"), str(tmp_path / "dist")],
+        capture_output=True, text=True,
+    )
+    assert r.returncode == 0, r.stderr
+    zip_path = r.stdout.strip().splitlines()[-1]
+    import zipfile
+
+    names = zipfile.ZipFile(zip_path).namelist()
+    assert "blender_manifest.toml" in names and "cubegi_engine/sh.py" in names and "cubegi_addon/operators.py" in names
+    assert not [n for n in names if n.split("/")[0] in {"tests", "scripts", "benchmarks", "docs", ".ci", ".git"}]
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "user"))
+    r = subprocess.run(
+        [sys.executable, "-c", INSTALLED_BAKE, zip_path],
+        capture_output=True, text=True, env=env, timeout=300,
+    )
+    assert r.returncode == 0 and "INSTALLED-BAKE-OK" in r.stdout, r.stdout[-3000:] + r.stderr[-3000:]

@@ -143,3 +143,39 @@ def test_cli_bad_input_is_one_line_and_writes_nothing(saved_scene, tmp_path, arg
     lines = [ln for ln in r.stderr.strip().splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("cubegi: error:") and needle in lines[0], r.stderr
     assert sorted(os.listdir(tmp_path)) == before
+
+
+def _readme_recipe():
+    """The ``blender -b ... --python-expr "..."`` line of the README, and its expression."""
+    import re
+
+    text = open(os.path.join(ROOT, "README.md")).read()
+    line = re.search(r'^blender -b (\S+) --python-expr "(.+)"$', text, re.M)
+    assert line, "the README's headless recipe is missing"
+    return line.group(1), line.group(2)
+
+
+def test_the_readmes_headless_recipe_gives_what_the_cli_gives(saved_scene, tmp_path, cubegi):
+    src, counts = saved_scene
+    scene_name, expr = _readme_recipe()
+    assert scene_name == "scene.blend" and "bpy.ops.cubegi.bake(" in expr
+    cli_out = tmp_path / "cli.blend"
+    assert _cli("bake", str(src), "-o", str(cli_out), "--bounces", "3").returncode == 0
+    # What blender -b scene.blend --python-expr does: open the file, run the expression
+    # (here with the extension loaded from this tree, as the install test does with the zip).
+    bpy.ops.wm.open_mainfile(filepath=str(src))
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        exec(expr, {})
+    finally:
+        os.chdir(cwd)
+    attributes = cubegi.cubegi_addon.attributes
+    ours = {n: {a: attributes.read(bpy.data.objects[n].data, a) for a in ("CubeGI_direct", "CubeGI", "CubeGI_total")} for n in counts}
+    bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "baked.blend"))
+    for n in counts:  # the recipe saved what it baked
+        np.testing.assert_array_equal(attributes.read(bpy.data.objects[n].data, "CubeGI"), ours[n]["CubeGI"])
+    bpy.ops.wm.open_mainfile(filepath=str(cli_out))
+    for n in counts:
+        for a, values in ours[n].items():
+            np.testing.assert_allclose(attributes.read(bpy.data.objects[n].data, a), values, rtol=1e-5, atol=1e-7)

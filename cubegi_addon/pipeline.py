@@ -20,6 +20,8 @@ from .gpu_capture import GpuRenderer
 
 # Probes of a fitted grid: cells of about an eighth of the scene's longest side.
 MAX_FITTED_PROBES = 4096
+# An object seen from behind over more than this share of what the probes see of it is noted.
+SEEN_FROM_BEHIND_NOTE = 0.1
 
 
 def probe_grid_objects(scene):
@@ -196,6 +198,19 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
         preview.start(collected.targets)
     result = yield from _previewed(engine_bake_steps(arrays, grid, renderer, settings), preview)
 
+    if not result.probe_valid.any():
+        collected.notes.append(
+            f"all {grid.count} probes see back faces over more than a quarter of their view (inside geometry, or "
+            "normals pointing away from them); each point uses its plain trilinear weights"
+        )
+    if result.seen_from_behind is not None:
+        for name, share in zip(collected.object_names, result.seen_from_behind):
+            if share > SEEN_FROM_BEHIND_NOTE:
+                collected.notes.append(
+                    f"{name}: {100 * share:.0f}% of what the probes see of it are back faces (flipped normals, or a "
+                    "one-sided surface seen from behind); back faces get and pass on no light. Recalculate its normals "
+                    "(Mesh > Normals > Recalculate Outside) or give thin walls thickness"
+                )
     t = time.perf_counter()
     layers_per_target = []
     indirect = result.indirect

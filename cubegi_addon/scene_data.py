@@ -44,6 +44,7 @@ class CollectedScene:
     arrays: SceneArrays
     targets: list
     notes: list = field(default_factory=list)
+    object_names: list = field(default_factory=list)  # per arrays.point_object index
 
 
 def _render_visible_objects(view_layer):
@@ -352,6 +353,12 @@ def collect(context, depsgraph=None):
         if inst.is_instance:
             continue
         mesh = original.data
+        if mesh.library is not None:
+            notes.append(
+                f"{original.name}: its mesh is linked from {mesh.library.filepath!r} and cannot be written; "
+                "it lights others but is not baked (make it local or a library override to bake it)"
+            )
+            continue
         if mesh.name in claimed_meshes:
             notes.append(f"{original.name}: shares mesh {mesh.name!r} with an object already baked; not baked again")
             continue
@@ -380,7 +387,7 @@ def collect(context, depsgraph=None):
         point_object=np.repeat(np.arange(len(parts)), [len(p["points"]) for p in parts]),
     )
     arrays.dark = _set_aside_non_finite(arrays, parts, notes)
-    return CollectedScene(arrays, targets, notes)
+    return CollectedScene(arrays, targets, notes, [p["name"] for p in parts])
 
 
 def _set_aside_non_finite(arrays, parts, notes):

@@ -88,6 +88,9 @@ class BakeResult:
     # (p, 9, 3) SH radiance seen by each probe, summed over the computed bounces (emitters and
     # sky included; the tail not): what the probe-sphere display shows.
     probe_coeffs: np.ndarray = None
+    # (objects,) share of each object's probe-seen solid angle that shows back faces (None
+    # without SceneArrays.point_object); see transport._seen_from_behind.
+    seen_from_behind: np.ndarray = None
 
     @property
     def bounce_sum(self):
@@ -297,7 +300,8 @@ def bake_steps(scene, grid, renderer, settings=None):
         scene.darken(tail["light"])
     timings["tail"] = time.perf_counter() - t
     result = BakeResult(
-        direct, bounces, timings, records, grid, transport.probe_valid, tail["light"], tail["report"], probe_coeffs
+        direct, bounces, timings, records, grid, transport.probe_valid, tail["light"], tail["report"], probe_coeffs,
+        transport.seen_from_behind,
     )
     if tail["report"]["added"]:
         yield Progress(

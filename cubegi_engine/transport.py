@@ -132,6 +132,9 @@ class Transport:
         self.sky_projection = sky @ self.sh_weights  # (p, 9): SH of a unit sky seen by each probe
         back_share = (back * solid[None, :]).sum(axis=1) / (4.0 * np.pi)
         self.probe_valid = back_share <= INSIDE_BACKFACE_SHARE
+        self.seen_from_behind = None
+        if scene.point_object is not None:
+            self.seen_from_behind = _seen_from_behind(scene, tid, back, solid, self.probe_valid)
 
         positions = grid.positions()
         index, weight = grid.trilinear(scene.points)
@@ -177,6 +180,20 @@ class Transport:
         g = coeffs[self.index].reshape(len(self.index), 72, 3)
         out = np.einsum("sk,skc->sc", self.point_weights, g, optimize=True)
         return np.maximum(out, 0.0) if clamp else out
+
+
+def _seen_from_behind(scene, tid, back, solid, probe_valid):
+    """Per object (``scene.point_object`` index): the share of the solid angle in which the
+    valid probes see it that shows its back faces, ``(objects,)``. A large share means flipped
+    normals, or a one-sided surface seen from its back: such faces get and pass on no light."""
+    count = int(scene.point_object.max()) + 1
+    use = probe_valid if probe_valid.any() else np.ones_like(probe_valid)  # none valid: all
+    seen = (tid >= 0) & use[:, None]
+    obj = scene.point_object[scene.triangles[np.maximum(tid, 0), 0]]
+    w = solid[None, :] * seen
+    total = np.bincount(obj.ravel(), w.ravel(), minlength=count)
+    behind = np.bincount(obj.ravel(), (w * back).ravel(), minlength=count)
+    return np.where(total > 0, behind / np.maximum(total, 1e-300), 0.0)
 
 
 def reference_coefficients(renderer, grid, scene, radiance, size, near, far):

@@ -164,3 +164,82 @@ def test_geometry_outside_the_grid_gets_the_nearest_probes_and_a_note(empty_scen
     assert any("lie outside every probe grid" in n for n in _notes())
     ceiling = cubegi.cubegi_addon.attributes.read(bpy.data.objects["Ceiling"].data, "CubeGI")
     assert np.isfinite(ceiling).all() and ceiling.mean() > 0
+
+
+def _flip(ob, faces):
+    import bmesh
+
+    bm = bmesh.new()
+    bm.from_mesh(ob.data)
+    bm.faces.ensure_lookup_table()
+    bmesh.ops.reverse_faces(bm, faces=[bm.faces[i] for i in faces])
+    bm.to_mesh(ob.data)
+    bm.free()
+
+
+def test_flipped_normals_are_named_in_a_note_and_bake_finite(empty_scene, cubegi):
+    box = scenes.closed_box(albedo=0.5, cells=4)
+    scenes.add_light("POINT", (0.3, -0.2, 0.4), 10.0)
+    assert _bake() == {"FINISHED"}
+    assert not any("back faces" in n for n in _notes())
+    right = _all_values(cubegi)[("Box", "CubeGI")].mean()
+    # Half the box's faces turned outward: the probes see their backs.
+    _flip(box, range(0, len(box.data.polygons), 2))
+    assert _bake() == {"FINISHED"}
+    (note,) = [n for n in _notes() if n.startswith("Box: ")]
+    assert "back faces" in note and "Recalculate" in note
+    values = _all_values(cubegi)
+    assert all(np.isfinite(v).all() and (v >= 0).all() for v in values.values())
+    # Back faces pass on no light, so the box holds less indirect light than with its
+    # normals right (Cycles would reflect from both sides: the note says so).
+    assert values[("Box", "CubeGI")].mean() < right
+
+
+def _open_box(name, lo, hi, open_x):
+    """A room (inward normals) without its wall at x = open_x."""
+    v, f = scenes.box_mesh(lo, hi, (4, 4, 4), inward=True)
+    v = np.asarray(v, dtype=np.float64)
+    f = [face for face in f if not np.allclose(v[list(face), 0], open_x)]
+    return scenes.mesh_object(name, v.tolist(), f, scenes.material(name, (0.8, 0.8, 0.8)))
+
+
+def test_a_one_sided_wall_between_rooms_lets_no_light_through(empty_scene, cubegi):
+    """A single plane, no thickness, closes a lit room and a sealed one (each open towards
+    it, the sealed one 1 cm away): the probes on the sealed side see its back, which passes
+    on no light, and the sealed room stays black. The wall is noted."""
+    _open_box("Lit", (0, -1, 0), (2, 1, 2), 0.0)
+    _open_box("Sealed", (-2, -1, 0), (-0.01, 1, 2), -0.01)
+    scenes.mesh_object("Wall", [(0, -1, 0), (0, 1, 0), (0, 1, 2), (0, -1, 2)], [(0, 1, 2, 3)])  # faces +X
+    scenes.add_light("POINT", (1.0, 0.0, 1.0), 50.0)
+    assert bpy.ops.cubegi.bake(bounces=2, grid=(4, 2, 2), cube_size=16) == {"FINISHED"}
+    read = cubegi.cubegi_addon.attributes.read
+    lit = read(bpy.data.objects["Lit"].data, "CubeGI_total").mean()
+    sealed = read(bpy.data.objects["Sealed"].data, "CubeGI_total")
+    assert lit > 0 and sealed.max() <= 1e-3 * lit, sealed.max() / lit
+    assert any(n.startswith("Wall: ") and "back faces" in n for n in _notes())
+
+
+def test_linked_library_meshes_light_the_scene_but_are_not_written(empty_scene, cubegi, tmp_path):
+    lib_path = tmp_path / "library.blend"
+    v, f = scenes.box_mesh((-0.3, -0.3, 0.0), (0.3, 0.3, 0.6), (2, 2, 2), inward=False)
+    scenes.mesh_object("Crate", v, f, scenes.material("Red", (0.8, 0.1, 0.1)))
+    bpy.ops.wm.save_as_mainfile(filepath=str(lib_path))
+    library_bytes = lib_path.read_bytes()
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scenes.closed_box(albedo=0.5, cells=4)
+    scenes.add_light("POINT", (0.3, -0.2, 0.4), 10.0)
+    assert _bake() == {"FINISHED"}
+    without = _all_values(cubegi)[("Box", "CubeGI")]
+    with bpy.data.libraries.load(str(lib_path), link=True) as (src, dst):
+        dst.objects = ["Crate"]
+    bpy.context.scene.collection.objects.link(dst.objects[0])
+    assert dst.objects[0].data.library is not None
+    assert _bake() == {"FINISHED"}
+    note = [n for n in _notes() if "linked from" in n]
+    assert len(note) == 1 and note[0].startswith("Crate: ") and "not baked" in note[0]
+    assert not any(a.name.startswith("CubeGI") for a in dst.objects[0].data.attributes)
+    report = json.loads(bpy.context.scene.cubegi.last_report)
+    assert report["scene"]["meshes_baked"] == ["Box"]
+    # The crate is there for the light: the box's indirect light changes.
+    assert np.abs(_all_values(cubegi)[("Box", "CubeGI")] - without).max() > 1e-3 * without.max()
+    assert lib_path.read_bytes() == library_bytes

@@ -6,6 +6,7 @@ Per texel the id pass writes ``(+-(triangle + 1), b1, b2, distance)``: the sign 
 back face, 0 means nothing was hit; triangle ids are exact in float32 up to 2^24.
 """
 
+import functools
 import math
 
 import bpy
@@ -80,6 +81,10 @@ void main() {
 """
 
 
+# The shaders are made once per process and kept. Making and freeing one per renderer let a
+# later draw pick up the wrong vertex layout now and then (colours read from the position
+# buffer, seen on llvmpipe after other GPU work in the same process).
+@functools.cache
 def _id_shader():
     iface = gpu.types.GPUStageInterfaceInfo("cubegi_id_iface")
     iface.flat("FLOAT", "v_id")
@@ -100,6 +105,7 @@ def _id_shader():
     return gpu.shader.create_from_info(info)
 
 
+@functools.cache
 def _colour_shader():
     iface = gpu.types.GPUStageInterfaceInfo("cubegi_colour_iface")
     iface.smooth("VEC3", "v_colour")

@@ -102,14 +102,18 @@ class CUBEGI_OT_bake(bpy.types.Operator):
     def invoke(self, context, event):
         if bpy.app.background or context.window is None:
             return self.execute(context)
+        self._start(context)
+        context.window_manager.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def _start(self, context):
+        """Start the bake job, the timer that steps it, the progress bar and status text."""
         self._view = display.view_state()
         self._bake = self._job(context, progressive=True)
         wm = context.window_manager
         wm.progress_begin(0, 100)
         self._timer = wm.event_timer_add(0.05, window=context.window)
-        wm.modal_handler_add(self)
         context.workspace.status_text_set("CubeGI: starting the bake (Esc to cancel)")
-        return {"RUNNING_MODAL"}
 
     def modal(self, context, event):
         if event.type == "ESC":
@@ -120,10 +124,10 @@ class CUBEGI_OT_bake(bpy.types.Operator):
             return {"PASS_THROUGH"}
         try:
             done = self._bake.step()
-        except ValueError as exc:
+        except Exception as exc:  # the job has put the meshes back; end the modal state too
             self._end(context)
             display.restore_views(self._view)
-            self.report({"ERROR"}, str(exc))
+            self.report({"ERROR"}, str(exc) if isinstance(exc, ValueError) else f"CubeGI: the bake failed: {exc!r}")
             return {"CANCELLED"}
         if done:
             self._end(context)

@@ -4,8 +4,8 @@ probe shaded with its light.
 A bake stores each grid object's probe light as hidden ID properties
 (``_cubegi_probe_light``: ``p * 9 * 3`` SH radiance coefficients; ``_cubegi_probe_valid``:
 ``p`` flags, 0 for a probe found inside geometry). Probes inside geometry are drawn red and
-get no sphere. Batches are cached and rebuilt when a grid's transform, resolution or light
-changes.
+get no sphere. What to draw is cached as arrays, rebuilt when a grid's transform,
+resolution or light changes; GPU batches are made at draw time (see :func:`_geometry`).
 """
 
 import bpy
@@ -70,8 +70,14 @@ def sphere_radius(grid, scale):
     return scale * float(np.min(grid.cell_size))
 
 
-def _batches(ob):
-    key = (tuple(tuple(r) for r in ob.matrix_world), tuple(ob.cubegi.resolution), ob.empty_display_size, ob.cubegi.show_irradiance, prefs.get().sphere_scale)
+def _geometry(ob):
+    """What to draw for a grid object, as arrays: ``[(kind, arrays, colour)]``, cached.
+
+    Only numpy arrays are cached; GPU batches are made at draw time, in the context that
+    draws them (a batch's vertex arrays belong to the GPU context it was first drawn in).
+    """
+    key = (tuple(tuple(r) for r in ob.matrix_world), tuple(ob.cubegi.resolution), ob.empty_display_size,
+           ob.cubegi.show_irradiance, prefs.get().sphere_scale)
     cached = _cache.get(ob.name)
     if cached is not None and cached[0] == key:
         return cached[1]
@@ -79,20 +85,16 @@ def _batches(ob):
     positions = grid.positions()
     stored = stored_light(ob)
     valid = stored[1] if stored is not None else np.ones(len(positions), dtype=bool)
-    point_shader = gpu.shader.from_builtin("POINT_UNIFORM_COLOR")
-    batches = []
+    parts = []
     for mask, colour in ((valid, PROBE_COLOUR), (~valid, INSIDE_COLOUR)):
         if mask.any():
-            batch = batch_for_shader(point_shader, "POINTS", {"pos": positions[mask].astype(np.float32)})
-            batches.append((point_shader, batch, colour, "POINTS"))
+            parts.append(("POINTS", {"pos": positions[mask].astype(np.float32)}, None, colour))
     if stored is not None and ob.cubegi.show_irradiance and valid.any():
         verts, colours, tris = probe_spheres(positions[valid], stored[0][valid], sphere_radius(grid, prefs.get().sphere_scale))
-        shader = gpu.shader.from_builtin("SMOOTH_COLOR")
         rgba = np.concatenate([np.minimum(colours, 1.0), np.ones((len(colours), 1), np.float32)], axis=1)
-        batch = batch_for_shader(shader, "TRIS", {"pos": verts, "color": rgba}, indices=tris)
-        batches.append((shader, batch, None, "TRIS"))
-    _cache[ob.name] = (key, batches)
-    return batches
+        parts.append(("TRIS", {"pos": verts, "color": rgba}, tris, None))
+    _cache[ob.name] = (key, parts)
+    return parts
 
 
 def draw(scene=None):
@@ -105,10 +107,14 @@ def draw(scene=None):
     gpu.state.depth_test_set("LESS_EQUAL")
     gpu.state.depth_mask_set(True)
     gpu.state.point_size_set(6.0)
+    point_shader = gpu.shader.from_builtin("POINT_UNIFORM_COLOR")
+    sphere_shader = gpu.shader.from_builtin("SMOOTH_COLOR")
     for ob in probe_grid_objects(scene):
         if not ob.visible_get() or not ob.cubegi.show_probes:
             continue
-        for shader, batch, colour, _ in _batches(ob):
+        for kind, arrays, indices, colour in _geometry(ob):
+            shader = point_shader if kind == "POINTS" else sphere_shader
+            batch = batch_for_shader(shader, kind, arrays, indices=indices)
             shader.bind()
             if colour is not None:
                 shader.uniform_float("color", colour)

@@ -296,3 +296,51 @@ def test_preferences_set_new_grids_and_the_capture(box, monkeypatch):
     assert tuple(bpy.context.active_object.cubegi.resolution) == (3, 1, 2)
     assert bpy.ops.cubegi.bake(bounces=1, cube_size=8) == {"FINISHED"}
     assert json.loads(bpy.context.scene.cubegi.last_report)["settings"]["shadow_size"] == 64
+
+
+class _Event:
+    def __init__(self, type):
+        self.type = type
+
+
+def _modal_operator(cubegi, **props):
+    """The bake operator's modal code on a stand-in for its instance (Blender creates operator
+    instances only when it runs one), to drive it as a window would: invoke() runs
+    ``_start`` and adds the handler, then Blender calls ``modal`` for every event."""
+    import types
+
+    op_class = cubegi.cubegi_addon.operators.CUBEGI_OT_bake
+    messages = []
+    props.setdefault("lit", "NONE")
+    props.setdefault("report_path", "")
+    op = types.SimpleNamespace(
+        grid=(0, 0, 0), reference_samples=0, report=lambda kind, text: messages.append((kind, text)), **props
+    )
+    op.properties = types.SimpleNamespace(is_property_set=lambda name: name in props)
+    for name in ("_job", "_start", "_finish", "_end", "cancel", "modal"):
+        setattr(op, name, getattr(op_class, name).__get__(op))
+    return op, op_class, messages
+
+
+def test_the_modal_handler_steps_on_timer_events_and_escape_cancels(box):
+    context = bpy.context
+    before = scene_state()
+    op, op_class, messages = _modal_operator(box, bounces=3, cube_size=8)
+    op._start(context)
+    assert op.modal(context, _Event("MOUSEMOVE")) == {"PASS_THROUGH"}
+    for _ in range(3):  # capture, direct, direct done: the direct light is on the mesh
+        assert op.modal(context, _Event("TIMER")) == {"RUNNING_MODAL"}
+    assert "CubeGI_direct" in bpy.data.meshes["Box"].attributes
+    assert op.modal(context, _Event("ESC")) == {"CANCELLED"}
+    assert messages[-1][0] == {"WARNING"} and "cancelled" in messages[-1][1]
+    assert scene_state() == before
+
+    op, op_class, messages = _modal_operator(box, bounces=3, cube_size=8)
+    op._start(context)
+    results = []
+    while not results or results[-1] == {"RUNNING_MODAL"}:
+        results.append(op.modal(context, _Event("TIMER")))
+        assert len(results) < 20
+    assert results[-1] == {"FINISHED"} and len(results) == 8  # 7 steps, then the report
+    assert "CubeGI_bounce_3" in bpy.data.meshes["Box"].attributes
+    assert any("baked 1 meshes, 3 bounces" in text for _, text in messages)

@@ -6,6 +6,7 @@ Per texel the id pass writes ``(+-(triangle + 1), b1, b2, distance)``: the sign 
 back face, 0 means nothing was hit; triangle ids are exact in float32 up to 2^24.
 """
 
+import atexit
 import functools
 import math
 
@@ -118,6 +119,16 @@ def _colour_shader():
     info.vertex_source(_COLOUR_VERT)
     info.fragment_source(_COLOUR_FRAG)
     return gpu.shader.create_from_info(info)
+
+
+def _free_shaders():
+    """Free the kept shaders while the GPU context still exists (at exit, before bpy's own
+    exit handler, which runs later because it was registered earlier)."""
+    _id_shader.cache_clear()
+    _colour_shader.cache_clear()
+
+
+atexit.register(_free_shaders)
 
 
 def _column_major(matrix):

@@ -155,6 +155,12 @@ class Transport:
         basis = sh.diffuse_basis(scene.normals)
         self.point_weights = (weight[:, :, None] * basis[:, None, :]).reshape(len(scene.points), 72).astype(np.float32)
 
+    def landing_share(self):
+        """Per point, the cosine-weighted share of its view that is surface, not sky:
+        ``(s, 3)`` in [0, 1] (the light of a unit sky, from the probes, taken from 1)."""
+        unit_sky = np.repeat(self.sky_projection[:, :, None], 3, axis=2)
+        return np.clip(1.0 - self.interpolate(unit_sky).astype(np.float64), 0.0, 1.0)
+
     def texel_radiance(self, radiance):
         """Radiance seen by every texel ``(p, 6n^2, 3)`` from point radiance ``(s, 3)``."""
         r = np.asarray(radiance, dtype=np.float32)

@@ -34,8 +34,8 @@ DIRECT_RMSE_TOL_BY_LIGHT = {"sun": 0.15}
 #   light changes fastest, carry most of it.
 #   Probes see concave corners from half a metre away, so corners get too much light:
 #   measured bias +8.5% and rel. RMSE 0.23 after 4 bounces (and the tail) on a 4x4x4 grid.
-INDIRECT_BIAS_TOL = 0.12
-INDIRECT_RMSE_TOL = 0.27
+INDIRECT_BIAS_TOL = 0.06
+INDIRECT_RMSE_TOL = 0.24
 
 
 def cornell_box():
@@ -92,3 +92,28 @@ def test_indirect_light_matches_cycles(empty_scene, cubegi):
     print(err)
     assert abs(err["INDIRECT"]["rel_bias"]) < INDIRECT_BIAS_TOL, err
     assert err["INDIRECT"]["rel_rmse"] < INDIRECT_RMSE_TOL, err
+
+
+def test_a_closed_room_at_albedo_0_95_is_within_3_percent_of_cycles(empty_scene, cubegi):
+    """Light bounces about 20 times here, so an energy error per bounce is amplified about
+    20 times: this is what energy conservation per bounce is for. Measured: indirect bias
+    -2.5% at 4x4x4 probes with 16^2 and 32^2 faces and at 6x6x6 (without the correction:
+    +2.4%, +3.7%, -3.5%). Cycles at 256 samples, diffuse bounces unlimited."""
+    import json
+
+    rho = 0.95
+    scenes.closed_box(size=2.0, cells=8, albedo=rho)
+    v, f = scenes.box_mesh((-0.4, -0.5, -1.0), (0.3, 0.2, -0.1), (3, 3, 3), inward=False)
+    scenes.mesh_object("Block", v, f, scenes.material("Grey", (rho,) * 3))
+    scenes.add_light("POINT", (0.3, -0.2, 0.5), 20.0)
+    assert bpy.ops.cubegi.bake(bounces=8, grid=(4, 4, 4), cube_size=16, reference_samples=256) == {"FINISHED"}
+    report = json.loads(bpy.context.scene.cubegi.last_report)
+    errors = report["reference"]["errors"]
+    print(errors)
+    assert report["tail"]["added"] and report["tail"]["share_of_indirect"] > 0.5  # most of it is the tail
+    assert abs(errors["indirect"]["rel_bias"]) < 0.03, errors
+    assert abs(errors["total"]["rel_bias"]) < 0.03, errors
+    # What the correction did: bounce 1 (light from a point light, very uneven) had 9% too
+    # much; later bounces (smoother light) were within 0.4% and are corrected by that much.
+    factors = [r["energy_factor"] for r in report["bounces"]]
+    assert all(0.85 < f < 1.15 for f in factors[0]) and all(0.99 < f < 1.01 for fs in factors[1:] for f in fs), factors

@@ -260,6 +260,7 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
             "shadow_size": settings.shadow_size,
             "tolerance": settings.tolerance,
             "add_tail": settings.add_tail,
+            "conserve_energy": settings.conserve_energy,
             "lit": ("INDIRECT" if lit == "INDIRECT" else "ALL") if lit else "NONE",
         },
         "grid": {
@@ -279,6 +280,7 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
             "seconds": timings["direct"],
             "mean_light": area_weighted_mean(result.direct, areas).tolist(),
             "attribute": attributes.DIRECT,
+            "emitter_energy_factor": np.asarray(result.emitter_energy_factor).tolist(),
         },
         "bounces": result.bounce_records,
         "indirect": {"mean_light": area_weighted_mean(indirect, areas).tolist(), "attribute": attributes.TOTAL},

@@ -94,6 +94,7 @@ class BakeResult:
     # (objects,) share of each object's probe-seen solid angle that shows back faces (None
     # without SceneArrays.point_object); see transport._seen_from_behind.
     seen_from_behind: np.ndarray = None
+    emitter_energy_factor: np.ndarray = None  # (3,) the energy factor of the light from emitters
 
     @property
     def bounce_sum(self):
@@ -341,13 +342,12 @@ def bake_steps(scene, grid, renderer, settings=None):
     timings["bounces"] = sum(r["seconds"] for r in records)
     t = time.perf_counter()
     tail = _tail(transport, albedo, coeffs, bounces, records, remaining, areas, settings)
-    timings["emitter_energy_factor"] = emitter_factor.tolist()
     if tail["light"] is not None:
         scene.darken(tail["light"])
     timings["tail"] = time.perf_counter() - t
     result = BakeResult(
         direct, bounces, timings, records, grid, transport.probe_valid, tail["light"], tail["report"], probe_coeffs,
-        transport.seen_from_behind,
+        transport.seen_from_behind, emitter_factor,
     )
     if tail["report"]["added"]:
         yield Progress(

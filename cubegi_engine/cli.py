@@ -61,6 +61,10 @@ def _bake_options(p, demo=False):
         help="stop once the estimated missing share of the indirect light is below this (e.g. 0.01); --bounces stays the cap",
     )
     p.add_argument("--no-tail", action="store_true", help="do not add the estimated light after the last bounce to CubeGI")
+    p.add_argument(
+        "--no-energy-conservation", action="store_true",
+        help="leave each bounce's total as interpolated (for comparison; see the README)",
+    )
     p.add_argument("--reference", choices=["cycles"], help="also bake a path-traced reference and report CubeGI's error against it")
     p.add_argument("--reference-samples", type=int, default=256, help="Cycles samples for --reference (default 256)")
     if not demo:
@@ -142,7 +146,7 @@ def _settings(args):
 
     return BakeSettings(
         cube_size=args.cube_size, bounces=args.bounces, visibility=not args.no_visibility,
-        tolerance=args.tolerance, add_tail=not args.no_tail,
+        tolerance=args.tolerance, add_tail=not args.no_tail, conserve_energy=not args.no_energy_conservation,
     )
 
 

@@ -75,3 +75,22 @@ def test_compare_adds_direct_and_indirect_for_the_total():
     assert c["indirect"]["rel_bias"] == pytest.approx(1.0)  # (4 - 2) / 2
     assert c["total"]["rel_bias"] == pytest.approx(0.5)  # (6 - 4) / 4
     assert metrics.errors(np.ones(3), np.zeros(3), np.ones(3))["rel_rmse"] == 0.0
+
+
+def test_energy_conservation_makes_received_power_equal_landed_power():
+    from cubegi_engine.bake import conserve_energy
+
+    rng = np.random.default_rng(3)
+    areas = rng.random(50) + 0.1
+    sent = rng.random((50, 3))
+    landing = rng.random((50, 3))
+    received = (sent * landing * areas[:, None])[::-1] / areas[:, None] * 1.25  # 25% too much, elsewhere
+    fixed, factor = conserve_energy(received, sent, landing, areas)
+    np.testing.assert_allclose((areas[:, None] * fixed).sum(0), (areas[:, None] * sent * landing).sum(0), rtol=1e-12)
+    np.testing.assert_allclose(fixed, received * factor)  # one scale per channel: the shape is kept
+    # A factor outside 0.5..2 means something else is wrong: the light is left as it is.
+    _, factor = conserve_energy(received * 10.0, sent, landing, areas)
+    np.testing.assert_array_equal(factor, 1.0)
+    # No light sent or received: factor 1, nothing divided by zero.
+    _, factor = conserve_energy(np.zeros((50, 3)), sent, landing, areas)
+    np.testing.assert_array_equal(factor, 1.0)

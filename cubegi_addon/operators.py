@@ -76,13 +76,7 @@ class CUBEGI_OT_bake(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        if context.scene is None:
-            cls.poll_message_set("No scene to bake")
-            return False
-        if context.mode != "OBJECT":
-            cls.poll_message_set("Switch to Object Mode to bake")
-            return False
-        return True
+        return _poll(cls, context)
 
     def _job(self, context, progressive):
         lit = self.lit if self.properties.is_property_set("lit") else context.scene.cubegi.lit
@@ -170,14 +164,18 @@ class CUBEGI_OT_bake(bpy.types.Operator):
         return {"FINISHED"}
 
 
-def _object_mode(cls, context):
+def _poll(cls, context, refusal=None):
+    """Every operator's poll: a scene, Object Mode, and then ``refusal(context)`` (a reason
+    to refuse, or None). The reason becomes the greyed-out button's tooltip."""
     if context.scene is None:
-        cls.poll_message_set("No scene")
-        return False
-    if context.mode != "OBJECT":
-        cls.poll_message_set("Switch to Object Mode first")
-        return False
-    return True
+        reason = "No scene"
+    elif context.mode != "OBJECT":
+        reason = "Switch to Object Mode first"
+    else:
+        reason = refusal(context) if refusal else None
+    if reason:
+        cls.poll_message_set(reason)
+    return not reason
 
 
 class CUBEGI_OT_clear(bpy.types.Operator):
@@ -189,12 +187,10 @@ class CUBEGI_OT_clear(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        if not _object_mode(cls, context):
-            return False
-        if not display.baked_meshes(context.scene):
-            cls.poll_message_set("Nothing to clear: no mesh in the scene has CubeGI attributes")
-            return False
-        return True
+        return _poll(
+            cls, context,
+            lambda c: None if display.baked_meshes(c.scene) else "Nothing to clear: no mesh in the scene has CubeGI attributes",
+        )
 
     def execute(self, context):
         removed = 0
@@ -221,7 +217,7 @@ class CUBEGI_OT_add_probe_grid(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return _object_mode(cls, context)
+        return _poll(cls, context)
 
     def execute(self, context):
         if not self.properties.is_property_set("resolution"):
@@ -246,15 +242,14 @@ class CUBEGI_OT_wire_materials(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        if not _object_mode(cls, context):
-            return False
-        if not display.baked_meshes(context.scene):
-            cls.poll_message_set("Bake first: no mesh has CubeGI's light to show")
-            return False
-        if not any(not materials.is_wired(m) and materials.wirable(m) is None for m in materials.scene_materials(context.scene)):
-            cls.poll_message_set("No material left to wire (all wired, linked, or none assigned)")
-            return False
-        return True
+        def refusal(c):
+            if not display.baked_meshes(c.scene):
+                return "Bake first: no mesh has CubeGI's light to show"
+            if not any(not materials.is_wired(m) and materials.wirable(m) is None for m in materials.scene_materials(c.scene)):
+                return "No material left to wire (all wired, linked, or none assigned)"
+            return None
+
+        return _poll(cls, context, refusal)
 
     def execute(self, context):
         wired, skipped = 0, []
@@ -279,12 +274,11 @@ class CUBEGI_OT_unwire_materials(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        if not _object_mode(cls, context):
-            return False
-        if not any(materials.is_wired(m) for m in materials.scene_materials(context.scene)):
-            cls.poll_message_set("No material of the scene has CubeGI's light wired in")
-            return False
-        return True
+        return _poll(
+            cls, context,
+            lambda c: None if any(materials.is_wired(m) for m in materials.scene_materials(c.scene))
+            else "No material of the scene has CubeGI's light wired in",
+        )
 
     def execute(self, context):
         n = sum(materials.unwire(m) for m in materials.scene_materials(context.scene))

@@ -20,13 +20,18 @@ def report_lines(scene):
         return ["the last report cannot be read; bake again"]
 
 
-class VIEW3D_PT_cubegi(bpy.types.Panel):
-    """CubeGI's settings and the Bake and Clear buttons."""
+class _SidebarTab:
+    """Where CubeGI's panels live: the 3D view's sidebar, tab CubeGI."""
 
-    bl_label = "CubeGI"
     bl_space_type = "VIEW_3D"
     bl_region_type = "UI"
     bl_category = "CubeGI"
+
+
+class VIEW3D_PT_cubegi(_SidebarTab, bpy.types.Panel):
+    """CubeGI's settings and the Bake and Clear buttons."""
+
+    bl_label = "CubeGI"
 
     def draw(self, context):
         layout = self.layout
@@ -57,13 +62,10 @@ class VIEW3D_PT_cubegi(bpy.types.Panel):
         row.operator("cubegi.clear", icon="TRASH")
 
 
-class VIEW3D_PT_cubegi_display(bpy.types.Panel):
+class VIEW3D_PT_cubegi_display(_SidebarTab, bpy.types.Panel):
     """Which baked light the viewport shows, and showing it in renders."""
 
     bl_label = "Display"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "CubeGI"
     bl_parent_id = "VIEW3D_PT_cubegi"
 
     def draw(self, context):
@@ -79,13 +81,10 @@ class VIEW3D_PT_cubegi_display(bpy.types.Panel):
         row.operator("cubegi.unwire_materials", icon="X")
 
 
-class VIEW3D_PT_cubegi_report(bpy.types.Panel):
+class VIEW3D_PT_cubegi_report(_SidebarTab, bpy.types.Panel):
     """The last bake's report: time, bounces, estimated remaining error."""
 
     bl_label = "Last Bake"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "CubeGI"
     bl_parent_id = "VIEW3D_PT_cubegi"
 
     def draw(self, context):

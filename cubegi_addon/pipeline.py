@@ -25,8 +25,12 @@ SEEN_FROM_BEHIND_NOTE = 0.1
 
 
 def probe_grid_objects(scene):
-    """The scene's probe grid objects (Empties marked by ``Object.cubegi.is_probe_grid``)."""
-    return [ob for ob in scene.objects if ob.type == "EMPTY" and getattr(ob, "cubegi", None) and ob.cubegi.is_probe_grid]
+    """The scene's probe grid objects (Empties marked by ``Object.cubegi.is_probe_grid``), by
+    name: the order of a bake's grids and of their probes."""
+    return sorted(
+        (ob for ob in scene.objects if ob.type == "EMPTY" and getattr(ob, "cubegi", None) and ob.cubegi.is_probe_grid),
+        key=lambda ob: ob.name,
+    )
 
 
 def new_probe_grid(collection, lo, hi, resolution, name="CubeGI Probe Grid"):
@@ -72,7 +76,7 @@ def resolve_grid(scene, arrays, resolution=None):
     nearest grid's nearest probes (trilinear weights clamped at its faces). A grid object
     with no geometry inside is refused.
     """
-    objects = sorted(probe_grid_objects(scene), key=lambda ob: ob.name)
+    objects = probe_grid_objects(scene)
     if objects:
         grids, inside_any = [], np.zeros(len(arrays.points), dtype=bool)
         for ob in objects:
@@ -238,7 +242,7 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
 
     t = time.perf_counter()
     write_all(context, collected.targets, layers_per_target)
-    grid_objects = sorted(probe_grid_objects(context.scene), key=lambda ob: ob.name)
+    grid_objects = probe_grid_objects(context.scene)
     if grid_objects:
         probe_view.store(grid_objects, grid, result.probe_coeffs, result.probe_valid)
     t_write = t_layers + time.perf_counter() - t

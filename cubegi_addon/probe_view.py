@@ -124,9 +124,20 @@ def draw(scene=None):
     gpu.state.depth_test_set("NONE")
 
 
+@bpy.app.handlers.persistent
+def _forget_all(*_):
+    """Undo, redo and loading a file can change the stored light behind the cache's back."""
+    _cache.clear()
+
+
+_HANDLER_LISTS = ("undo_post", "redo_post", "load_post")
+
+
 def register():
     global _handle
     _handle = bpy.types.SpaceView3D.draw_handler_add(draw, (), "WINDOW", "POST_VIEW")
+    for name in _HANDLER_LISTS:
+        getattr(bpy.app.handlers, name).append(_forget_all)
 
 
 def unregister():
@@ -134,4 +145,8 @@ def unregister():
     if _handle is not None:
         bpy.types.SpaceView3D.draw_handler_remove(_handle, "WINDOW")
         _handle = None
+    for name in _HANDLER_LISTS:
+        handlers = getattr(bpy.app.handlers, name)
+        if _forget_all in handlers:
+            handlers.remove(_forget_all)
     _cache.clear()

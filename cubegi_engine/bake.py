@@ -280,7 +280,7 @@ def bake_steps(scene, grid, renderer, settings=None):
             from_emitters, emitter_factor = conserve_energy(from_emitters, scene.emission, landing, areas)
         direct = direct + from_emitters
     if np.any(scene.sky > 0):
-        sky_coeffs = transport.project(np.zeros((grid.count, 6 * settings.cube_size**2, 3), dtype=np.float32), scene.sky)
+        sky_coeffs = transport.sky_coefficients(scene.sky)
         probe_coeffs = probe_coeffs + sky_coeffs
         direct = direct + transport.interpolate(sky_coeffs)
     scene.darken(direct)

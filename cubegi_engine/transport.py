@@ -158,8 +158,12 @@ class Transport:
     def landing_share(self):
         """Per point, the cosine-weighted share of its view that is surface, not sky:
         ``(s, 3)`` in [0, 1] (the light of a unit sky, from the probes, taken from 1)."""
-        unit_sky = np.repeat(self.sky_projection[:, :, None], 3, axis=2)
-        return np.clip(1.0 - self.interpolate(unit_sky).astype(np.float64), 0.0, 1.0)
+        return np.clip(1.0 - self.interpolate(self.sky_coefficients(np.ones(3))).astype(np.float64), 0.0, 1.0)
+
+    def sky_coefficients(self, sky):
+        """SH radiance coefficients ``(p, 9, 3)`` of a uniform sky of radiance ``sky (3,)``
+        where each probe sees sky."""
+        return self.sky_projection[:, :, None] * np.asarray(sky, dtype=np.float32)[None, None, :]
 
     def texel_radiance(self, radiance):
         """Radiance seen by every texel ``(p, 6n^2, 3)`` from point radiance ``(s, 3)``."""
@@ -170,7 +174,7 @@ class Transport:
         """SH radiance coefficients ``(p, 9, 3)`` of texel radiance (plus a uniform sky)."""
         c = np.matmul(self.sh_weights.T[None], texel_radiance)
         if sky is not None:
-            c = c + self.sky_projection[:, :, None] * np.asarray(sky, dtype=np.float32)[None, None, :]
+            c = c + self.sky_coefficients(sky)
         return c
 
     def interpolate(self, coeffs, clamp=True):

@@ -1,26 +1,34 @@
-"""CubeGI's colour attributes on meshes: names, writing, clearing.
+"""CubeGI's colour attributes on meshes: names, ownership, writing, clearing.
 
 Output contract: FLOAT_COLOR attributes on the POINT domain, ``CubeGI_direct``,
 ``CubeGI_bounce_1`` .. ``CubeGI_bounce_N``, ``CubeGI`` (the sum of the bounces: the indirect
 light) and ``CubeGI_total`` (direct plus indirect), holding diffuse light (irradiance / pi);
-optionally ``CubeGI_lit``, the lit colour (albedo times
-direct plus indirect light) for display and export. A bake with a Cycles reference also
-writes ``CubeGI_ref_direct`` and ``CubeGI_ref_indirect`` (the same quantities from Cycles);
-a bake without one leaves earlier reference attributes alone. Nothing else of the mesh is
-touched.
+optionally ``CubeGI_lit``, the lit colour (albedo times direct plus indirect light) for
+display and export. A bake with a Cycles reference also writes ``CubeGI_ref_direct`` and
+``CubeGI_ref_indirect`` (the same quantities from Cycles); a bake without one leaves
+earlier reference attributes alone.
+
+Ownership: CubeGI touches only what it made. Every attribute it writes is listed in the
+mesh's hidden ID property ``_cubegi_attributes``; it replaces and removes only listed
+attributes (of its own type and domain). Anything else of the mesh with one of CubeGI's
+names (an attribute of the user's, a UV map, a vertex group) is a clash: the bake is
+refused before it starts, naming the mesh and the clash (:func:`check_clashes`).
 """
 
 import re
 
 import numpy as np
 
-PREFIX = "CubeGI"
+from ..cubegi_engine.errors import BakeError
+
 DIRECT = "CubeGI_direct"
-TOTAL = "CubeGI"
-TOTAL_LIGHT = "CubeGI_total"
+INDIRECT = "CubeGI"
+TOTAL = "CubeGI_total"
 LIT = "CubeGI_lit"
 REF_DIRECT = "CubeGI_ref_direct"
 REF_INDIRECT = "CubeGI_ref_indirect"
+OWNED_KEY = "_cubegi_attributes"
+TYPE, DOMAIN = "FLOAT_COLOR", "POINT"
 _OWN = re.compile(r"^CubeGI(_direct|_total|_lit|_bounce_\d+)?$")
 _REF = re.compile(r"^CubeGI_ref_(direct|indirect)$")
 
@@ -41,6 +49,57 @@ def is_reference(name):
 
 def is_any(name):
     return is_own(name) or is_reference(name)
+
+
+def owned(mesh):
+    """Names of the attributes of ``mesh`` that CubeGI wrote (listed, and of its type)."""
+    listed = set(mesh.get(OWNED_KEY, ()))
+    return {a.name for a in mesh.attributes if a.name in listed and a.data_type == TYPE and a.domain == DOMAIN}
+
+
+def _mark(mesh, names):
+    if names:
+        mesh[OWNED_KEY] = sorted(names)
+    elif OWNED_KEY in mesh:
+        del mesh[OWNED_KEY]
+
+
+def clashes(mesh, names, vertex_groups=()):
+    """What of ``mesh`` (and its object's ``vertex_groups`` names) not made by CubeGI bears
+    one of ``names``: a list of descriptions, empty if none."""
+    mine = owned(mesh)
+    uv = {u.name for u in mesh.uv_layers}
+    found = []
+    for name in names:
+        attr = mesh.attributes.get(name)
+        if attr is not None and name not in mine:
+            kind = "UV map" if name in uv else f"attribute ({attr.data_type} on {attr.domain})"
+            found.append(f"{kind} {name!r}")
+        if name in vertex_groups:
+            found.append(f"vertex group {name!r}")
+    return found
+
+
+def check_clashes(pairs, names):
+    """Refuse (BakeError) if any ``(object, mesh)`` of ``pairs`` has data of the user's under a
+    name in ``names``; one line naming the first mesh and clash (and how many more)."""
+    problems = []
+    for ob, mesh in pairs:
+        for clash in clashes(mesh, names, {g.name for g in ob.vertex_groups}):
+            problems.append(f"mesh {mesh.name!r} (object {ob.name!r}) has a {clash} that CubeGI did not make")
+    if problems:
+        more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+        raise BakeError(f"{problems[0]}{more}; CubeGI writes only its own attributes: rename it, then bake again")
+
+
+def bake_names(bounces, lit=False, reference=False):
+    """Every name a bake with these options may write."""
+    names = [DIRECT, INDIRECT, TOTAL] + [bounce_name(k) for k in range(1, int(bounces) + 1)]
+    if lit:
+        names.append(LIT)
+    if reference:
+        names += [REF_DIRECT, REF_INDIRECT]
+    return names
 
 
 def vertex_values(target, point_values):
@@ -70,35 +129,41 @@ def _rgba(mesh, name, values):
 
 
 def clear(mesh, which=is_own):
-    """Remove the attributes of ``mesh`` whose names ``which`` accepts; returns their names."""
-    names = [a.name for a in mesh.attributes if which(a.name)]
+    """Remove the attributes CubeGI made on ``mesh`` whose names ``which`` accepts; returns
+    their names. Nothing of the user's is touched."""
+    mine = owned(mesh)
+    names = [n for n in mine if which(n)]
     for name in names:
         mesh.attributes.remove(mesh.attributes[name])
+    _mark(mesh, mine - set(names))
     return names
+
+
+def _create(mesh, name, rgba):
+    attr = mesh.attributes.new(name, TYPE, DOMAIN)
+    attr.data.foreach_set("color", rgba.ravel())
+    _mark(mesh, owned(mesh) | {name})
 
 
 def write(mesh, layers):
     """Replace CubeGI's attributes of ``mesh`` by ``layers``: a dict name -> ``(v, 3)``.
 
     The bake's own names are always replaced; the reference names only when ``layers`` has
-    them."""
+    them. The caller has checked for clashes (:func:`check_clashes`)."""
     prepared = {name: _rgba(mesh, name, values) for name, values in layers.items()}
     with_reference = any(is_reference(n) for n in prepared)
     clear(mesh, is_any if with_reference else is_own)
     for name, rgba in prepared.items():
-        attr = mesh.attributes.new(name, "FLOAT_COLOR", "POINT")
-        attr.data.foreach_set("color", rgba.ravel())
+        _create(mesh, name, rgba)
 
 
 def put(mesh, name, values):
-    """Create or overwrite the one layer ``name`` of ``mesh`` with ``values (v, 3)``."""
+    """Create or overwrite CubeGI's one layer ``name`` of ``mesh`` with ``values (v, 3)``."""
     rgba = _rgba(mesh, name, values)
-    attr = mesh.attributes.get(name)
-    if attr is None or attr.data_type != "FLOAT_COLOR" or attr.domain != "POINT":
-        if attr is not None:
-            mesh.attributes.remove(attr)
-        attr = mesh.attributes.new(name, "FLOAT_COLOR", "POINT")
-    attr.data.foreach_set("color", rgba.ravel())
+    if name in owned(mesh):
+        mesh.attributes[name].data.foreach_set("color", rgba.ravel())
+    else:
+        _create(mesh, name, rgba)
 
 
 def read(mesh, name):
@@ -110,27 +175,28 @@ def read(mesh, name):
 
 
 def snapshot(mesh):
-    """CubeGI's attributes of ``mesh`` as they are now, and which colour attributes are
-    active and the default (render) ones, for :func:`restore`."""
+    """CubeGI's attributes of ``mesh`` as they are now, its ownership list, and which colour
+    attributes are active and the default (render) ones, for :func:`restore`."""
     saved = []
-    for a in mesh.attributes:
-        if is_any(a.name):
-            width = 4 if a.data_type in {"FLOAT_COLOR", "BYTE_COLOR"} else None
-            key = "color" if width else "value"
-            data = np.empty(len(a.data) * (width or 1), dtype=np.float32)
-            a.data.foreach_get(key, data)
-            saved.append((a.name, a.data_type, a.domain, key, data))
+    for name in owned(mesh):
+        data = np.empty(len(mesh.attributes[name].data) * 4, dtype=np.float32)
+        mesh.attributes[name].data.foreach_get("color", data)
+        saved.append((name, data))
     colours = mesh.color_attributes
-    return saved, colours.active_color_name, colours.default_color_name
+    listed = list(mesh[OWNED_KEY]) if OWNED_KEY in mesh else None
+    return saved, listed, colours.active_color_name, colours.default_color_name
 
 
 def restore(mesh, snap):
     """Put back what :func:`snapshot` saw, removing anything CubeGI wrote since."""
-    saved, active, default = snap
+    saved, listed, active, default = snap
     clear(mesh, is_any)
-    for name, data_type, domain, key, data in saved:
-        attr = mesh.attributes.new(name, data_type, domain)
-        attr.data.foreach_set(key, data)
+    for name, data in saved:
+        mesh.attributes.new(name, TYPE, DOMAIN).data.foreach_set("color", data)
+    if listed is None:
+        _mark(mesh, set())
+    else:
+        mesh[OWNED_KEY] = listed
     colours = mesh.color_attributes
     if active and active in colours:
         colours.active_color_name = active

@@ -17,7 +17,8 @@ import numpy as np
 
 from ..cubegi_engine import __version__, benchmark as analysis, metrics
 from ..cubegi_engine.grid import fit_bounds
-from . import attributes, bench_scenes, demo, pipeline, reference, scene_data
+from ..cubegi_engine.report import BakeReport
+from . import attributes, bench_scenes, demo, grid_objects, reference, scene_data
 
 SCENES = {
     "room": demo.build_room,
@@ -91,7 +92,7 @@ def run_scene(scene_name, config, cache_dir, log=print):
     objects = _meshes()
     areas = np.concatenate([scene_data.vertex_areas(ob) for ob in objects])
     ref = cached_reference(cache_dir, scene_name, config["reference_samples"], objects, log)
-    lo, hi = pipeline.world_bounds(objects)
+    lo, hi = grid_objects.world_bounds(objects)
     records = []
     # A first bake compiles the shaders; it is not timed.
     bpy.ops.cubegi.bake(bounces=1, cube_size=8, grid=(2, 2, 2))
@@ -99,12 +100,12 @@ def run_scene(scene_name, config, cache_dir, log=print):
         res = fit_bounds(lo, hi, spacing=float(np.max(hi - lo)) / cells, max_probes=1 << 14)
         if bpy.ops.cubegi.bake(grid=res, cube_size=cube, bounces=bounces, add_tail=tail) != {"FINISHED"}:
             raise RuntimeError(f"{scene_name}: the bake with {res}, cube {cube}, {bounces} bounces did not finish")
-        rep = json.loads(bpy.context.scene.cubegi.last_report)
+        rep = BakeReport.from_json(bpy.context.scene.cubegi.last_report)
         direct = _stack(objects, {ob.name: attributes.read(ob.data, attributes.DIRECT) for ob in objects})
-        indirect = _stack(objects, {ob.name: attributes.read(ob.data, attributes.TOTAL) for ob in objects})
-        t = rep["total_seconds"]
+        indirect = _stack(objects, {ob.name: attributes.read(ob.data, attributes.INDIRECT) for ob in objects})
+        t = rep.total_seconds
         settings = {"grid": "x".join(map(str, res)), "cube": cube, "bounces": bounces, "tail": tail}
-        extra = {"probes": int(np.prod(res)), "timings": rep["timings"], "estimated_remaining_error": rep["estimated_remaining_error"]}
+        extra = {"probes": int(np.prod(res)), "timings": rep.timings, "estimated_remaining_error": rep.estimated_remaining_error}
         records.append(_record(scene_name, "cubegi", settings, t, {"indirect": t, "total": t}, direct, indirect, ref, areas, extra))
         e = records[-1]["errors"]
         log(

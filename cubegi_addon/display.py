@@ -11,9 +11,9 @@ from . import attributes
 
 # Scene.cubegi.display -> attribute name (BOUNCE takes Scene.cubegi.display_bounce).
 LAYERS = {
-    "TOTAL": attributes.TOTAL_LIGHT,
+    "TOTAL": attributes.TOTAL,
     "DIRECT": attributes.DIRECT,
-    "INDIRECT": attributes.TOTAL,
+    "INDIRECT": attributes.INDIRECT,
     "LIT": attributes.LIT,
 }
 
@@ -34,10 +34,10 @@ def layer_name(settings):
 
 
 def baked_meshes(scene):
-    """The distinct, local meshes of the scene's objects that hold CubeGI attributes."""
+    """The distinct, local meshes of the scene's objects that hold CubeGI's attributes."""
     seen = {}
     for ob in scene.objects:
-        if ob.type == "MESH" and ob.data.library is None and any(attributes.is_own(a.name) for a in ob.data.attributes):
+        if ob.type == "MESH" and ob.data.library is None and attributes.owned(ob.data):
             seen.setdefault(ob.data.name, ob.data)
     return list(seen.values())
 

@@ -15,6 +15,8 @@ import gpu
 import numpy as np
 from gpu_extras.batch import batch_for_shader
 
+from ..cubegi_engine.errors import BakeError
+
 # Largest atlas edge in texels; 2048^2 RGBA32F is 64 MiB.
 ATLAS_EDGE = 2048
 MAX_TRIANGLES = (1 << 24) - 1
@@ -161,7 +163,7 @@ class GpuRenderer:
         ensure_gpu()
         triangles = np.asarray(triangles)
         if len(triangles) > MAX_TRIANGLES:
-            raise ValueError(f"the scene has {len(triangles)} triangles; capture supports up to {MAX_TRIANGLES}")
+            raise BakeError(f"the scene has {len(triangles)} triangles; capture supports up to {MAX_TRIANGLES}")
         self.triangles = triangles
         pts = np.asarray(points, dtype=np.float64)
         lo, hi = (pts.min(axis=0), pts.max(axis=0)) if len(pts) else (np.zeros(3), np.ones(3))

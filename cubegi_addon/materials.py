@@ -17,6 +17,7 @@ indirect light is not counted twice.
 
 import bpy
 
+from ..cubegi_engine.errors import BakeError
 from . import attributes
 from .scene_data import DEFAULT_ALBEDO
 
@@ -47,13 +48,13 @@ def wirable(material):
     return None
 
 
-def wire(material, layer=attributes.TOTAL):
+def wire(material, layer=attributes.INDIRECT):
     """Add the baked light ``layer`` to ``material``'s surface (see the module docstring)."""
     if is_wired(material):
         return False
     problem = wirable(material)
     if problem:
-        raise ValueError(problem)
+        raise BakeError(problem)
     tree = material.node_tree
     nodes, links = tree.nodes, tree.links
     out = _output(tree)

@@ -1,12 +1,15 @@
 """Operators: bake (``cubegi.bake``), clear (``cubegi.clear``), add a probe grid."""
 
-import json
-
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, IntVectorProperty, StringProperty
 
-from ..cubegi_engine.bake import BakeSettings
-from . import attributes, display, materials, pipeline, prefs, probe_view, props
+from ..cubegi_engine.errors import BakeError
+from ..cubegi_engine.settings import MAX_BOUNCES, MAX_CUBE_SIZE, MIN_CUBE_SIZE, BakeSettings
+from . import attributes, display, files, grid_objects, materials, pipeline, prefs, probe_view, props, session
+
+# Seconds between the modal bake's steps: often enough to feel live, rarely enough that
+# Blender's own events get through (the same pace as Blender's extension manager).
+MODAL_STEP_SECONDS = 0.05
 
 
 def _settings_from(op, scene):
@@ -34,6 +37,7 @@ class BakeJob:
             context, settings, resolution, lit=None if lit == "NONE" else lit, reference_samples=reference_samples,
             progressive=progressive,
         )
+        self.report_path = None
         self.last = None
         self.report = None
 
@@ -50,6 +54,10 @@ class BakeJob:
         self.steps.close()
 
 
+# The operator's limits are soft (the slider's range): a script's out-of-range value is
+# refused with the reason by BakeSettings.validate, not silently clamped.
+
+
 class CUBEGI_OT_bake(bpy.types.Operator):
     """Bake direct and indirect diffuse light into CubeGI colour attributes on every mesh.
     From the UI it runs in the background of the window: the light appears bounce by bounce,
@@ -59,15 +67,24 @@ class CUBEGI_OT_bake(bpy.types.Operator):
     bl_label = "Bake CubeGI"
     bl_options = {"REGISTER", "UNDO"}
 
-    cube_size: IntProperty(name="Cube-Map Size", description="Cube-map face size (default: the scene's setting)", default=32, min=1)
-    bounces: IntProperty(name="Bounces", description="Indirect bounces (default: the scene's setting)", default=5, min=0)
-    visibility: BoolProperty(name="Probe Visibility", description="Leave out probes that cannot see a vertex", default=True)
+    cube_size: IntProperty(
+        name="Cube-Map Size", description="Cube-map face size (default: the scene's setting)",
+        default=BakeSettings.cube_size, soft_min=MIN_CUBE_SIZE, soft_max=MAX_CUBE_SIZE,
+    )
+    bounces: IntProperty(
+        name="Bounces", description="Indirect bounces (default: the scene's setting)", default=BakeSettings.bounces, soft_min=0, soft_max=MAX_BOUNCES
+    )
+    visibility: BoolProperty(
+        name="Probe Visibility", description="Leave out probes that cannot see a vertex", default=BakeSettings.visibility
+    )
     grid: IntVectorProperty(name="Grid", description="Probes along X, Y, Z (default: probe grid objects, or fitted)", size=3, default=(0, 0, 0))
     tolerance: FloatProperty(
         name="Tolerance", description="Stop once the estimated missing share of the indirect light is below this (0: run all bounces)",
         default=0.0, min=0.0, max=0.5,
     )
-    add_tail: BoolProperty(name="Add Tail", description="Add the estimated light after the last bounce to CubeGI", default=True)
+    add_tail: BoolProperty(
+        name="Add Tail", description="Add the estimated light after the last bounce to CubeGI", default=BakeSettings.add_tail
+    )
     reference_samples: IntProperty(
         name="Cycles Reference Samples", description="Also bake a Cycles reference with this many samples (0: none)", default=0, min=0
     )
@@ -79,19 +96,25 @@ class CUBEGI_OT_bake(bpy.types.Operator):
         return _poll(cls, context)
 
     def _job(self, context, progressive):
+        """The bake job, after every check that can be made before it starts."""
         lit = self.lit if self.properties.is_property_set("lit") else context.scene.cubegi.lit
         resolution = tuple(self.grid) if any(self.grid) else None
-        return BakeJob(context, _settings_from(self, context.scene), resolution, lit, self.reference_samples or None, progressive)
+        report_path = None
+        if self.report_path:
+            report_path = files.writable_target(bpy.path.abspath(self.report_path), "report", _open_file(bpy.data.filepath))
+        job = BakeJob(context, _settings_from(self, context.scene).validate(), resolution, lit, self.reference_samples or None, progressive)
+        job.report_path = report_path
+        return job
 
     def execute(self, context):
         try:
             job = self._job(context, progressive=False)
             while not job.step():
                 pass
-        except ValueError as exc:
-            self.report({"ERROR"}, str(exc))
+            return self._finish(context, job)
+        except BakeError as exc:
+            self.report({"ERROR"}, f"CubeGI: {exc}")
             return {"CANCELLED"}
-        return self._finish(context, job.report)
 
     def invoke(self, context, event):
         if bpy.app.background or context.window is None:
@@ -106,7 +129,7 @@ class CUBEGI_OT_bake(bpy.types.Operator):
         self._bake = self._job(context, progressive=True)
         wm = context.window_manager
         wm.progress_begin(0, 100)
-        self._timer = wm.event_timer_add(0.05, window=context.window)
+        self._timer = wm.event_timer_add(MODAL_STEP_SECONDS, window=context.window)
         context.workspace.status_text_set("CubeGI: starting the bake (Esc to cancel)")
 
     def modal(self, context, event):
@@ -121,11 +144,15 @@ class CUBEGI_OT_bake(bpy.types.Operator):
         except Exception as exc:  # the job has put the meshes back; end the modal state too
             self._end(context)
             display.restore_views(self._view)
-            self.report({"ERROR"}, str(exc) if isinstance(exc, ValueError) else f"CubeGI: the bake failed: {exc!r}")
+            self.report({"ERROR"}, f"CubeGI: {exc}" if isinstance(exc, BakeError) else f"CubeGI: the bake failed: {exc!r}")
             return {"CANCELLED"}
         if done:
             self._end(context)
-            return self._finish(context, self._bake.report)
+            try:
+                return self._finish(context, self._bake)
+            except BakeError as exc:
+                self.report({"ERROR"}, f"CubeGI: {exc}")
+                return {"CANCELLED"}
         step = self._bake.last
         context.window_manager.progress_update(int(100 * step.done / max(step.total, 1)))
         context.workspace.status_text_set(f"CubeGI [{step.done}/{step.total}]: {step.message} (Esc to cancel)")
@@ -148,20 +175,32 @@ class CUBEGI_OT_bake(bpy.types.Operator):
         wm.progress_end()
         context.workspace.status_text_set(None)
 
-    def _finish(self, context, report):
-        for warning in report["warnings"]:
+    def _finish(self, context, job):
+        report = job.report
+        if job.report_path:
+            text = report.to_json()
+            files.write_all([(job.report_path, lambda tmp: _write_text(tmp, text))])
+        for warning in report.warnings:
             self.report({"WARNING"}, f"CubeGI: {warning}")
-        context.scene.cubegi.last_report = json.dumps(report)
+        context.scene.cubegi.last_report = report.to_json(indent=None)
         display.show(context.scene)
-        if self.report_path:
-            pipeline.write_report(report, bpy.path.abspath(self.report_path))
         self.report(
             {"INFO"},
-            f"CubeGI: baked {len(report['scene']['meshes_baked'])} meshes, {len(report['bounces'])} bounces in "
-            f"{report['total_seconds']:.2f} s; estimated missing indirect light {100 * report['estimated_remaining_error']:.2g}%"
-            + (" (added as the tail)" if report["tail"].get("added") else ""),
+            f"CubeGI: baked {len(report.meshes_baked)} meshes, {len(report.bounces)} bounces in "
+            f"{report.total_seconds:.2f} s; estimated missing indirect light {100 * report.estimated_remaining_error:.2g}%"
+            + (" (added as the tail)" if report.tail.added else ""),
         )
         return {"FINISHED"}
+
+
+def _open_file(path):
+    """The open .blend as a path a report must not overwrite (none for an unsaved file)."""
+    return [(path, "open .blend file")] if path else []
+
+
+def _write_text(path, text):
+    with open(path, "w") as fh:
+        fh.write(text)
 
 
 def _poll(cls, context, refusal=None):
@@ -196,8 +235,10 @@ class CUBEGI_OT_clear(bpy.types.Operator):
         removed = 0
         for mesh in display.baked_meshes(context.scene):
             removed += len(attributes.clear(mesh, attributes.is_any))
-        for ob in pipeline.probe_grid_objects(context.scene):
-            probe_view.forget(ob)
+        for ob in grid_objects.probe_grid_objects(context.scene):
+            grid_objects.forget_probe_light(ob)
+            probe_view.forget_drawing(ob)
+        session.forget(context.scene)
         self.report({"INFO"}, f"CubeGI: removed {removed} attributes")
         return {"FINISHED"}
 
@@ -222,9 +263,9 @@ class CUBEGI_OT_add_probe_grid(bpy.types.Operator):
     def execute(self, context):
         if not self.properties.is_property_set("resolution"):
             self.resolution = prefs.get(context).grid_resolution
-        bounds = pipeline.world_bounds([ob for ob in context.visible_objects if ob.type == "MESH"])
+        bounds = grid_objects.world_bounds([ob for ob in context.visible_objects if ob.type == "MESH"])
         lo, hi = bounds if bounds is not None else ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
-        ob = pipeline.new_probe_grid(context.collection, lo, hi, self.resolution)
+        ob = grid_objects.new_probe_grid(context.collection, lo, hi, self.resolution)
         for other in context.selected_objects:
             other.select_set(False)
         ob.select_set(True)

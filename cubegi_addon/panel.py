@@ -1,12 +1,10 @@
 """The CubeGI tab of the 3D view's sidebar: grid and bake settings, Bake and Clear, which light
 to display, showing it in renders, and the last bake's report."""
 
-import json
-
 import bpy
 
-from ..cubegi_engine.report import summary_lines
-from . import pipeline
+from ..cubegi_engine.report import BakeReport
+from . import grid_objects
 
 
 def report_lines(scene):
@@ -15,7 +13,7 @@ def report_lines(scene):
     if not text:
         return []
     try:
-        return summary_lines(json.loads(text))
+        return BakeReport.from_json(text).summary_lines()
     except (ValueError, KeyError, TypeError):
         return ["the last report cannot be read; bake again"]
 
@@ -39,7 +37,7 @@ class VIEW3D_PT_cubegi(_SidebarTab, bpy.types.Panel):
         layout.use_property_decorate = False
         scene = context.scene
         settings = scene.cubegi
-        grids = pipeline.probe_grid_objects(scene)
+        grids = grid_objects.probe_grid_objects(scene)
         ob = context.active_object
         col = layout.column(heading="Probe Grid")
         if ob is not None and ob in grids:

@@ -8,7 +8,7 @@ extension was registered without being enabled (scripts that load it by hand).
 import bpy
 from bpy.props import FloatProperty, IntProperty, IntVectorProperty
 
-from ..cubegi_engine.bake import BakeSettings
+from ..cubegi_engine.settings import BakeSettings
 
 # The extension's module name: "cubegi" from source, "bl_ext.<repo>.cubegi" when installed.
 ADDON = __package__.rpartition(".")[0]

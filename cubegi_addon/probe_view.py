@@ -1,11 +1,10 @@
 """The probe grids in the 3D viewport: a dot per probe, and after a bake a small sphere per
-probe shaded with its light.
+probe shaded with its light (stored on the grid object, see :mod:`.grid_objects`).
 
-A bake stores each grid object's probe light as hidden ID properties
-(``_cubegi_probe_light``: ``p * 9 * 3`` SH radiance coefficients; ``_cubegi_probe_valid``:
-``p`` flags, 0 for a probe found inside geometry). Probes inside geometry are drawn red and
-get no sphere. What to draw is cached as arrays, rebuilt when a grid's transform,
-resolution or light changes; GPU batches are made at draw time (see :func:`_geometry`).
+Probes inside geometry are drawn red and get no sphere. What to draw is cached as arrays
+per object (keyed by its ``session_uid``, so a rename keeps nothing stale), rebuilt when a
+grid's transform, resolution or light changes; GPU batches are made at draw time (see
+:func:`_geometry`).
 """
 
 import bpy
@@ -13,12 +12,9 @@ import gpu
 import numpy as np
 from gpu_extras.batch import batch_for_shader
 
-from ..cubegi_engine.grid import ProbeGrid
 from ..cubegi_engine.spheres import probe_spheres
-from . import prefs
+from . import grid_objects, prefs
 
-LIGHT_KEY = "_cubegi_probe_light"
-VALID_KEY = "_cubegi_probe_valid"
 PROBE_COLOUR = (0.9, 0.75, 0.2, 1.0)
 INSIDE_COLOUR = (0.9, 0.15, 0.1, 1.0)
 
@@ -26,43 +22,12 @@ _handle = None
 _cache = {}
 
 
-def probe_grid(ob):
-    """The :class:`ProbeGrid` of a grid object as it stands."""
-    from .pipeline import grid_bounds_of
-
-    lo, hi = grid_bounds_of(ob)
-    return ProbeGrid(lo, hi, tuple(ob.cubegi.resolution))
-
-
-def store(objects, grid, coeffs, valid):
-    """Keep each grid object's share of a bake's probe light (grids in ``objects`` order)."""
-    grids = getattr(grid, "grids", (grid,))
-    offsets = getattr(grid, "offsets", (0,))
-    for ob, g, start in zip(objects, grids, offsets):
-        ob[LIGHT_KEY] = np.asarray(coeffs[start : start + g.count], dtype=np.float64).ravel().tolist()
-        ob[VALID_KEY] = [int(v) for v in valid[start : start + g.count]]
-    _cache.clear()
-
-
-def forget(ob):
-    """Drop a grid object's stored probe light."""
-    for key in (LIGHT_KEY, VALID_KEY):
-        if key in ob:
-            del ob[key]
-    _cache.pop(ob.name, None)
-
-
-def stored_light(ob):
-    """``(coeffs (p, 9, 3), valid (p,) bool)`` from the last bake, or None if there is none
-    or the grid's resolution changed since."""
-    if LIGHT_KEY not in ob or VALID_KEY not in ob:
-        return None
-    count = int(np.prod(ob.cubegi.resolution))
-    coeffs = np.array(ob[LIGHT_KEY], dtype=np.float64)
-    valid = np.array(ob[VALID_KEY], dtype=bool)
-    if coeffs.size != count * 27 or valid.size != count:
-        return None
-    return coeffs.reshape(count, 9, 3), valid
+def forget_drawing(ob=None):
+    """Drop what is cached for drawing ``ob`` (every grid object's, without ``ob``)."""
+    if ob is None:
+        _cache.clear()
+    else:
+        _cache.pop(ob.session_uid, None)
 
 
 def sphere_radius(grid, scale):
@@ -71,19 +36,19 @@ def sphere_radius(grid, scale):
 
 
 def _geometry(ob):
-    """What to draw for a grid object, as arrays: ``[(kind, arrays, colour)]``, cached.
+    """What to draw for a grid object, as arrays: ``[(kind, arrays, indices, colour)]``, cached.
 
     Only numpy arrays are cached; GPU batches are made at draw time, in the context that
     draws them (a batch's vertex arrays belong to the GPU context it was first drawn in).
     """
     key = (tuple(tuple(r) for r in ob.matrix_world), tuple(ob.cubegi.resolution), ob.empty_display_size,
            ob.cubegi.show_irradiance, prefs.get().sphere_scale)
-    cached = _cache.get(ob.name)
+    cached = _cache.get(ob.session_uid)
     if cached is not None and cached[0] == key:
         return cached[1]
-    grid = probe_grid(ob)
+    stored = grid_objects.stored_probe_light(ob)
+    grid = grid_objects.probe_grid(ob)
     positions = grid.positions()
-    stored = stored_light(ob)
     valid = stored[1] if stored is not None else np.ones(len(positions), dtype=bool)
     parts = []
     for mask, colour in ((valid, PROBE_COLOUR), (~valid, INSIDE_COLOUR)):
@@ -93,14 +58,12 @@ def _geometry(ob):
         verts, colours, tris = probe_spheres(positions[valid], stored[0][valid], sphere_radius(grid, prefs.get().sphere_scale))
         rgba = np.concatenate([np.minimum(colours, 1.0), np.ones((len(colours), 1), np.float32)], axis=1)
         parts.append(("TRIS", {"pos": verts, "color": rgba}, tris, None))
-    _cache[ob.name] = (key, parts)
+    _cache[ob.session_uid] = (key, parts)
     return parts
 
 
 def draw(scene=None):
     """Draw every visible probe grid of the scene (the viewport's draw handler)."""
-    from .pipeline import probe_grid_objects
-
     scene = scene or bpy.context.scene
     if scene is None:
         return
@@ -109,7 +72,7 @@ def draw(scene=None):
     gpu.state.point_size_set(6.0)
     point_shader = gpu.shader.from_builtin("POINT_UNIFORM_COLOR")
     sphere_shader = gpu.shader.from_builtin("SMOOTH_COLOR")
-    for ob in probe_grid_objects(scene):
+    for ob in grid_objects.probe_grid_objects(scene):
         if not ob.visible_get() or not ob.cubegi.show_probes:
             continue
         for kind, arrays, indices, colour in _geometry(ob):

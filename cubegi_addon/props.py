@@ -3,7 +3,7 @@
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, IntVectorProperty, PointerProperty, StringProperty
 
-from ..cubegi_engine.bake import MAX_CUBE_SIZE, MIN_CUBE_SIZE
+from ..cubegi_engine.settings import MAX_BOUNCES, MAX_CUBE_SIZE, MIN_CUBE_SIZE, BakeSettings
 from . import display
 
 LIT_ITEMS = (
@@ -17,15 +17,18 @@ class CubeGISceneSettings(bpy.types.PropertyGroup):
     cube_size: IntProperty(
         name="Cube-Map Size",
         description="Edge length in texels of each probe's cube-map faces",
-        default=32,
+        default=BakeSettings.cube_size,
         min=MIN_CUBE_SIZE,
         max=MAX_CUBE_SIZE,
     )
-    bounces: IntProperty(name="Bounces", description="Number of indirect bounces to compute", default=5, min=0, max=1000)
+    bounces: IntProperty(
+        name="Bounces", description="Number of indirect bounces to compute (at most; Tolerance can stop earlier)",
+        default=BakeSettings.bounces, min=0, max=MAX_BOUNCES,
+    )
     visibility: BoolProperty(
         name="Probe Visibility",
         description="Leave out, per vertex, the probes that cannot see it (stops light leaking through thin walls)",
-        default=True,
+        default=BakeSettings.visibility,
     )
     tolerance: FloatProperty(
         name="Tolerance",
@@ -33,7 +36,7 @@ class CubeGISceneSettings(bpy.types.PropertyGroup):
         default=0.0, min=0.0, max=0.5, subtype="FACTOR",
     )
     add_tail: BoolProperty(
-        name="Add Tail", description="Add the estimated light after the last bounce to CubeGI (the total)", default=True
+        name="Add Tail", description="Add the estimated light after the last bounce to CubeGI (the total)", default=BakeSettings.add_tail
     )
     lit: EnumProperty(
         name="Lit Colour", description="Also write CubeGI_lit, the lit colour that glTF export carries as COLOR_0",
@@ -44,7 +47,7 @@ class CubeGISceneSettings(bpy.types.PropertyGroup):
         items=display.ITEMS, default="TOTAL", update=display.on_display_change,
     )
     display_bounce: IntProperty(
-        name="Bounce", description="Which bounce to show", default=1, min=1, max=1000, update=display.on_display_change
+        name="Bounce", description="Which bounce to show", default=1, min=1, max=MAX_BOUNCES, update=display.on_display_change
     )
     last_report: StringProperty(name="Last Report", description="JSON report of the last bake", default="")
 

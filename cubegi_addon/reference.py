@@ -9,6 +9,7 @@ import time
 
 import bpy
 
+from ..cubegi_engine.errors import BakeError
 from . import attributes
 
 REF_NAMES = {"DIRECT": attributes.REF_DIRECT, "INDIRECT": attributes.REF_INDIRECT}
@@ -38,7 +39,7 @@ def reference_layers(context, targets, samples, seed=0):
     bake's layers at once).
     """
     if not MIN_SAMPLES <= int(samples) <= MAX_SAMPLES:
-        raise ValueError(f"reference samples must be between {MIN_SAMPLES} and {MAX_SAMPLES}, got {samples}")
+        raise BakeError(f"reference samples must be between {MIN_SAMPLES} and {MAX_SAMPLES}, got {samples}")
     objects = [bpy.data.objects[t.object_name] for t in targets]
     t0 = time.perf_counter()
     baked, _ = bake_reference(context, objects, samples=int(samples), seed=seed)

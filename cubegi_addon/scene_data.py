@@ -14,7 +14,8 @@ import bpy
 import numpy as np
 
 from ..cubegi_engine.lights import Light, area_polygon, area_samples
-from ..cubegi_engine.transport import SceneArrays
+from ..cubegi_engine.errors import BakeError
+from ..cubegi_engine.scene import SceneArrays
 
 # Albedo for a material CubeGI cannot read (no nodes, or a surface shader it does not
 # know): the material's viewport display colour; for a face with no material, this grey
@@ -44,7 +45,6 @@ class CollectedScene:
     arrays: SceneArrays
     targets: list
     notes: list = field(default_factory=list)
-    object_names: list = field(default_factory=list)  # per arrays.point_object index
 
 
 def _render_visible_objects(view_layer):
@@ -374,7 +374,7 @@ def collect(context, depsgraph=None):
         else:
             notes.append(f"{name}: {kind.lower()} object has no surface; skipped")
     if not parts:
-        raise ValueError("the scene has no visible geometry to bake")
+        raise BakeError("the scene has no visible geometry to bake")
     tri_offsets = np.cumsum([0] + [len(p["points"]) for p in parts[:-1]])
     arrays = SceneArrays(
         points=np.concatenate([p["points"] for p in parts]),
@@ -385,9 +385,10 @@ def collect(context, depsgraph=None):
         sky=_world_radiance(scene),
         lights=lights,
         point_object=np.repeat(np.arange(len(parts)), [len(p["points"]) for p in parts]),
+        object_names=[p["name"] for p in parts],
     )
     arrays.dark = _set_aside_non_finite(arrays, parts, notes)
-    return CollectedScene(arrays, targets, notes, [p["name"] for p in parts])
+    return CollectedScene(arrays, targets, notes)
 
 
 def _set_aside_non_finite(arrays, parts, notes):
@@ -397,14 +398,14 @@ def _set_aside_non_finite(arrays, parts, notes):
     if not bad.any():
         return None
     if bad.all():
-        raise ValueError("every vertex of the scene has NaN or Inf coordinates")
+        raise BakeError("every vertex of the scene has NaN or Inf coordinates")
     owners = arrays.point_object
     for k in np.unique(owners[bad]):
         count = int((bad & (owners == k)).sum())
         notes.append(f"{parts[k]['name']}: {count} vertices with NaN or Inf coordinates get no light and cast no shadow")
     arrays.triangles = arrays.triangles[~bad[arrays.triangles].any(axis=1)]
     if len(arrays.triangles) == 0:
-        raise ValueError("no triangle of the scene has finite coordinates")
+        raise BakeError("no triangle of the scene has finite coordinates")
     arrays.points[bad] = arrays.points[~bad][0]
     arrays.normals[bad] = (0.0, 0.0, 1.0)
     arrays.albedo[bad] = 0.0

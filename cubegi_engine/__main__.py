@@ -1,5 +1,44 @@
+"""``python -m cubegi_engine ...``: forwards to the command line, which lives in the add-on
+(:mod:`cubegi_addon.cli`) because it drives Blender.
+
+:func:`load_extension` loads this source tree as the extension package ``cubegi`` (the name
+Blender gives it when installed from source). Every module is then loaded once, under that
+one name: this engine package, already imported as ``cubegi_engine`` to run this file, is
+the same object as ``cubegi.cubegi_engine``. Scripts and tests outside the package
+(``tests/``, ``benchmarks/``) load CubeGI through this function too and import its modules
+as ``cubegi.cubegi_engine.*`` and ``cubegi.cubegi_addon.*``.
+"""
+
+import importlib.util
+import os
 import sys
 
-from .cli import main
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+PACKAGE = "cubegi"
 
-sys.exit(main())
+
+def load_extension(register=True):
+    """The extension package ``cubegi`` from this source tree; registered in Blender if
+    ``register`` (which needs bpy; loading alone does not)."""
+    module = sys.modules.get(PACKAGE)
+    if module is None:
+        spec = importlib.util.spec_from_file_location(
+            PACKAGE, os.path.join(ROOT, "__init__.py"), submodule_search_locations=[ROOT]
+        )
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[PACKAGE] = module
+        spec.loader.exec_module(module)
+        engine = sys.modules.get(__package__ or "cubegi_engine")
+        if engine is not None and os.path.dirname(os.path.abspath(engine.__file__)) == os.path.join(ROOT, "cubegi_engine"):
+            # This package is already loaded (as ``cubegi_engine``, to run this file): one module, two names.
+            sys.modules[f"{PACKAGE}.cubegi_engine"] = engine
+            module.cubegi_engine = engine
+    if register and not getattr(module, "_registered", False):
+        module.register()
+        module._registered = True
+    return module
+
+
+if __name__ == "__main__":
+    load_extension(register=False)
+    sys.exit(importlib.import_module(f"{PACKAGE}.cubegi_addon.cli").main())

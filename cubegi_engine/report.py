@@ -1,33 +1,143 @@
-"""A bake report (the dict the pipeline returns) as a few lines of text, for the command
-line and the add-on's panel. Pure Python."""
+"""A bake's report: a typed record, its JSON (strict: no NaN or Inf) and a few lines of text
+for the command line and the panel. Pure Python; must not import bpy.
+
+The JSON layout (``to_dict``) is the report file's documented format (README, "Reports").
+"""
+
+import json
+import math
+from dataclasses import dataclass, field
+
+from . import __version__
+from .records import BounceRecord, TailReport
+
+__all__ = ["BakeReport"]
 
 
-def summary_lines(report):
-    """The report in a few lines of text (the CLI prints them; the add-on shows them)."""
-    tail = report["tail"]
-    lines = [
-        f"baked {len(report['scene']['meshes_baked'])} meshes, {report['grid']['probes']} probes, "
-        f"{len(report['bounces'])} bounces in {report['total_seconds']:.3f} s"
-    ]
-    for rec in report["bounces"]:
-        lines.append(
-            f"  bounce {rec['bounce']}: {rec['seconds'] * 1e3:.1f} ms, mean light {rec['mean']:.4g}, "
-            f"x{rec['ratio_mean']:.3f} of the one before"
+@dataclass
+class BakeReport:
+    settings: dict
+    grid: dict  # resolution, lo, hi, probes, grids, probes_inside_geometry, source
+    points: int
+    triangles: int
+    lights: int
+    sky: list
+    meshes_baked: list
+    notes: list
+    direct_seconds: float
+    direct_mean_light: list
+    emitter_energy_factor: list
+    bounces: list  # BounceRecord per bounce
+    indirect_mean_light: list
+    tail: TailReport
+    timings: dict
+    attributes: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+    reference: dict | None = None
+    capture_reused: bool = False
+    input: str | None = None
+    output: str | None = None
+    version: str = __version__
+
+    @property
+    def total_seconds(self) -> float:
+        return float(self.timings.get("total", 0.0))
+
+    @property
+    def estimated_remaining_error(self) -> float:
+        """The share of the full indirect light the computed bounces miss (estimated from the
+        observed rate); with ``tail.added`` it is in CubeGI as the tail."""
+        return float(self.tail.estimated_remaining)
+
+    def to_dict(self) -> dict:
+        d = {
+            "cubegi_version": self.version,
+            "settings": self.settings,
+            "grid": self.grid,
+            "scene": {
+                "points": self.points, "triangles": self.triangles, "lights": self.lights, "sky": self.sky,
+                "meshes_baked": self.meshes_baked, "notes": self.notes,
+            },
+            "direct": {
+                "seconds": self.direct_seconds, "mean_light": self.direct_mean_light, "attribute": "CubeGI_direct",
+                "emitter_energy_factor": self.emitter_energy_factor,
+            },
+            "bounces": [b.to_dict() for b in self.bounces],
+            "indirect": {"mean_light": self.indirect_mean_light, "attribute": "CubeGI"},
+            "tail": self.tail.to_dict(),
+            "estimated_remaining_error": self.estimated_remaining_error,
+            "capture_reused": self.capture_reused,
+            "timings": self.timings,
+            "total_seconds": self.total_seconds,
+            "reference": self.reference,
+            "attributes": self.attributes,
+            "warnings": self.warnings,
+        }
+        if self.input is not None:
+            d["input"], d["output"] = self.input, self.output
+        return d
+
+    def to_json(self, indent=2) -> str:
+        """Strict JSON: a NaN or Inf anywhere (a defect) is written as null."""
+        return json.dumps(_finite(self.to_dict()), indent=indent, allow_nan=False)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "BakeReport":
+        scene, direct = d["scene"], d["direct"]
+        timings = dict(d.get("timings", {}))
+        timings.setdefault("total", d.get("total_seconds", 0.0))
+        return cls(
+            settings=d["settings"], grid=d["grid"], points=scene["points"], triangles=scene["triangles"],
+            lights=scene["lights"], sky=scene["sky"], meshes_baked=scene["meshes_baked"], notes=scene["notes"],
+            direct_seconds=direct["seconds"], direct_mean_light=direct["mean_light"],
+            emitter_energy_factor=direct.get("emitter_energy_factor", [1.0, 1.0, 1.0]),
+            bounces=[BounceRecord(**b) for b in d["bounces"]], indirect_mean_light=d["indirect"]["mean_light"],
+            tail=TailReport.from_dict(d["tail"]), timings=timings, attributes=d.get("attributes", []),
+            warnings=d.get("warnings", []), reference=d.get("reference"), capture_reused=d.get("capture_reused", False),
+            input=d.get("input"), output=d.get("output"), version=d.get("cubegi_version", __version__),
         )
-    missing = f"estimated missing indirect light after bounce {len(report['bounces'])}: {100 * report['estimated_remaining_error']:.3g}%"
-    if tail.get("added"):
-        missing += f" ({tail['method']}, added to CubeGI)"
-    elif tail.get("method", "none") != "none":
-        missing += " (not added)"
-    lines.append(missing)
-    ref = report.get("reference")
-    if ref:
-        lines.append(f"Cycles reference, {ref['samples']} samples: {ref['seconds']:.2f} s against CubeGI's {ref['cubegi_seconds']:.2f} s")
-        for part in ("direct", "indirect", "total"):
-            e = ref["errors"][part]
+
+    @classmethod
+    def from_json(cls, text: str) -> "BakeReport":
+        return cls.from_dict(json.loads(text))
+
+    def summary_lines(self) -> list:
+        """The report in a few lines of text (the CLI prints them; the add-on shows them)."""
+        reused = ", capture reused" if self.capture_reused else ""
+        lines = [
+            f"baked {len(self.meshes_baked)} meshes, {self.grid['probes']} probes{reused}, "
+            f"{len(self.bounces)} bounces in {self.total_seconds:.3f} s"
+        ]
+        for rec in self.bounces:
             lines.append(
-                f"  {part:8s} rel. RMSE {100 * e['rel_rmse']:6.2f}%  bias {100 * e['rel_bias']:+6.2f}%  p95 {100 * e['p95_rel']:6.2f}%"
+                f"  bounce {rec.bounce}: {rec.seconds * 1e3:.1f} ms, mean light {rec.mean:.4g}, "
+                f"x{rec.ratio_mean:.3f} of the one before"
             )
-    lines += [f"warning: {w}" for w in report.get("warnings", [])]
-    lines += [f"note: {n}" for n in report["scene"]["notes"]]
-    return lines
+        missing = f"estimated missing indirect light after bounce {len(self.bounces)}: {100 * self.estimated_remaining_error:.3g}%"
+        if self.tail.added:
+            missing += f" ({self.tail.method}, added to CubeGI)"
+        elif self.tail.method != "none":
+            missing += " (not added)"
+        lines.append(missing)
+        ref = self.reference
+        if ref:
+            lines.append(f"Cycles reference, {ref['samples']} samples: {ref['seconds']:.2f} s against CubeGI's {ref['cubegi_seconds']:.2f} s")
+            for part in ("direct", "indirect", "total"):
+                e = ref["errors"][part]
+                lines.append(
+                    f"  {part:8s} rel. RMSE {100 * e['rel_rmse']:6.2f}%  bias {100 * e['rel_bias']:+6.2f}%  p95 {100 * e['p95_rel']:6.2f}%"
+                )
+        lines += [f"warning: {w}" for w in self.warnings]
+        lines += [f"note: {n}" for n in self.notes]
+        return lines
+
+
+def _finite(value):
+    """``value`` with every non-finite float replaced by None (JSON has no NaN or Inf)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return value

@@ -21,58 +21,20 @@ Light is carried as the diffuse value of a white Lambertian surface, ``E / pi``;
 radiance of a surface of albedo rho receiving diffuse light l is ``rho * l`` (+ emission).
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from . import cubemap, sh
 from .grid import visibility_weights
 
+__all__ = ["CubeCapture", "capture_cubes", "clip_planes", "Transport", "reference_coefficients", "COEFFS_PER_POINT"]
+
+# A point interpolates 8 probes (the corners of its cell) x 9 SH coefficients.
+COEFFS_PER_POINT = 8 * 9
 # A probe whose cube map sees back faces over more than this share of the sphere is taken
 # to sit inside geometry and is left out of the interpolation (as DDGI does).
 INSIDE_BACKFACE_SHARE = 0.25
-
-
-@dataclass
-class SceneArrays:
-    """The scene as CubeGI sees it: shading points, triangles over them, lights and sky.
-
-    points, normals: ``(s, 3)`` float64 world space, normals unit; albedo: ``(s, 3)``
-    diffuse colour in [0, 1]; emission: ``(s, 3)`` emitted radiance; triangles: ``(t, 3)``
-    int64 point indices; sky: ``(3,)`` radiance of the world background; lights: list of
-    :class:`cubegi_engine.lights.Light`.
-    """
-
-    points: np.ndarray
-    normals: np.ndarray
-    albedo: np.ndarray
-    emission: np.ndarray
-    triangles: np.ndarray
-    sky: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    lights: list = field(default_factory=list)
-    point_object: np.ndarray = None  # (s,) int: which object each point belongs to (optional)
-    dark: np.ndarray = None  # (s,) bool: points that get no light (bad input set aside; optional)
-
-    def darken(self, light):
-        """``light (s, 3)`` with the dark points' rows set to zero (in place); returned."""
-        if self.dark is not None:
-            light[self.dark] = 0.0
-        return light
-
-    def bounds(self):
-        return self.points.min(axis=0), self.points.max(axis=0)
-
-    @property
-    def scale(self):
-        """The length of the scene's bounding-box diagonal (at least a tiny positive number)."""
-        lo, hi = self.bounds()
-        return max(float(np.linalg.norm(hi - lo)), 1e-30)
-
-    def point_areas(self):
-        """Each point's share of the surface: a third of its triangles' areas, ``(s,)``."""
-        p = self.points[self.triangles]
-        area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
-        return np.bincount(self.triangles.ravel(), np.repeat(area / 3.0, 3), minlength=len(self.points))
 
 
 @dataclass
@@ -117,8 +79,7 @@ class Transport:
     def __init__(self, scene, grid, capture, visibility=True):
         n = capture.size
         p = grid.count
-        self.grid = grid
-        self.size = n
+        self.probe_count = p
         dirs = cubemap.texel_directions(n).reshape(-1, 3)
         solid = np.tile(cubemap.texel_solid_angles(n).ravel(), 6)
         self.sh_weights = (sh.basis(dirs) * solid[:, None]).astype(np.float32)  # (6n^2, 9)
@@ -133,7 +94,9 @@ class Transport:
         back_share = (back * solid[None, :]).sum(axis=1) / (4.0 * np.pi)
         self.probe_valid = back_share <= INSIDE_BACKFACE_SHARE
         self.seen_from_behind = None
+        self.triangle_object = None
         if scene.point_object is not None:
+            self.triangle_object = scene.point_object[scene.triangles[:, 0]]
             self.seen_from_behind = _seen_from_behind(scene, tid, back, solid, self.probe_valid)
 
         positions = grid.positions()
@@ -153,7 +116,11 @@ class Transport:
         self.index = index
         # Per point: trilinear weight x diffuse SH basis of its normal, (s, 8 * 9).
         basis = sh.diffuse_basis(scene.normals)
-        self.point_weights = (weight[:, :, None] * basis[:, None, :]).reshape(len(scene.points), 72).astype(np.float32)
+        self.point_weights = (weight[:, :, None] * basis[:, None, :]).reshape(len(scene.points), COEFFS_PER_POINT).astype(np.float32)
+
+    def arrays(self):
+        """The tables' arrays (for memory accounting)."""
+        return [self.sh_weights, self.corners, self.bary, self.sky_projection, self.probe_valid, self.index, self.point_weights]
 
     def landing_share(self):
         """Per point, the cosine-weighted share of its view that is surface, not sky:
@@ -187,7 +154,7 @@ class Transport:
         """
         if clamp:
             coeffs, _ = sh.dering(coeffs)
-        g = coeffs[self.index].reshape(len(self.index), 72, 3)
+        g = coeffs[self.index].reshape(len(self.index), COEFFS_PER_POINT, 3)
         out = np.einsum("sk,skc->sc", self.point_weights, g, optimize=True)
         return np.maximum(out, 0.0) if clamp else out
 

@@ -1,7 +1,10 @@
-"""Test set-up: real bpy in background mode, the extension loaded from this source tree.
+"""Test set-up shared by both folders: this source tree loaded as the extension package
+``cubegi`` (one copy of every module; see ``cubegi_engine/__main__.py``).
 
-Blender's user folder is redirected to a temporary one so the tests never touch the
-user's configuration. Each test that uses the scene starts from an empty factory file.
+``tests/engine`` holds the engine's pure-numpy tests and runs without bpy;
+``tests/blender`` holds the tests that drive real Blender (bpy, the GPU module on llvmpipe,
+Cycles) and is skipped where bpy is missing. Blender's user folder is redirected to a
+temporary one so the tests never touch the user's configuration.
 """
 
 import os
@@ -9,25 +12,9 @@ import sys
 import tempfile
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-_USER = tempfile.mkdtemp(prefix="cubegi-test-user-")
-os.environ.setdefault("BLENDER_USER_RESOURCES", _USER)
+os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="cubegi-test-user-"))
 sys.path.insert(0, ROOT)
 
-import pytest  # noqa: E402
+from cubegi_engine.__main__ import load_extension  # noqa: E402
 
-
-@pytest.fixture(scope="session")
-def cubegi():
-    """The extension package (``cubegi``), registered."""
-    from cubegi_engine.cli import load_extension
-
-    return load_extension()
-
-
-@pytest.fixture
-def empty_scene(cubegi):
-    """An empty factory file with the extension registered."""
-    import bpy
-
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    return bpy.context.scene
+load_extension(register=False)

@@ -23,7 +23,8 @@ def baked_once(empty_scene, cubegi):
 
 def _fail_at(monkeypatch, cubegi, stage):
     pipeline = cubegi.cubegi_addon.pipeline
-    engine_bake = __import__("cubegi.cubegi_engine.bake", fromlist=["x"])
+    capture = __import__("cubegi.cubegi_engine.capture", fromlist=["x"])
+    direct = __import__("cubegi.cubegi_engine.direct", fromlist=["x"])
     transport = __import__("cubegi.cubegi_engine.transport", fromlist=["x"])
 
     def boom(*a, **k):
@@ -34,9 +35,9 @@ def _fail_at(monkeypatch, cubegi, stage):
     elif stage == "gpu":
         monkeypatch.setattr(pipeline, "GpuRenderer", boom)
     elif stage == "capture":
-        monkeypatch.setattr(engine_bake, "capture_cubes", boom)
+        monkeypatch.setattr(capture, "capture_cubes", boom)
     elif stage == "direct":
-        monkeypatch.setattr(engine_bake, "direct_from_lights", boom)
+        monkeypatch.setattr(direct, "light_direct", boom)
     elif stage == "bounce":
         monkeypatch.setattr(transport.Transport, "texel_radiance", boom)
     elif stage == "reference":

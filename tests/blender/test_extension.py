@@ -7,7 +7,7 @@ import sys
 
 import bpy
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def test_manifest_validates_with_blenders_tool():

@@ -7,8 +7,8 @@ import bpy
 import numpy as np
 import pytest
 
-from cubegi_engine import cubemap, transport
-from cubegi_engine.grid import ProbeGrid
+from cubegi.cubegi_engine import cubemap, transport
+from cubegi.cubegi_engine.grid import ProbeGrid
 
 import scenes
 

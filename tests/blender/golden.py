@@ -1,11 +1,11 @@
-"""Bakes whose attributes are kept in ``tests/data/golden_bakes.npz``: the demo Room and every
+"""Bakes whose attributes are kept in ``tests/blender/data/golden_bakes.npz``: the demo Room and every
 benchmark scene, baked through the operator with fixed settings.
 
 The file holds the values of the release that wrote it; a restructuring of the code must
-reproduce them (``tests/test_golden.py``). A change that is meant to change the light
+reproduce them (``tests/blender/test_golden.py``). A change that is meant to change the light
 rewrites the file on purpose, with the reason in its commit:
 
-    .venv/bin/python tests/golden.py
+    .venv/bin/python tests/blender/golden.py
 """
 
 import os
@@ -25,9 +25,10 @@ SETTINGS = dict(grid=(5, 5, 3), cube_size=16, bounces=3, lit="ALL")
 def bake_scene(name):
     """Build one benchmark scene, bake it, return ``{"<object>:<layer>": (v, 3) float32}``."""
     import bpy
-    import importlib
 
-    importlib.import_module("cubegi.cubegi_addon.benchmark").SCENES[name]()
+    from cubegi.cubegi_addon.benchmark import SCENES
+
+    SCENES[name]()
     assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
     out = {}
     for ob in sorted(bpy.context.scene.objects, key=lambda o: o.name):
@@ -42,9 +43,11 @@ def bake_scene(name):
 
 
 def main():
-    sys.path.insert(0, HERE)
-    import conftest  # noqa: F401  (user folder, import path)
-    from cubegi_engine.cli import load_extension
+    import tempfile
+
+    os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="cubegi-golden-"))
+    sys.path.insert(0, os.path.dirname(os.path.dirname(HERE)))
+    from cubegi_engine.__main__ import load_extension
 
     load_extension()
     arrays = {}

@@ -11,7 +11,7 @@ import bpy
 import numpy as np
 import pytest
 
-from cubegi_engine import metrics
+from cubegi.cubegi_engine import metrics
 
 import scenes
 

@@ -1,5 +1,5 @@
 """The demo Room and every benchmark scene bake to the values kept in
-``tests/data/golden_bakes.npz`` (see ``tests/golden.py``): a restructuring of the code must
+``tests/blender/data/golden_bakes.npz`` (see ``tests/blender/golden.py``): a restructuring of the code must
 not move the light."""
 
 import numpy as np

@@ -11,7 +11,7 @@ import pytest
 
 import scenes
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def _cli(*args):
@@ -123,7 +123,7 @@ def test_cli_reference_writes_its_attributes_and_errors(saved_scene, tmp_path, c
         (["bake", "/nonexistent/x.blend", "-o", "{tmp}/o.blend"], "does not exist"),
         (["bake", "{notblend}", "-o", "{tmp}/o.blend"], "not a .blend"),
         (["bake", "{src}", "-o", "/nonexistent-dir/o.blend"], "output folder does not exist"),
-        (["bake", "{src}", "-o", "{src}"], "overwrite the input"),
+        (["bake", "{src}", "-o", "{src}"], "is the input"),
         (["bake", "{src}", "-o", "{tmp}/o.blend", "--grid", "0", "2", "2"], "--grid"),
         (["bake", "{src}", "-o", "{tmp}/o.blend", "--cube-size", "2"], "--cube-size"),
         (["bake", "{src}", "-o", "{tmp}/o.blend", "--bounces", "-1"], "--bounces"),

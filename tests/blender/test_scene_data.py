@@ -119,13 +119,13 @@ def test_bake_takes_its_grid_from_the_probe_grid_object(empty_scene, cubegi):
 def test_several_probe_grids_each_point_uses_the_finest_that_contains_it(empty_scene, cubegi):
     import json
 
-    pipeline = cubegi.cubegi_addon.pipeline
+    grid_objects = cubegi.cubegi_addon.grid_objects
     v, f = scenes.box_mesh((-2, -1, 0), (2, 1, 2), (8, 4, 4), inward=True)
     scenes.mesh_object("Room", v, f)
     scenes.add_light("POINT", (0.3, 0.2, 1.5), 50.0)
     col = bpy.context.scene.collection
-    pipeline.new_probe_grid(col, (-2, -1, 0), (2, 1, 2), (2, 1, 1), name="Coarse")
-    pipeline.new_probe_grid(col, (0, -1, 0), (2, 1, 2), (4, 4, 4), name="Fine")
+    grid_objects.new_probe_grid(col, (-2, -1, 0), (2, 1, 2), (2, 1, 1), name="Coarse")
+    grid_objects.new_probe_grid(col, (0, -1, 0), (2, 1, 2), (4, 4, 4), name="Fine")
     assert bpy.ops.cubegi.bake(bounces=2) == {"FINISHED"}
     report = json.loads(bpy.context.scene.cubegi.last_report)
     assert [g["resolution"] for g in report["grid"]["grids"]] == [[2, 1, 1], [4, 4, 4]]

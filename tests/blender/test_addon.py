@@ -100,7 +100,7 @@ def test_the_modal_bake_shows_the_light_after_every_bounce_and_ends_as_a_plain_b
     assert len(seen) == 3 and seen[0] < seen[1] < seen[2]  # the light grows bounce by bounce
     report = job.report
     progressive = {n: _read("Box", n) for n in ("CubeGI_direct", "CubeGI", "CubeGI_total", "CubeGI_bounce_3")}
-    assert report["bounces"][-1]["bounce"] == 3
+    assert report.bounces[-1].bounce == 3
     # The same bake run straight through (execute) writes the same numbers.
     assert bpy.ops.cubegi.bake(bounces=3, cube_size=8) == {"FINISHED"}
     for name, values in progressive.items():
@@ -158,18 +158,18 @@ def test_probes_store_their_light_and_draw_as_spheres_shaded_with_it(box):
 
     probe_view = box.cubegi_addon.probe_view
     grid = next(o for o in bpy.context.scene.objects if o.type == "EMPTY")
-    assert probe_view.stored_light(grid) is None
+    assert box.cubegi_addon.grid_objects.stored_probe_light(grid) is None
     assert bpy.ops.cubegi.bake(bounces=2, cube_size=8) == {"FINISHED"}
-    coeffs, valid = probe_view.stored_light(grid)
+    coeffs, valid = box.cubegi_addon.grid_objects.stored_probe_light(grid)
     assert coeffs.shape == (8, 9, 3) and valid.all() and np.isfinite(coeffs).all() and coeffs[:, 0].min() > 0
     # A camera looking down -Z at one probe from above sees its sphere's top: the light a
     # surface facing +Z gets there (evaluated from the stored SH).
     from cubegi.cubegi_engine import sh
 
-    pos = probe_view.probe_grid(grid).positions()
+    pos = box.cubegi_addon.grid_objects.probe_grid(grid).positions()
     k = 7  # a top probe
     expected = sh.irradiance_diffuse(coeffs[k], np.array([0.0, 0.0, 1.0]))
-    radius = probe_view.sphere_radius(probe_view.probe_grid(grid), box.cubegi_addon.prefs.get().sphere_scale)
+    radius = probe_view.sphere_radius(box.cubegi_addon.grid_objects.probe_grid(grid), box.cubegi_addon.prefs.get().sphere_scale)
     eye = pos[k] + np.array([0.0, 0.0, 3 * radius])
     view = Matrix.Translation(-eye)
     proj = Matrix(np.array(box.cubegi_engine.cubemap.orthographic(0.5 * radius, 0.1 * radius, 10 * radius)).tolist())
@@ -185,7 +185,7 @@ def test_probes_store_their_light_and_draw_as_spheres_shaded_with_it(box):
     off.free()
     centre = pixels[6:10, 6:10, :3].reshape(-1, 3).mean(axis=0)
     np.testing.assert_allclose(centre, np.minimum(expected, 1.0), rtol=0.05, atol=1e-3)
-    assert bpy.ops.cubegi.clear() == {"FINISHED"} and probe_view.stored_light(grid) is None
+    assert bpy.ops.cubegi.clear() == {"FINISHED"} and box.cubegi_addon.grid_objects.stored_probe_light(grid) is None
 
 
 # --- renders ---------------------------------------------------------------------------------

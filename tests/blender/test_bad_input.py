@@ -105,7 +105,7 @@ def test_a_grid_too_large_for_memory_is_refused_with_the_estimate(empty_scene, c
 
 
 def test_memory_estimate_by_hand():
-    from cubegi_engine import bake
+    from cubegi.cubegi_engine import bake
 
     # 10 probes of 6 x 32^2 texels at 80 bytes, 100 points at 8 x 8 x 9 x 4 + 400 = 2704 bytes.
     assert bake.memory_estimate(10, 32, 100) == 10 * 6 * 1024 * 80 + 100 * 2704
@@ -150,7 +150,7 @@ def test_materials_without_nodes_or_with_unknown_shaders_fall_back_to_the_viewpo
 
 def test_a_probe_grid_with_no_geometry_inside_is_refused(empty_scene, cubegi):
     scenes.cornell(light=True)
-    cubegi.cubegi_addon.pipeline.new_probe_grid(bpy.context.scene.collection, (10, 10, 10), (12, 12, 12), (2, 2, 2))
+    cubegi.cubegi_addon.grid_objects.new_probe_grid(bpy.context.scene.collection, (10, 10, 10), (12, 12, 12), (2, 2, 2))
     with pytest.raises(RuntimeError, match="contains no geometry"):
         bpy.ops.cubegi.bake(bounces=1, cube_size=8)
     assert "CubeGI" not in bpy.data.objects["Floor"].data.attributes
@@ -159,7 +159,7 @@ def test_a_probe_grid_with_no_geometry_inside_is_refused(empty_scene, cubegi):
 def test_geometry_outside_the_grid_gets_the_nearest_probes_and_a_note(empty_scene, cubegi):
     scenes.cornell(light=True)
     # A grid over the lower half of the box only.
-    cubegi.cubegi_addon.pipeline.new_probe_grid(bpy.context.scene.collection, (-1, -1, 0), (1, 1, 1), (2, 2, 2))
+    cubegi.cubegi_addon.grid_objects.new_probe_grid(bpy.context.scene.collection, (-1, -1, 0), (1, 1, 1), (2, 2, 2))
     assert bpy.ops.cubegi.bake(bounces=2, cube_size=8) == {"FINISHED"}
     assert any("lie outside every probe grid" in n for n in _notes())
     ceiling = cubegi.cubegi_addon.attributes.read(bpy.data.objects["Ceiling"].data, "CubeGI")

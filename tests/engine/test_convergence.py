@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from cubegi_engine import convergence, metrics
+from cubegi.cubegi_engine import convergence, metrics
 
 
 def test_ratios_per_channel_and_zero_safe():
@@ -78,7 +78,7 @@ def test_compare_adds_direct_and_indirect_for_the_total():
 
 
 def test_energy_conservation_makes_received_power_equal_landed_power():
-    from cubegi_engine.bake import conserve_energy
+    from cubegi.cubegi_engine.solve import conserve_energy
 
     rng = np.random.default_rng(3)
     areas = rng.random(50) + 0.1

@@ -5,7 +5,7 @@ import numpy as np
 from hypothesis import given, settings, strategies as st
 from hypothesis.extra.numpy import arrays
 
-from cubegi_engine import cubemap, sh
+from cubegi.cubegi_engine import cubemap, sh
 
 N = 8
 DIRS = cubemap.texel_directions(N).reshape(-1, 3)

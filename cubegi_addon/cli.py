@@ -1,0 +1,226 @@
+"""Command line: ``python -m cubegi_engine bake IN.blend -o OUT.blend ...``, ``demo`` and
+``benchmark``.
+
+Arguments, settings and every path are checked before bpy is imported, so bad input fails
+fast with one line (exit status 2) and writes nothing. The bake runs the add-on's pipeline
+inside the ``bpy`` module on a copy of the input opened with its UI; the input is never
+written. Outputs are written whole or not at all (:mod:`.files`).
+"""
+
+import argparse
+import os
+import sys
+
+from ..cubegi_engine.settings import BakeSettings
+from ..cubegi_engine.errors import BakeError
+from . import files
+
+# Set to 1 to see the traceback of a failure that is CubeGI's own defect.
+DEBUG_ENV = "CUBEGI_DEBUG"
+# Compressed .blend files start with a gzip (older Blender) or zstd (4.x, 5.x) header.
+BLEND_MAGIC, GZIP_MAGIC, ZSTD_MAGIC = b"BLENDER", b"\x1f\x8b", b"\x28\xb5\x2f\xfd"
+
+
+def _parser():
+    p = argparse.ArgumentParser(prog="python -m cubegi_engine", description="CubeGI: cube-map probe global illumination for Blender")
+    sub = p.add_subparsers(dest="command", required=True)
+    b = sub.add_parser("bake", help="bake a .blend file's light into CubeGI colour attributes")
+    b.add_argument("input", help="the .blend file to bake (never written)")
+    b.add_argument("-o", "--output", required=True, help="where to write the baked .blend")
+    _bake_options(b)
+    d = sub.add_parser("demo", help="build, bake and render the demo Room")
+    d.add_argument("--out", default="out/demo", help="folder for room.blend, room.png and report.json")
+    d.add_argument("--no-render", action="store_true", help="skip the PNG")
+    _bake_options(d, demo=True)
+    m = sub.add_parser("benchmark", help="measure CubeGI's error against run time, and Cycles' (writes results.json/.md and a plot)")
+    m.add_argument("--out", default="out/benchmark", help="folder for the results (and the cached Cycles references)")
+    m.add_argument("--quick", action="store_true", help="a small sweep that runs in a few minutes (a smoke test)")
+    m.add_argument("--scenes", nargs="+", help="only these scenes (default: all)")
+    return p
+
+
+def _bake_options(p, demo=False):
+    d = BakeSettings()
+    p.add_argument("--grid", nargs=3, type=int, metavar=("NX", "NY", "NZ"), help="probes along X, Y and Z")
+    p.add_argument("--cube-size", type=int, default=d.cube_size, help=f"cube-map face size in texels (default {d.cube_size})")
+    p.add_argument("--bounces", type=int, default=d.bounces, help=f"indirect bounces (default {d.bounces}, at most {d.MAX_BOUNCES})")
+    p.add_argument("--no-visibility", action="store_true", help="plain trilinear interpolation (lets light leak)")
+    p.add_argument(
+        "--tolerance", type=float,
+        help="stop once the estimated missing share of the indirect light is below this (e.g. 0.01); --bounces stays the cap",
+    )
+    p.add_argument("--no-tail", action="store_true", help="do not add the estimated light after the last bounce to CubeGI")
+    p.add_argument(
+        "--no-energy-conservation", action="store_true",
+        help="leave each bounce's total as interpolated (for comparison; see the README)",
+    )
+    p.add_argument("--reference", choices=["cycles"], help="also bake a path-traced reference and report CubeGI's error against it")
+    p.add_argument("--reference-samples", type=int, default=256, help="Cycles samples for --reference (default 256)")
+    if not demo:
+        p.add_argument("--report", help="write the bake report (JSON) here")
+        p.add_argument(
+            "--lit", nargs="?", const="all", choices=("all", "indirect"),
+            help="also write CubeGI_lit: albedo x all light (all, the default) or x indirect light only",
+        )
+
+
+def _settings(args):
+    """The bake settings of the arguments, validated (a BakeError names the option)."""
+    if args.grid is not None and min(args.grid) < 1:
+        raise BakeError(f"--grid needs three integers >= 1, got {' '.join(map(str, args.grid))}")
+    if args.reference and args.reference_samples < 1:
+        raise BakeError(f"--reference-samples must be 1 or more, got {args.reference_samples}")
+    settings = BakeSettings(
+        cube_size=args.cube_size, bounces=args.bounces, visibility=not args.no_visibility,
+        tolerance=args.tolerance, add_tail=not args.no_tail, conserve_energy=not args.no_energy_conservation,
+    )
+    try:
+        settings.validate()
+    except BakeError as exc:
+        option = f"--{exc.setting.replace('_', '-')}: " if getattr(exc, "setting", None) else ""
+        raise BakeError(f"{option}{exc}") from None
+    return settings
+
+
+def _check_input(path):
+    src = os.path.realpath(path)
+    if not os.path.isfile(src):
+        raise BakeError(f"input file does not exist: {path}")
+    with open(src, "rb") as fh:
+        magic = fh.read(7)
+    if magic != BLEND_MAGIC and not magic.startswith(GZIP_MAGIC) and not magic.startswith(ZSTD_MAGIC):
+        raise BakeError(f"input is not a .blend file: {path}")
+    return src, magic != BLEND_MAGIC
+
+
+def _check_io(args):
+    """``(input, compressed, output, report)``: resolved paths, every one checked."""
+    src, compressed = _check_input(args.input)
+    dst = files.writable_target(args.output, "output", [(src, "input")])
+    report = None
+    if args.report:
+        report = files.writable_target(args.report, "report", [(src, "input"), (dst, "output")])
+    return src, compressed, dst, report
+
+
+def _print_progress(step):
+    print(f"cubegi: [{step.done}/{step.total}] {step.message}", flush=True)
+
+
+def _save_blend(compress):
+    import bpy
+
+    def write(tmp):
+        result = bpy.ops.wm.save_as_mainfile(filepath=tmp, copy=True, check_existing=False, compress=compress)
+        if result != {"FINISHED"}:
+            raise RuntimeError("Blender did not save the file")
+
+    return write
+
+
+def _save_json(report):
+    def write(tmp):
+        with open(tmp, "w") as fh:
+            fh.write(report.to_json())
+
+    return write
+
+
+def _blender():
+    """bpy, with the add-on registered (a file's probe grids and settings are read through
+    its properties)."""
+    import importlib
+
+    import bpy
+
+    if not hasattr(bpy.types.Scene, "cubegi"):
+        importlib.import_module(__package__).register()
+    return bpy
+
+
+def _open_for_baking(bpy, path):
+    """Open the input with its UI (so the output keeps the user's layout), in Object Mode
+    (a file saved in Edit Mode is baked as its edit data stands)."""
+    bpy.ops.wm.open_mainfile(filepath=path, load_ui=True)
+    ob = bpy.context.view_layer.objects.active
+    if ob is not None and ob.mode != "OBJECT":
+        bpy.ops.object.mode_set(mode="OBJECT")
+
+
+def cmd_bake(args):
+    settings = _settings(args)
+    src, compressed, dst, report_path = _check_io(args)
+    bpy = _blender()
+
+    from . import pipeline
+
+    _open_for_baking(bpy, src)
+    lit = args.lit.upper() if args.lit else None
+    report = pipeline.bake(bpy.context, settings, tuple(args.grid) if args.grid else None, lit=lit,
+                           reference_samples=args.reference_samples if args.reference else None, progress=_print_progress)
+    report.input, report.output = src, dst
+    jobs = [(dst, _save_blend(compressed))]
+    if report_path:
+        jobs.append((report_path, _save_json(report)))
+    files.write_all(jobs)
+    _summary(report)
+
+
+def _summary(report):
+    for line in report.summary_lines():
+        print(f"cubegi: {line}", flush=True)
+
+
+def cmd_demo(args):
+    settings = _settings(args)
+    out = os.path.abspath(args.out)
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise BakeError(f"--out {args.out!r} is a file; give a folder")
+    os.makedirs(out, exist_ok=True)
+    blend = files.writable_target(os.path.join(out, "room.blend"), "demo file")
+    report_path = files.writable_target(os.path.join(out, "report.json"), "report")
+    bpy = _blender()
+
+    from . import demo, pipeline
+
+    demo.build_room()
+    report = pipeline.bake(bpy.context, settings, tuple(args.grid) if args.grid else None, lit="ALL",
+                           reference_samples=args.reference_samples if args.reference else None, progress=_print_progress)
+    files.write_all([(blend, _save_blend(False)), (report_path, _save_json(report))])
+    _summary(report)
+    print(f"cubegi: wrote {blend} and {report_path}")
+    if not args.no_render:
+        png = os.path.join(out, "room.png")
+        demo.render_png(png, attribute="CubeGI_lit")
+        print(f"cubegi: wrote {png}")
+
+
+def cmd_benchmark(args):
+    os.makedirs(args.out, exist_ok=True)
+    if not os.access(args.out, os.W_OK):
+        raise BakeError(f"output folder is not writable: {args.out}")
+    _blender()
+    from . import benchmark
+
+    benchmark.run(args.out, quick=args.quick, scenes=args.scenes, log=lambda m: print(f"cubegi: {m}", flush=True))
+    print(f"cubegi: wrote {', '.join(os.path.join(args.out, f) for f in ('results.json', 'results.md', 'error_vs_time.png'))}")
+
+
+def main(argv=None):
+    """Run the command line; returns the exit status (0 done, 2 refused, 3 CubeGI failed)."""
+    args = _parser().parse_args(argv)
+    try:
+        {"bake": cmd_bake, "demo": cmd_demo, "benchmark": cmd_benchmark}[args.command](args)
+    except BakeError as exc:
+        print(f"cubegi: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("cubegi: interrupted; nothing was written", file=sys.stderr)
+        return 130
+    except Exception as exc:  # a defect: one line, the traceback on request
+        if os.environ.get(DEBUG_ENV):
+            raise
+        print(f"cubegi: error: the bake failed ({type(exc).__name__}: {exc}); nothing was written. "
+              f"Set {DEBUG_ENV}=1 for the traceback and please report it", file=sys.stderr)
+        return 3
+    return 0

@@ -1,0 +1,88 @@
+"""Files a bake writes (the baked .blend, the report): checked before the bake, written
+whole or not at all, never over the user's input.
+
+Pure Python (no bpy): the command line checks its paths before it imports bpy.
+
+Rules, for every path CubeGI writes:
+- it is a regular file or a new name in an existing, writable folder; a directory, a device
+  node, a FIFO or a socket is refused (writing there would replace the node);
+- it is not the same file as any path it must not touch (the input, or another output),
+  through symbolic links, hard links or bind mounts alike (compared by device and inode
+  where the file exists, by resolved path where it does not);
+- it is written to a temporary file in a private folder beside it and renamed over the
+  target only when every output of the job is complete (:func:`write_all`); the temporary
+  folder is removed in every case, so nothing half-written and no backup file stays.
+"""
+
+import os
+import shutil
+import stat
+import tempfile
+
+from ..cubegi_engine.errors import BakeError
+
+__all__ = ["writable_target", "same_file", "write_all"]
+
+
+def same_file(a, b):
+    """True if paths ``a`` and ``b`` name the same file (links and bind mounts resolved)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist: compare where they would be
+        return os.path.realpath(a) == os.path.realpath(b)
+
+
+def writable_target(path, what, protected=()):
+    """The resolved path to write ``what`` (e.g. "output") to, or a BakeError saying why not.
+
+    ``protected``: ``[(path, name)]`` files this one must not be (e.g. the input).
+    """
+    if not path:
+        raise BakeError(f"no {what} path given")
+    real = os.path.realpath(path)
+    for other, name in protected:
+        if other and same_file(path, other):
+            raise BakeError(f"the {what} {path!r} is the {name}; give another path")
+    try:
+        mode = os.stat(real).st_mode
+    except FileNotFoundError:
+        mode = None
+    except OSError as exc:
+        raise BakeError(f"cannot use {path!r} as the {what}: {exc.strerror}") from None
+    if mode is not None and stat.S_ISDIR(mode):
+        raise BakeError(f"the {what} {path!r} is a folder; give a file name")
+    if mode is not None and not stat.S_ISREG(mode):
+        raise BakeError(f"the {what} {path!r} is not a regular file (a device, pipe or socket); give a file name")
+    folder = os.path.dirname(real)
+    if not os.path.isdir(folder):
+        raise BakeError(f"the {what} folder does not exist: {os.path.dirname(os.path.abspath(path))}")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise BakeError(f"the {what} folder is not writable: {folder}")
+    return real
+
+
+def write_all(jobs):
+    """Write several files, all or none: ``jobs`` is ``[(path, write(tmp_path))]``.
+
+    Each ``write`` fills a temporary path in a private folder beside its target; once all
+    have succeeded they are renamed over their targets. A failure (a full disk, a write
+    error) raises a BakeError and leaves every target as it was.
+    """
+    staged = []
+    try:
+        for path, write in jobs:
+            folder = tempfile.mkdtemp(prefix=".cubegi-", dir=os.path.dirname(path))
+            tmp = os.path.join(folder, os.path.basename(path))
+            staged.append((folder, tmp, path))
+            try:
+                write(tmp)
+            except (OSError, RuntimeError) as exc:
+                reason = getattr(exc, "strerror", None) or str(exc).strip().splitlines()[-1]
+                raise BakeError(f"could not write {path!r}: {reason}") from None
+            if not os.path.isfile(tmp):
+                raise BakeError(f"could not write {path!r}")
+        for _, tmp, path in staged:
+            os.replace(tmp, path)
+    finally:
+        for folder, _, _ in staged:
+            shutil.rmtree(folder, ignore_errors=True)

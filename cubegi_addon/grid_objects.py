@@ -1,0 +1,141 @@
+"""Probe grid objects: Empties whose cube is a CubeGI probe grid, and the probe light a bake
+keeps on them.
+
+A grid object is an Empty with ``Object.cubegi.is_probe_grid``; its cube (display size 1,
+scaled and placed) is the grid's box, ``Object.cubegi.resolution`` its probes along X, Y, Z.
+A bake stores each grid object's probe light as hidden ID properties
+(``_cubegi_probe_light``: ``p * 9 * 3`` SH radiance coefficients; ``_cubegi_probe_valid``:
+``p`` flags, 0 for a probe found inside geometry), saved with the file.
+"""
+
+import bpy
+import numpy as np
+
+from ..cubegi_engine.errors import BakeError
+from ..cubegi_engine.grid import GridSet, ProbeGrid, fit_bounds
+
+LIGHT_KEY = "_cubegi_probe_light"
+VALID_KEY = "_cubegi_probe_valid"
+# A grid fitted to the scene has at most this many probes (see fit_bounds).
+MAX_FITTED_PROBES = 4096
+# A fitted grid's box is the scene's box grown by this share of its size on every side.
+FITTED_PAD = 1e-3
+
+
+def probe_grid_objects(scene):
+    """The scene's probe grid objects, by name: the order of a bake's grids and probes."""
+    return sorted(
+        (ob for ob in scene.objects if ob.type == "EMPTY" and getattr(ob, "cubegi", None) and ob.cubegi.is_probe_grid),
+        key=lambda ob: ob.name,
+    )
+
+
+def new_probe_grid(collection, lo, hi, resolution, name="CubeGI Probe Grid"):
+    """Link a probe grid Empty whose cube spans ``lo``..``hi``; returns the object."""
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    ob = bpy.data.objects.new(name, None)
+    ob.empty_display_type = "CUBE"
+    ob.empty_display_size = 1.0
+    ob.location = tuple(0.5 * (lo + hi))
+    ob.scale = tuple(np.maximum(0.5 * (hi - lo), 1e-6))
+    collection.objects.link(ob)
+    ob.cubegi.is_probe_grid = True
+    ob.cubegi.resolution = tuple(int(r) for r in resolution)
+    return ob
+
+
+def world_bounds(objects):
+    """World-space axis-aligned box ``(lo, hi)`` of the objects' bounding boxes, or None."""
+    corners = [np.array([list(c) + [1.0] for c in ob.bound_box]) @ np.array(ob.matrix_world).T for ob in objects]
+    if not corners:
+        return None
+    pts = np.concatenate(corners)[:, :3]
+    return pts.min(axis=0), pts.max(axis=0)
+
+
+def grid_bounds_of(ob):
+    """World-space axis-aligned box of a probe grid object's cube (rotation is ignored)."""
+    s = ob.empty_display_size
+    corners = np.array([[x, y, z, 1.0] for x in (-s, s) for y in (-s, s) for z in (-s, s)])
+    world = corners @ np.array(ob.matrix_world, dtype=np.float64).T
+    return world[:, :3].min(axis=0), world[:, :3].max(axis=0)
+
+
+def probe_grid(ob, resolution=None):
+    """The :class:`ProbeGrid` of a grid object as it stands."""
+    lo, hi = grid_bounds_of(ob)
+    return ProbeGrid(lo, hi, resolution or tuple(ob.cubegi.resolution))
+
+
+def resolve_grid(scene, arrays, resolution=None):
+    """The probe grid(s) of a bake, where they came from, and the share of points outside.
+
+    ``resolution`` (3 ints) overrides the resolution (of every grid). The bounds come from the
+    scene's probe grid objects if it has any, else from the geometry's bounding box. With
+    several grid objects each point uses the finest grid whose box contains it (see
+    :class:`cubegi_engine.grid.GridSet`); points outside every grid get the light of the
+    nearest grid's nearest probes (trilinear weights clamped at its faces). A grid object
+    with no geometry inside is refused.
+    """
+    objects = probe_grid_objects(scene)
+    if objects:
+        grids, inside_any = [], np.zeros(len(arrays.points), dtype=bool)
+        for ob in objects:
+            grid = probe_grid(ob, resolution)
+            inside = np.all((arrays.points >= grid.lo) & (arrays.points <= grid.hi), axis=1)
+            if not inside.any():
+                raise BakeError(f"probe grid {ob.name!r} contains no geometry; move or scale it over the scene")
+            inside_any |= inside
+            grids.append(grid)
+        names = ", ".join(repr(ob.name) for ob in objects)
+        grid = grids[0] if len(grids) == 1 else GridSet(grids)
+        source = f"probe grid object{'s' if len(grids) > 1 else ''} {names}"
+        return grid, source, float(1.0 - inside_any.mean())
+    lo, hi = arrays.bounds()
+    pad = np.maximum(hi - lo, 1e-9 * max(arrays.scale, 1e-30)) * FITTED_PAD
+    lo, hi = lo - pad, hi + pad
+    if resolution:
+        return ProbeGrid(lo, hi, resolution), "scene bounds", 0.0
+    return ProbeGrid(lo, hi, fit_bounds(lo, hi, max_probes=MAX_FITTED_PROBES)), "fitted to scene bounds", 0.0
+
+
+def grids_of(grid):
+    """The ProbeGrids of a ProbeGrid or GridSet, and each one's first probe index."""
+    if isinstance(grid, GridSet):
+        return grid.grids, tuple(int(o) for o in grid.offsets)
+    return (grid,), (0,)
+
+
+def grid_report(grid):
+    """The grid part of a report: every grid's resolution and box (the first's at top level)."""
+    grids, _ = grids_of(grid)
+    each = [{"resolution": list(g.resolution), "lo": list(g.lo), "hi": list(g.hi), "probes": g.count} for g in grids]
+    return dict(each[0], probes=grid.count, grids=each)
+
+
+def store_probe_light(objects, probe_field):
+    """Keep each grid object's share of a bake's probe field (grids in ``objects`` order)."""
+    grids, offsets = grids_of(probe_field.grid)
+    for ob, g, start in zip(objects, grids, offsets):
+        ob[LIGHT_KEY] = np.asarray(probe_field.coeffs[start : start + g.count], dtype=np.float64).ravel().tolist()
+        ob[VALID_KEY] = [int(v) for v in probe_field.valid[start : start + g.count]]
+
+
+def forget_probe_light(ob):
+    """Drop a grid object's stored probe light."""
+    for key in (LIGHT_KEY, VALID_KEY):
+        if key in ob:
+            del ob[key]
+
+
+def stored_probe_light(ob):
+    """``(coeffs (p, 9, 3), valid (p,) bool)`` from the last bake, or None if there is none
+    or the grid's resolution changed since."""
+    if LIGHT_KEY not in ob or VALID_KEY not in ob:
+        return None
+    count = int(np.prod(ob.cubegi.resolution))
+    coeffs = np.array(ob[LIGHT_KEY], dtype=np.float64)
+    valid = np.array(ob[VALID_KEY], dtype=bool)
+    if coeffs.size != count * 27 or valid.size != count:
+        return None
+    return coeffs.reshape(count, 9, 3), valid

@@ -1,0 +1,99 @@
+"""What outlives a bake inside Blender: per scene, the last bake's snapshot, capture, light
+and probe field (:class:`Kept`), so that the next bake of an unchanged geometry reuses the
+capture, and later updates (light edits, moving objects) start from them.
+
+Kept in this module's memory only (never in the file): keyed by the scene's
+``session_uid``, freed when a file is loaded, on undo and redo (the data they describe may
+be gone), when the add-on is unregistered, and by :func:`forget`. Bounded: at most
+:data:`MAX_KEPT_SCENES` scenes and :func:`budget` bytes in all, the least recently baked
+dropped first; a bake larger than the budget alone is not kept.
+"""
+
+import os
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import bpy
+
+MAX_KEPT_SCENES = 4
+# At most this share of the machine's memory, and never more than MAX_KEPT_BYTES.
+KEPT_SHARE = 0.125
+MAX_KEPT_BYTES = 2 << 30
+
+
+@dataclass
+class Kept:
+    """A bake's parts: ``arrays`` (the SceneArrays snapshot), ``targets`` (MeshTargets),
+    ``result`` (the engine's BakeResult: capture, direct light per source, solution, field)."""
+
+    arrays: object
+    targets: list
+    result: object
+
+    @property
+    def nbytes(self):
+        field = self.result.field
+        arrays = (self.arrays.points, self.arrays.normals, self.arrays.albedo, self.arrays.emission, self.arrays.triangles)
+        light = [self.result.solution.direct, *self.result.solution.bounces, *self.result.direct_parts.parts.values()]
+        return self.result.capture.nbytes + field.nbytes + sum(a.nbytes for a in (*arrays, *light))
+
+
+_kept = OrderedDict()
+
+
+def budget():
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        total = 8 << 30
+    return int(min(MAX_KEPT_BYTES, KEPT_SHARE * total))
+
+
+def keep(scene, kept):
+    """Keep ``kept`` as ``scene``'s last bake; returns False if it is too large to keep."""
+    _kept.pop(scene.session_uid, None)
+    limit = budget()
+    if kept.nbytes > limit:
+        return False
+    _kept[scene.session_uid] = kept
+    while len(_kept) > MAX_KEPT_SCENES or sum(k.nbytes for k in _kept.values()) > limit:
+        _kept.popitem(last=False)
+    return True
+
+
+def kept(scene):
+    """The scene's last kept bake, or None."""
+    return _kept.get(scene.session_uid)
+
+
+def forget(scene=None):
+    """Drop the kept bake of ``scene`` (of every scene without one)."""
+    if scene is None:
+        _kept.clear()
+    else:
+        _kept.pop(scene.session_uid, None)
+
+
+def kept_bytes():
+    return sum(k.nbytes for k in _kept.values())
+
+
+@bpy.app.handlers.persistent
+def _forget_all(*_):
+    forget()
+
+
+HANDLER_LISTS = ("load_pre", "undo_post", "redo_post")
+
+
+def register():
+    for name in HANDLER_LISTS:
+        getattr(bpy.app.handlers, name).append(_forget_all)
+
+
+def unregister():
+    for name in HANDLER_LISTS:
+        handlers = getattr(bpy.app.handlers, name)
+        if _forget_all in handlers:
+            handlers.remove(_forget_all)
+    forget()

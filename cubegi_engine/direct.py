@@ -1,0 +1,146 @@
+"""Direct light, kept per source: each light, the emissive surfaces and the sky.
+
+Pure numpy; must not import bpy. Lights are computed per point with shadows from depth
+maps drawn by the injected renderer. Emissive surfaces and the sky reach the points
+through the probes (the capture's tables), as in the paper; Cycles counts both as direct.
+
+Keeping each source's share apart is what lets a later edit of one light's power or colour
+be a weighted sum, and a moved light be recomputed alone.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import cubemap, lights as lights_mod
+from .solve import conserve_energy
+from .transport import capture_cubes, clip_planes
+
+__all__ = ["DirectLight", "light_direct", "direct_light", "EMISSION", "SKY"]
+
+EMISSION, SKY = "emission", "sky"
+
+
+@dataclass
+class DirectLight:
+    """Direct light per source: ``parts`` maps a source key (``"light:<name>"`` for each
+    light in scene order, ``"emission"``, ``"sky"``) to its ``(s, 3)`` light.
+
+    source_coeffs: ``(p, 9, 3)`` float32 SH radiance the probes see of the emitters and the
+    sky (the start of the probe field); emitter_energy_factor: ``(3,)``.
+    """
+
+    parts: dict
+    source_coeffs: np.ndarray
+    emitter_energy_factor: np.ndarray = field(default_factory=lambda: np.ones(3))
+    light_seconds: float = 0.0
+    probe_seconds: float = 0.0
+
+    def total(self, scene) -> np.ndarray:
+        """Every source summed, dark points zeroed: ``(s, 3)``."""
+        out = np.zeros((len(scene.points), 3))
+        for value in self.parts.values():
+            out += value
+        return scene.zero_dark_points_inplace(out)
+
+
+def light_key(light) -> str:
+    return f"light:{light.name}"
+
+
+def light_direct(scene, renderer, settings, light) -> np.ndarray:
+    """Diffuse light ``(s, 3)`` from one light, with shadows from depth maps."""
+    value = lights_mod.unshadowed(light, scene.points, scene.normals)
+    lit = np.any(value > 0, axis=1)
+    if not light.casts_shadow or not lit.any():
+        return value
+    pts, nrm, ids = scene.points[lit], scene.normals[lit], np.arange(len(scene.points))[lit]
+    if light.kind == "SUN":
+        vis = _sun_visibility(scene, renderer, settings, light, pts, nrm, ids)
+    elif light.kind == "AREA":
+        vis = _area_visibility(scene, renderer, settings, light, pts, nrm, ids)
+    else:
+        near, far = clip_planes(scene.scale)
+        cap = capture_cubes(renderer, light.position[None], settings.shadow_size, near, far)
+        vis = lights_mod.shadow_visibility(
+            pts, nrm, light.position, cap.tid[0], cap.dist[0], cap.backface[0], scene.triangles, scene.points, ids, scene.scale
+        )
+    value[lit] *= vis[:, None]
+    return value
+
+
+def direct_light(scene, renderer, settings, transport, landing=None) -> DirectLight:
+    """The direct light of every source of ``scene`` (see :class:`DirectLight`).
+
+    ``landing``: as for :func:`cubegi_engine.solve.solve_steps`; the light from emitters is
+    balanced with it (None: not balanced).
+    """
+    import time
+
+    t = time.perf_counter()
+    parts = {}
+    for k, light in enumerate(scene.lights):
+        key = light_key(light)
+        parts[key if key not in parts else f"{key}#{k}"] = light_direct(scene, renderer, settings, light)
+    light_seconds = time.perf_counter() - t
+    t = time.perf_counter()
+    coeffs = np.zeros((transport.probe_count, 9, 3), dtype=np.float32)
+    factor = np.ones(3)
+    if np.any(scene.emission > 0):
+        coeffs = transport.project(transport.texel_radiance(scene.emission))
+        from_emitters = scene.zero_dark_points_inplace(transport.interpolate(coeffs).astype(np.float64))
+        if landing is not None:
+            from_emitters, factor = conserve_energy(from_emitters, scene.emission, landing, scene.point_areas())
+        parts[EMISSION] = from_emitters
+    if np.any(scene.sky > 0):
+        sky_coeffs = transport.sky_coefficients(scene.sky)
+        coeffs = coeffs + sky_coeffs
+        parts[SKY] = transport.interpolate(sky_coeffs)
+    return DirectLight(parts, coeffs, factor, light_seconds, time.perf_counter() - t)
+
+
+# Sun shadow map frustum: a box around the scene's bounding sphere (radius grown by 1% so
+# that its surface is inside), seen from two radii away along the sun's direction; near
+# and far leave a margin of a thousandth of the radius and two radii beyond the scene.
+SUN_BOX_MARGIN = 1.01
+SUN_EYE_DISTANCE = 2.0
+SUN_NEAR, SUN_FAR = 1e-3, 4.0
+# Area light shadow eyes sit this share of the scene's size off the light's plane, so the
+# light's own geometry (if any) and surfaces it rests on do not shadow it.
+AREA_EYE_LIFT = 1e-4
+
+
+def _sun_visibility(scene, renderer, settings, light, pts, nrm, ids):
+    lo, hi = scene.bounds()
+    centre, radius = 0.5 * (lo + hi), 0.5 * scene.scale * SUN_BOX_MARGIN
+    axis = light.direction / np.linalg.norm(light.direction)
+    eye = centre - axis * radius * SUN_EYE_DISTANCE
+    view = cubemap.look_matrix(eye, axis, cubemap.any_perpendicular(axis))
+    vp = cubemap.orthographic(radius, SUN_NEAR * radius, SUN_FAR * radius) @ view
+    n = settings.sun_shadow_size
+    tid, _, dist, back = renderer.render(vp[None], eye[None], axis[None], n)
+    return lights_mod.ortho_visibility(
+        pts, nrm, vp, axis, eye, tid[0], dist[0], back[0], scene.triangles, scene.points, ids, radius, scene.scale
+    )
+
+
+def _area_visibility(scene, renderer, settings, light, pts, nrm, ids):
+    near, far = clip_planes(scene.scale)
+    samples = light.samples if light.samples is not None and len(light.samples) else light.position[None]
+    eyes = samples + light.direction * (AREA_EYE_LIFT * scene.scale)
+    cap = capture_cubes(renderer, eyes, settings.area_shadow_size, near, far)
+    num = np.zeros(len(pts))
+    den = np.zeros(len(pts))
+    for k, eye in enumerate(eyes):
+        rel = eye - pts
+        d2 = np.einsum("sc,sc->s", rel, rel)
+        cos_r = np.maximum(0.0, np.einsum("sc,sc->s", nrm, rel)) / np.sqrt(np.maximum(d2, 1e-300))
+        cos_l = np.maximum(0.0, -(rel @ light.direction)) / np.sqrt(np.maximum(d2, 1e-300))
+        w = cos_r * cos_l / np.maximum(d2, 1e-300) + 1e-12
+        vis = lights_mod.shadow_visibility(
+            pts, nrm, eye, cap.tid[k], cap.dist[k], cap.backface[k], scene.triangles, scene.points, ids, scene.scale,
+            reach=0,
+        )
+        num += w * vis
+        den += w
+    return num / den

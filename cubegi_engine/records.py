@@ -1,0 +1,82 @@
+"""What a bake tells as it runs and when it ends: progress, one record per bounce, the tail.
+
+Pure Python and numpy; must not import bpy. These are the engine's own types; JSON appears
+only at the edges (:meth:`cubegi_engine.report.BakeReport.to_json`).
+"""
+
+from dataclasses import asdict, dataclass, field
+from enum import Enum
+
+import numpy as np
+
+__all__ = ["Stage", "Progress", "BounceRecord", "TailReport"]
+
+
+class Stage(str, Enum):
+    CAPTURE = "capture"
+    DIRECT = "direct"
+    BOUNCE = "bounce"
+    TAIL = "tail"
+    REFERENCE = "reference"
+
+
+@dataclass
+class Progress:
+    """One step of a bake. ``light``: the light so far (direct + bounces) ``(s, 3)``, when it
+    changed; ``new_light``: what this step added: the direct light (stage DIRECT), bounce
+    ``bounce``'s light (BOUNCE), or the tail (TAIL)."""
+
+    stage: Stage
+    done: int
+    total: int
+    message: str
+    light: np.ndarray | None = None
+    new_light: np.ndarray | None = None
+    bounce: int | None = None
+
+
+@dataclass
+class BounceRecord:
+    bounce: int
+    seconds: float
+    gather_seconds: float
+    project_seconds: float
+    interpolate_seconds: float
+    mean_light: list  # (3,) area-weighted mean light of this bounce
+    mean: float
+    ratio: list  # (3,) per channel, of the bounce before
+    ratio_mean: float
+    estimated_remaining: float  # estimated share of the indirect light still missing after it
+    energy_factor: list  # (3,) see solve.conserve_energy
+    attribute: str = ""
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class TailReport:
+    """The light after the last bounce: how it was found and whether it was added."""
+
+    estimated_remaining: float
+    method: str = "none"  # "none", "geometric" or "solved"
+    added: bool = False
+    warning: str | None = None
+    iterations: int | None = None
+    relative_residual: float | None = None
+    mean_light: list | None = None
+    share_of_indirect: float | None = None
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        if self.method != "solved":
+            d.pop("iterations")
+            d.pop("relative_residual")
+        if self.mean_light is None:
+            d.pop("mean_light")
+            d.pop("share_of_indirect")
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TailReport":
+        return cls(**{k: d.get(k) for k in cls.__dataclass_fields__ if k in d})

@@ -1,0 +1,92 @@
+"""The scene as CubeGI sees it (a snapshot of arrays), and a fingerprint of its geometry.
+
+Pure numpy; must not import bpy. The add-on's ``scene_data.collect`` makes a
+:class:`SceneArrays` from Blender's evaluated scene; everything after it works on arrays.
+
+The :class:`GeometryFingerprint` says whether two snapshots have the same geometry (the
+capture of one is then valid for the other) and, if not, which objects changed.
+Materials, lights and the world are not part of it: a capture stays valid across them.
+"""
+
+import hashlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["SceneArrays", "GeometryFingerprint"]
+
+
+@dataclass(frozen=True)
+class GeometryFingerprint:
+    """Per object (in ``SceneArrays.point_object`` order): its name and a digest of its
+    points, normals and triangles."""
+
+    objects: tuple  # ((name, digest hex), ...)
+
+    def changed(self, other: "GeometryFingerprint") -> set:
+        """Names of the objects added, removed or changed between ``other`` and this one."""
+        mine, theirs = dict(self.objects), dict(other.objects)
+        return {n for n in mine.keys() | theirs.keys() if mine.get(n) != theirs.get(n)}
+
+
+@dataclass
+class SceneArrays:
+    """The scene as CubeGI sees it: shading points, triangles over them, lights and sky.
+
+    points, normals: ``(s, 3)`` float64 world space, normals unit; albedo: ``(s, 3)``
+    diffuse colour in [0, 1]; emission: ``(s, 3)`` emitted radiance; triangles: ``(t, 3)``
+    int64 point indices; sky: ``(3,)`` radiance of the world background; lights: list of
+    :class:`cubegi_engine.lights.Light`.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    albedo: np.ndarray
+    emission: np.ndarray
+    triangles: np.ndarray
+    sky: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    lights: list = field(default_factory=list)
+    point_object: np.ndarray | None = None  # (s,) int: which object each point belongs to
+    dark: np.ndarray | None = None  # (s,) bool: points that get no light (bad input set aside)
+    object_names: list = field(default_factory=list)  # per point_object index
+
+    def zero_dark_points_inplace(self, light: np.ndarray) -> np.ndarray:
+        """``light (s, 3)`` with the dark points' rows set to zero, in place; returned."""
+        if self.dark is not None:
+            light[self.dark] = 0.0
+        return light
+
+    def bounds(self) -> tuple:
+        return self.points.min(axis=0), self.points.max(axis=0)
+
+    @property
+    def scale(self) -> float:
+        """The length of the scene's bounding-box diagonal (at least a tiny positive number)."""
+        lo, hi = self.bounds()
+        return max(float(np.linalg.norm(hi - lo)), 1e-30)
+
+    def triangle_areas(self) -> np.ndarray:
+        p = self.points[self.triangles]
+        return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+
+    def point_areas(self) -> np.ndarray:
+        """Each point's share of the surface: a third of its triangles' areas, ``(s,)``."""
+        area = self.triangle_areas()
+        return np.bincount(self.triangles.ravel(), np.repeat(area / 3.0, 3), minlength=len(self.points))
+
+    def fingerprint(self) -> GeometryFingerprint:
+        """The geometry's fingerprint (see :class:`GeometryFingerprint`)."""
+        owner = self.point_object if self.point_object is not None else np.zeros(len(self.points), dtype=np.int64)
+        count = int(owner.max()) + 1 if len(owner) else 0
+        names = list(self.object_names) or [f"object {k}" for k in range(count)]
+        tri_owner = owner[self.triangles[:, 0]] if len(self.triangles) else np.zeros(0, dtype=np.int64)
+        out = []
+        for k in range(count):
+            h = hashlib.blake2b(digest_size=16)
+            sel = owner == k
+            h.update(np.ascontiguousarray(self.points[sel]).tobytes())
+            h.update(np.ascontiguousarray(self.normals[sel]).tobytes())
+            first = int(np.argmax(sel)) if sel.any() else 0  # triangles relative to the object's points
+            h.update(np.ascontiguousarray(self.triangles[tri_owner == k] - first).tobytes())
+            out.append((names[k], h.hexdigest()))
+        return GeometryFingerprint(tuple(out))

@@ -1,0 +1,61 @@
+"""How a bake runs: one place for every default and every check. Pure Python; no bpy.
+
+The add-on's properties, the operator and the command line take their defaults and limits
+from :class:`BakeSettings` and validate through :meth:`BakeSettings.validate`.
+"""
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+from .errors import BakeError
+
+__all__ = ["BakeSettings", "MIN_CUBE_SIZE", "MAX_CUBE_SIZE", "MAX_BOUNCES"]
+
+MIN_CUBE_SIZE, MAX_CUBE_SIZE = 4, 512
+# A bounce cap far past any scene's need: a closed room of albedo 0.95 converges to 1e-4 in
+# about 123 bounces, and the tail solve adds the rest in one go. More only writes
+# attributes of zero light.
+MAX_BOUNCES = 200
+
+
+@dataclass
+class BakeSettings:
+    """Everything that sets how a bake runs (not what it bakes)."""
+
+    MAX_BOUNCES: ClassVar[int] = MAX_BOUNCES
+
+    cube_size: int = 32
+    bounces: int = 5
+    visibility: bool = True
+    shadow_size: int = 512
+    sun_shadow_size: int = 2048
+    area_shadow_size: int = 128
+    # Stop once the estimated missing share of the indirect light is below this (None: run
+    # all ``bounces``); ``bounces`` stays the cap.
+    tolerance: float | None = None
+    add_tail: bool = True  # add the light after the last bounce (estimated) to the total
+    solve_tolerance: float = 1e-5
+    # Scale each bounce (and the light from emitters) so that the power the surfaces receive
+    # equals the power they send that lands on surfaces (see :func:`solve.conserve_energy`).
+    conserve_energy: bool = True
+
+    def validate(self) -> "BakeSettings":
+        """Raise a :class:`BakeError` naming the first setting out of range; else self."""
+        if not MIN_CUBE_SIZE <= int(self.cube_size) <= MAX_CUBE_SIZE:
+            raise BakeError(f"cube-map size must be between {MIN_CUBE_SIZE} and {MAX_CUBE_SIZE}, got {self.cube_size}", "cube_size")
+        if not 0 <= int(self.bounces) <= MAX_BOUNCES:
+            raise BakeError(f"bounces must be between 0 and {MAX_BOUNCES}, got {self.bounces}", "bounces")
+        if self.tolerance is not None and not 0.0 < float(self.tolerance) < 1.0:
+            raise BakeError(f"tolerance must be between 0 and 1 (a share of the light), got {self.tolerance}", "tolerance")
+        for name in ("shadow_size", "sun_shadow_size", "area_shadow_size"):
+            if not 1 <= int(getattr(self, name)) <= 16384:
+                raise BakeError(f"{name.replace('_', ' ')} must be between 1 and 16384, got {getattr(self, name)}", name)
+        return self
+
+    def as_dict(self, **extra) -> dict:
+        """The settings a report records."""
+        return {
+            "cube_size": self.cube_size, "bounces": self.bounces, "visibility": self.visibility,
+            "shadow_size": self.shadow_size, "tolerance": self.tolerance, "add_tail": self.add_tail,
+            "conserve_energy": self.conserve_energy, **extra,
+        }

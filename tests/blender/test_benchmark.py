@@ -1,0 +1,40 @@
+"""The benchmark ``--quick`` end to end (real bpy, llvmpipe and Cycles), writing all three
+files with both methods present."""
+
+import json
+import math
+import os
+import subprocess
+import sys
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def test_quick_benchmark_writes_results_for_both_methods(tmp_path):
+    env = dict(os.environ)
+    r = subprocess.run(
+        [sys.executable, "-m", "cubegi_engine", "benchmark", "--quick", "--out", str(tmp_path)],
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=600,
+    )
+    assert r.returncode == 0, r.stderr[-3000:]
+    data = json.loads((tmp_path / "results.json").read_text())
+    records = data["records"]
+    scenes = {r["scene"] for r in records}
+    assert scenes == {"room", "cornell", "courtyard", "white_box_0.95", "thin_wall"}
+    for scene in scenes:
+        methods = {r["method"] for r in records if r["scene"] == scene}
+        assert methods == {"cubegi", "cycles"}, scene
+    for rec in records:
+        assert rec["seconds"] > 0
+        for part in ("direct", "indirect", "total"):
+            assert all(math.isfinite(v) for v in rec["errors"][part].values())
+    # Cycles' error falls as its samples rise (1 -> 4 samples halves the noise).
+    for scene in scenes:
+        cyc = sorted((r for r in records if r["scene"] == scene and r["method"] == "cycles"), key=lambda r: r["settings"]["samples"])
+        assert cyc[-1]["errors"]["indirect"]["rel_rmse"] < cyc[0]["errors"]["indirect"]["rel_rmse"]
+    md = (tmp_path / "results.md").read_text()
+    assert "## Best trade-off, indirect light" in md and all(f"## {s}" in md for s in scenes)
+    png = (tmp_path / "error_vs_time.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+    # The references are cached, named by their samples.
+    assert sorted(os.listdir(tmp_path / "cache")) == sorted(f"{s}-cycles-16spp.npz" for s in scenes)

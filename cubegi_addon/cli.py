@@ -141,7 +141,11 @@ def _blender():
 def _open_for_baking(bpy, path):
     """Open the input with its UI (so the output keeps the user's layout), in Object Mode
     (a file saved in Edit Mode is baked as its edit data stands)."""
-    bpy.ops.wm.open_mainfile(filepath=path, load_ui=True)
+    try:
+        bpy.ops.wm.open_mainfile(filepath=path, load_ui=True)
+    except RuntimeError as exc:
+        reason = str(exc).strip().splitlines()[-1].removeprefix("Error: ")
+        raise BakeError(f"cannot read the input: {reason}") from None
     ob = bpy.context.view_layer.objects.active
     if ob is not None and ob.mode != "OBJECT":
         bpy.ops.object.mode_set(mode="OBJECT")

@@ -91,6 +91,7 @@ def direct_light(scene, renderer, settings, transport, landing=None) -> DirectLi
         from_emitters = scene.zero_dark_points_inplace(transport.interpolate(coeffs).astype(np.float64))
         if landing is not None:
             from_emitters, factor = conserve_energy(from_emitters, scene.emission, landing, scene.point_areas())
+            coeffs = coeffs * factor.astype(np.float32)  # the probes see the emitters as balanced
         parts[EMISSION] = from_emitters
     if np.any(scene.sky > 0):
         sky_coeffs = transport.sky_coefficients(scene.sky)

@@ -67,7 +67,7 @@ class LightSolution:
     direct: ``(s, 3)`` the direct light it starts from; bounces: one ``(s, 3)`` per bounce;
     tail: ``(s, 3)`` the light after the last bounce, when estimated (``tail_report.added``
     says whether it counts); bounce_coeffs: ``(p, 9, 3)`` SH radiance the probes see of
-    the bounced light, summed over the bounces; tail_coeffs: the same for the tail, when
+    the bounced light (each bounce as balanced), summed over the bounces; tail_coeffs: the same for the tail, when
     it was solved in probe space (else None).
     """
 
@@ -122,12 +122,12 @@ def solve_steps(scene, transport, direct, settings: BakeSettings | None = None, 
         texels = transport.texel_radiance(albedo * previous)
         t1 = time.perf_counter()
         coeffs = transport.project(texels)
-        bounce_coeffs = bounce_coeffs + coeffs
         t2 = time.perf_counter()
         light = scene.zero_dark_points_inplace(transport.interpolate(coeffs).astype(np.float64))
         factor = np.ones(3)
         if landing is not None:
             light, factor = conserve_energy(light, albedo * previous, landing, areas)
+        bounce_coeffs = bounce_coeffs + coeffs * factor.astype(np.float32)  # as balanced
         t3 = time.perf_counter()
         mean = area_weighted_mean(light, areas)
         ratio = convergence.ratios(previous_mean, mean)

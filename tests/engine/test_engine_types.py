@@ -1,0 +1,114 @@
+"""The engine's types that outlive a bake, by hand: the geometry fingerprint, the probe
+field, the settings' checks and the report's JSON (pure numpy)."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from cubegi.cubegi_engine import sh
+from cubegi.cubegi_engine.errors import BakeError
+from cubegi.cubegi_engine.field import ProbeField
+from cubegi.cubegi_engine.grid import ProbeGrid
+from cubegi.cubegi_engine.records import BounceRecord, TailReport
+from cubegi.cubegi_engine.report import BakeReport
+from cubegi.cubegi_engine.scene import SceneArrays
+from cubegi.cubegi_engine.settings import MAX_BOUNCES, BakeSettings
+
+# Float32 SH coefficients through float64 evaluation.
+FIELD_TOL = 1e-5
+
+
+def _two_quads(shift=0.0):
+    """Two objects of two triangles each; the second one moved by ``shift`` along Z."""
+    quad = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=np.float64)
+    points = np.concatenate([quad, quad + [0, 0, 1.0 + shift]])
+    tris = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    n = np.tile([0.0, 0.0, 1.0], (8, 1))
+    return SceneArrays(points, n, np.full((8, 3), 0.5), np.zeros((8, 3)), tris,
+                       point_object=np.repeat([0, 1], 4), object_names=["Floor", "Lid"])
+
+
+def test_the_fingerprint_finds_what_changed():
+    a, b = _two_quads(), _two_quads()
+    assert a.fingerprint() == b.fingerprint() and not a.fingerprint().changed(b.fingerprint())
+    moved = _two_quads(shift=0.25)
+    assert moved.fingerprint().changed(a.fingerprint()) == {"Lid"}
+    # Materials are not geometry: a new albedo keeps the fingerprint.
+    recoloured = _two_quads()
+    recoloured.albedo[:] = 0.9
+    assert recoloured.fingerprint() == a.fingerprint()
+    # A first object with more points shifts the second's indices but not its fingerprint.
+    grown = SceneArrays(
+        np.concatenate([a.points[:4], [[2, 2, 0]], a.points[4:]]), np.tile([0.0, 0, 1], (9, 1)), np.full((9, 3), 0.5),
+        np.zeros((9, 3)), np.array([[0, 1, 2], [0, 2, 3], [5, 6, 7], [5, 7, 8]]),
+        point_object=np.array([0, 0, 0, 0, 0, 1, 1, 1, 1]), object_names=["Floor", "Lid"],
+    )
+    assert grown.fingerprint().changed(a.fingerprint()) == {"Floor"}
+
+
+def test_the_probe_field_gives_a_uniform_sky_its_radiance_for_any_normal():
+    grid = ProbeGrid((0, 0, 0), (2, 2, 2), (2, 2, 2))
+    coeffs = np.zeros((8, 9, 3), dtype=np.float32)
+    coeffs[:, 0, :] = np.array([0.5, 1.0, 2.0]) * 2.0 * math.sqrt(math.pi)  # L * (Y00 integral = sqrt(4 pi))
+    field = ProbeField(grid, coeffs, np.ones(8, dtype=bool))
+    rng = np.random.default_rng(1)
+    n = rng.normal(size=(50, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    light = field.light_at(rng.uniform(0, 2, size=(50, 3)), n)
+    np.testing.assert_allclose(light, np.tile([0.5, 1.0, 2.0], (50, 1)), rtol=FIELD_TOL)
+
+
+def test_the_probe_field_interpolates_trilinearly_and_leaves_out_invalid_probes():
+    grid = ProbeGrid((0, 0, 0), (2, 1, 1), (2, 1, 1))  # probes at x = 0.5 and 1.5
+    coeffs = np.zeros((2, 9, 3), dtype=np.float32)
+    coeffs[0, 0, :], coeffs[1, 0, :] = 1.0, 3.0
+    up = np.tile([0.0, 0.0, 1.0], (3, 1))
+    pts = np.array([[0.5, 0.5, 0.5], [1.0, 0.5, 0.5], [1.5, 0.5, 0.5]])
+    e = float(sh.diffuse_basis(up[0])[0])  # the light of a unit Y00 coefficient
+    light = ProbeField(grid, coeffs, np.ones(2, dtype=bool)).light_at(pts, up)
+    np.testing.assert_allclose(light[:, 0], np.array([1.0, 2.0, 3.0]) * e, rtol=FIELD_TOL)
+    only_second = ProbeField(grid, coeffs, np.array([False, True])).light_at(pts, up)
+    # The point on the invalid probe has no valid probe with weight: it keeps its plain weights.
+    np.testing.assert_allclose(only_second[:, 0], np.array([1.0, 3.0, 3.0]) * e, rtol=FIELD_TOL)
+
+
+@pytest.mark.parametrize("kw,setting", [
+    (dict(cube_size=2), "cube_size"), (dict(cube_size=4096), "cube_size"), (dict(bounces=-1), "bounces"),
+    (dict(bounces=MAX_BOUNCES + 1), "bounces"), (dict(tolerance=0.0), "tolerance"), (dict(shadow_size=0), "shadow_size"),
+])
+def test_settings_name_what_is_out_of_range(kw, setting):
+    with pytest.raises(BakeError) as info:
+        BakeSettings(**kw).validate()
+    assert info.value.setting == setting
+    assert BakeSettings().validate() == BakeSettings()
+
+
+def _report(**kw):
+    rec = BounceRecord(1, 0.01, 0.005, 0.003, 0.002, [0.1, 0.2, 0.3], 0.2, [0.5, 0.5, 0.5], 0.5, 0.25, [1.0, 1.0, 1.0], "CubeGI_bounce_1")
+    fields = dict(
+        settings=BakeSettings().as_dict(lit="NONE"), grid={"probes": 8, "resolution": [2, 2, 2]}, points=10, triangles=12,
+        lights=1, sky=[0.0, 0.0, 0.0], meshes_baked=["Room"], notes=["a note"], direct_seconds=0.1,
+        direct_mean_light=[1.0, 1.0, 1.0], emitter_energy_factor=[1.0, 1.0, 1.0], bounces=[rec],
+        indirect_mean_light=[0.3, 0.3, 0.3], tail=TailReport(0.25, "geometric", True, mean_light=[0.1] * 3, share_of_indirect=0.2),
+        timings={"total": 1.5},
+    )
+    fields.update(kw)
+    return BakeReport(**fields)
+
+
+def test_the_report_round_trips_through_strict_json():
+    report = _report()
+    again = BakeReport.from_json(report.to_json())
+    assert again == report
+    assert again.summary_lines() == report.summary_lines() and "baked 1 meshes, 8 probes" in report.summary_lines()[0]
+    d = json.loads(report.to_json())
+    assert d["scene"]["meshes_baked"] == ["Room"] and d["bounces"][0]["attribute"] == "CubeGI_bounce_1"
+    assert d["estimated_remaining_error"] == 0.25 and d["total_seconds"] == 1.5
+
+
+def test_the_report_json_has_no_nan_or_inf():
+    text = _report(direct_mean_light=[float("nan"), float("inf"), 1.0]).to_json()
+    assert "NaN" not in text and "Infinity" not in text
+    assert json.loads(text)["direct"]["mean_light"] == [None, None, 1.0]

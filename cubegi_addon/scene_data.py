@@ -303,6 +303,19 @@ def _light(ob_eval, matrix):
     return None
 
 
+def _light_problem(light):
+    """Why a light cannot be baked (None if it can): a NaN or Inf anywhere in it (one such
+    light would darken every point), or negative power (CubeGI bakes no negative light)."""
+    values = [light.colour, light.position, light.direction, [light.radius, light.area]]
+    if light.polygon is not None:
+        values.append(np.ravel(light.polygon))
+    if not all(np.all(np.isfinite(np.asarray(v, dtype=np.float64))) for v in values):
+        return "NaN or Inf in its location, rotation, size or power"
+    if np.any(light.colour < 0):
+        return "negative power or colour"
+    return None
+
+
 NON_MESH_GEOMETRY = {"CURVE", "SURFACE", "FONT", "META", "CURVES", "POINTCLOUD", "VOLUME"}
 
 
@@ -329,7 +342,10 @@ def collect(context, depsgraph=None):
             continue
         if ob.type == "LIGHT":
             light = _light(ob, inst.matrix_world)
-            if light is not None:
+            problem = _light_problem(light) if light is not None else None
+            if problem:
+                notes.append(f"light {ob.name}: {problem}; skipped")
+            elif light is not None:
                 lights.append(light)
             continue
         if ob.type in NON_MESH_GEOMETRY:

@@ -137,10 +137,12 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
     transport = capture.transport
 
     yield Progress(Stage.DIRECT, 1, total, f"direct light from {len(scene.lights)} lights")
+    t = time.perf_counter()
     landing = transport.landing_share() if settings.conserve_energy else None
+    t_landing = time.perf_counter() - t
     parts = direct_light(scene, renderer, settings, transport, landing)
     direct = parts.total(scene)
-    timings["direct_lights"], timings["direct_probes"] = parts.light_seconds, parts.probe_seconds
+    timings["direct_lights"], timings["direct_probes"] = parts.light_seconds, parts.probe_seconds + t_landing
     timings["direct"] = timings["direct_lights"] + timings["direct_probes"]
     yield Progress(Stage.DIRECT, 2, total, "direct light done", light=direct, new_light=direct)
 

@@ -19,6 +19,8 @@ bounce per iteration.
 
 import numpy as np
 
+__all__ = ["ratios", "converges", "geometric_factor", "remaining_share", "geometric_tail", "gmres"]
+
 # Each bounce keeps this share of the light before (or more): the series is taken not to
 # converge (albedo 1 in a closed room), the tail is not added and the bake warns.
 DIVERGENT_RATIO = 0.999

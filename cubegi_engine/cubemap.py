@@ -20,6 +20,8 @@ Conventions (fixed here, used by the GPU capture and by every look-up):
 
 import numpy as np
 
+__all__ = ["texel_uv", "texel_directions", "texel_solid_angles", "direction_to_texel", "perspective_90", "orthographic", "look_matrix", "cube_view_projections", "any_perpendicular"]
+
 FACE_FORWARD = np.array(
     [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.float64
 )

@@ -2,6 +2,8 @@
 
 import numpy as np
 
+__all__ = ["cut_triangles"]
+
 
 def cut_triangles(origins, u, tid, triangles, vertices):
     """Where the rays ``origins + t u`` cut the planes of triangles ``tid``.

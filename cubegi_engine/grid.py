@@ -15,6 +15,8 @@ import numpy as np
 from . import cubemap
 from .geometry import cut_triangles
 
+__all__ = ["ProbeGrid", "GridSet", "fit_bounds", "visibility_weights"]
+
 
 @dataclass(frozen=True)
 class ProbeGrid:

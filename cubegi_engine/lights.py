@@ -2,7 +2,7 @@
 
 Pure numpy; must not import bpy.
 
-Formulas (matched against Cycles 5.0 bakes; see docs/conventions.md):
+Formulas (matched against Cycles 5.0 bakes; the measurements are in tests/blender/test_cycles.py):
 
 * Point of power P (W) and radius r, colour c: ``c P cos / (4 pi^2 (d^2 + r^2))``.
 * Spot: the point formula times Cycles' cone attenuation
@@ -23,6 +23,8 @@ import numpy as np
 
 from . import cubemap
 from .geometry import cut_triangles
+
+__all__ = ["Light", "area_polygon", "area_samples", "spot_attenuation", "polygon_form_factor", "unshadowed", "shadow_visibility", "ortho_visibility"]
 
 DISK_SEGMENTS = 32
 

@@ -14,6 +14,8 @@ The floor in ``p95_rel`` keeps points the reference sees as black from dividing 
 
 import numpy as np
 
+__all__ = ["errors", "compare"]
+
 
 def _weighted_quantile(values, weights, q):
     order = np.argsort(values)

@@ -21,6 +21,8 @@ Conventions, fixed once:
 
 import numpy as np
 
+__all__ = ["basis", "project", "diffuse_basis", "irradiance_diffuse", "fibonacci_sphere", "dering", "COSINE_LOBE", "DERING_WINDOW"]
+
 # Normalisation constants of the real SH basis (R&H eq. 3).
 C0 = 0.5 * np.sqrt(1.0 / np.pi)  # 0.282095
 C1 = np.sqrt(3.0 / (4.0 * np.pi))  # 0.488603

@@ -10,6 +10,8 @@ import numpy as np
 
 from . import sh
 
+__all__ = ["icosphere", "probe_spheres"]
+
 # The icosahedron: 12 unit vertices, 20 outward faces.
 _T = (1.0 + 5.0**0.5) / 2.0
 _ICO_VERTS = np.array(

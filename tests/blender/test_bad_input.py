@@ -243,3 +243,22 @@ def test_linked_library_meshes_light_the_scene_but_are_not_written(empty_scene, 
     # The crate is there for the light: the box's indirect light changes.
     assert np.abs(_all_values(cubegi)[("Box", "CubeGI")] - without).max() > 1e-3 * without.max()
     assert lib_path.read_bytes() == library_bytes
+
+
+def test_a_light_with_nan_or_negative_power_is_skipped_with_a_note(empty_scene, cubegi, tmp_path):
+    v, f = scenes.box_mesh((-2, -2, 0), (2, 2, 2.5), (4, 4, 3), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    scenes.add_light("POINT", (0.3, 0.2, 1.5), 80.0)
+    assert bpy.ops.cubegi.bake(grid=(2, 2, 2), bounces=2, cube_size=8) == {"FINISHED"}
+    alone = cubegi.cubegi_addon.attributes.read(bpy.data.objects["Room"].data, "CubeGI_total")
+    nan = scenes.add_light("POINT", (0.0, 0.0, 1.0), 50.0)
+    nan.location.x = float("nan")
+    negative = scenes.add_light("SUN", (0.0, 0.0, 2.0), 1.0)
+    negative.data.energy = -3.0
+    report_path = tmp_path / "r.json"
+    assert bpy.ops.cubegi.bake(grid=(2, 2, 2), bounces=2, cube_size=8, report_path=str(report_path)) == {"FINISHED"}
+    with_bad = cubegi.cubegi_addon.attributes.read(bpy.data.objects["Room"].data, "CubeGI_total")
+    np.testing.assert_allclose(with_bad, alone, rtol=1e-6)  # the valid light's light, whole
+    notes = json.loads(report_path.read_text())["scene"]["notes"]  # strict JSON
+    assert any(nan.name in n and "NaN or Inf" in n for n in notes), notes
+    assert any(negative.name in n and "negative power" in n for n in notes), notes

@@ -29,9 +29,16 @@ where = os.path.dirname(installed.__file__)
 assert where.startswith(os.environ["BLENDER_USER_RESOURCES"]), where
 assert not os.path.exists(os.path.join(where, "tests")) and os.path.exists(os.path.join(where, "cubegi_engine", "sh.py"))
 assert "bl_ext.user_default.cubegi" in bpy.context.preferences.addons
-from bl_ext.user_default.cubegi.cubegi_addon import bench_scenes as scenes
-scenes.closed_box(albedo=0.5, cells=4)
-scenes.add_light("POINT", (0.3, -0.2, 0.4), 10.0)
+bpy.ops.mesh.primitive_cube_add(size=2.0)
+box = bpy.context.object
+box.name = "Box"
+bpy.ops.object.mode_set(mode="EDIT")
+bpy.ops.mesh.flip_normals()  # a closed room seen from inside
+bpy.ops.object.mode_set(mode="OBJECT")
+light = bpy.data.objects.new("Lamp", bpy.data.lights.new("Lamp", "POINT"))
+light.data.energy = 10.0
+light.location = (0.3, -0.2, 0.4)
+bpy.context.scene.collection.objects.link(light)
 assert bpy.ops.cubegi.bake(bounces=2, cube_size=8, grid=(2, 2, 2)) == {"FINISHED"}
 assert bpy.types.CUBEGI_OT_bake.__module__.startswith("bl_ext.user_default.cubegi")
 mesh = bpy.data.objects["Box"].data
@@ -62,6 +69,10 @@ def test_the_built_zip_installs_bakes_and_uninstalls(tmp_path):
     names = zipfile.ZipFile(zip_path).namelist()
     assert "blender_manifest.toml" in names and "cubegi_engine/sh.py" in names and "cubegi_addon/operators.py" in names
     assert not [n for n in names if n.split("/")[0] in {"tests", "scripts", "benchmarks", "docs", ".ci", ".git"}]
+    # Run from the source tree only: the command line, the demo and the benchmark.
+    for dev in ("cubegi_addon/cli.py", "cubegi_addon/demo.py", "cubegi_addon/bench_scenes.py", "cubegi_addon/benchmark.py",
+                "cubegi_engine/benchmark.py", "cubegi_engine/__main__.py"):
+        assert dev not in names, dev
     env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "user"))
     r = subprocess.run(
         [sys.executable, "-c", INSTALLED_BAKE, zip_path],

@@ -8,6 +8,7 @@ material) of each mesh, so a flat-shaded corner gets the light of each of its fa
 Cycles bake of the face corners does); a vertex's value is the mean over its corners.
 """
 
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import bpy
@@ -319,14 +320,59 @@ def _light_problem(light):
 NON_MESH_GEOMETRY = {"CURVE", "SURFACE", "FONT", "META", "CURVES", "POINTCLOUD", "VOLUME"}
 
 
+@contextmanager
+def _as_rendered(view_layer):
+    """The view layer with everything that renders shown in the viewport too, for the time of
+    the block: objects hidden with H or disabled in viewports, and collections hidden or
+    disabled in viewports, render (Cycles' rule is ``hide_render`` and the view layer's
+    exclusion) and so take part in the bake. Put back as it was afterwards."""
+    undo = []
+    visible = _render_visible_objects(view_layer)
+
+    def walk(layer_coll):
+        if layer_coll.exclude or layer_coll.collection.hide_render:
+            return
+        if layer_coll.hide_viewport:
+            layer_coll.hide_viewport = False
+            undo.append(lambda lc=layer_coll: setattr(lc, "hide_viewport", True))
+        if layer_coll.collection.hide_viewport:
+            layer_coll.collection.hide_viewport = False
+            undo.append(lambda c=layer_coll.collection: setattr(c, "hide_viewport", True))
+        for child in layer_coll.children:
+            walk(child)
+
+    try:
+        walk(view_layer.layer_collection)
+        for ob in view_layer.objects:
+            if ob.hide_render or ob.name not in visible:
+                continue
+            if ob.hide_viewport:
+                ob.hide_viewport = False
+                undo.append(lambda o=ob: setattr(o, "hide_viewport", True))
+            if ob.hide_get(view_layer=view_layer):
+                ob.hide_set(False, view_layer=view_layer)
+                undo.append(lambda o=ob: o.hide_set(True, view_layer=view_layer))
+        yield
+    finally:
+        for put_back in reversed(undo):
+            put_back()
+
+
 def collect(context, depsgraph=None):
     """The scene's arrays and the meshes to write back to.
 
     Every mesh-like object that renders contributes geometry (modifiers applied, world
-    transforms, instances); original, non-instanced mesh objects whose evaluated vertex
-    count matches their mesh receive the baked light.
+    transforms, instances), whatever the viewport shows (see :func:`_as_rendered`);
+    original, non-instanced mesh objects whose evaluated vertex count matches their mesh
+    receive the baked light.
     """
-    depsgraph = depsgraph or context.evaluated_depsgraph_get()
+    if depsgraph is not None:
+        return _collect(context, depsgraph)
+    with _as_rendered(context.view_layer):
+        return _collect(context, context.evaluated_depsgraph_get())
+
+
+def _collect(context, depsgraph):
     scene = context.scene
     visible = _render_visible_objects(context.view_layer)
     notes = []

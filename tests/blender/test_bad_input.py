@@ -262,3 +262,37 @@ def test_a_light_with_nan_or_negative_power_is_skipped_with_a_note(empty_scene, 
     notes = json.loads(report_path.read_text())["scene"]["notes"]  # strict JSON
     assert any(nan.name in n and "NaN or Inf" in n for n in notes), notes
     assert any(negative.name in n and "negative power" in n for n in notes), notes
+
+
+@pytest.mark.parametrize("how", ["hide_set", "hide_viewport", "collection"])
+def test_objects_hidden_only_in_the_viewport_bake_as_they_render(empty_scene, cubegi, how):
+    """The render's view of the scene decides: a wall hidden in the viewport (H, the monitor
+    toggle, or its collection hidden) still shadows, still receives light, and stays hidden."""
+    scenes.thin_wall()
+    settings = dict(grid=(4, 2, 2), bounces=2, cube_size=8)
+    assert bpy.ops.cubegi.bake(**settings) == {"FINISHED"}
+    read = cubegi.cubegi_addon.attributes.read
+    shown = {n: read(bpy.data.objects[n].data, "CubeGI_total") for n in ("Rooms", "Wall")}
+    cubegi.cubegi_addon.session.forget()
+    bpy.ops.cubegi.clear()
+    wall = bpy.data.objects["Wall"]
+    if how == "hide_set":
+        wall.hide_set(True)
+    elif how == "hide_viewport":
+        wall.hide_viewport = True
+    else:
+        coll = bpy.data.collections.new("Walls")
+        bpy.context.scene.collection.children.link(coll)
+        coll.objects.link(wall)
+        bpy.context.scene.collection.objects.unlink(wall)
+        bpy.context.view_layer.layer_collection.children["Walls"].hide_viewport = True  # the eye
+        coll.hide_viewport = True  # the monitor: disabled in viewports
+    assert bpy.ops.cubegi.bake(**settings) == {"FINISHED"}
+    for name, values in shown.items():
+        np.testing.assert_allclose(read(bpy.data.objects[name].data, "CubeGI_total"), values, rtol=1e-5, atol=1e-7)
+    if how == "hide_set":
+        assert wall.hide_get()
+    elif how == "hide_viewport":
+        assert wall.hide_viewport
+    else:
+        assert bpy.context.view_layer.layer_collection.children["Walls"].hide_viewport and coll.hide_viewport

@@ -19,10 +19,11 @@ import bpy
 
 from ..cubegi_engine.errors import BakeError
 from . import attributes
-from .scene_data import DEFAULT_ALBEDO
+from .scene_data import DEFAULT_ALBEDO, WIRING_NODE
 
 PREFIX = "CubeGI "
-ATTRIBUTE, MULTIPLY, EMISSION, ADD = (PREFIX + n for n in ("Light", "Albedo x Light", "Emission", "Add"))
+ATTRIBUTE, MULTIPLY, EMISSION = (PREFIX + n for n in ("Light", "Albedo x Light", "Emission"))
+ADD = WIRING_NODE  # "CubeGI Add": a bake reads the material through it
 # Inputs that hold a shader's diffuse colour, in the order they are looked for.
 COLOUR_INPUTS = ("Base Color", "Color")
 

@@ -98,8 +98,14 @@ def _sample_image(rgb, uv):
     return top * (1 - fy) + bottom * fy
 
 
+# The Add Shader that Show in Renders (materials.wire) puts between a material's own shader
+# and its output; reading a material looks through it to the material's own shader.
+WIRING_NODE = "CubeGI Add"
+
+
 def _surface_shader(material):
-    """The shader node feeding the material's active output, or None."""
+    """The shader node feeding the material's active output (through CubeGI's own wiring),
+    or None."""
     if material is None or material.node_tree is None:
         return None
     tree = material.node_tree
@@ -111,7 +117,11 @@ def _surface_shader(material):
     surface = out.inputs.get("Surface")
     if surface is None or not surface.is_linked:
         return None
-    return surface.links[0].from_node
+    node = surface.links[0].from_node
+    if node.name == WIRING_NODE:
+        own = node.inputs[0]
+        return own.links[0].from_node if own.is_linked else None
+    return node
 
 
 def _corner_colour(socket, mesh, loop_ids, loop_vertex, fallback):

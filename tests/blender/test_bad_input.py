@@ -296,3 +296,17 @@ def test_objects_hidden_only_in_the_viewport_bake_as_they_render(empty_scene, cu
         assert wall.hide_viewport
     else:
         assert bpy.context.view_layer.layer_collection.children["Walls"].hide_viewport and coll.hide_viewport
+
+
+def test_show_in_renders_does_not_change_the_next_bake(empty_scene, cubegi):
+    """A bake reads a wired material through CubeGI's own wiring: same light, no note."""
+    scenes.cornell(light=True)
+    settings = dict(grid=(3, 3, 3), bounces=2, cube_size=8)
+    assert bpy.ops.cubegi.bake(**settings) == {"FINISHED"}
+    read = cubegi.cubegi_addon.attributes.read
+    before = {ob.name: read(ob.data, "CubeGI") for ob in bpy.context.scene.objects if ob.type == "MESH"}
+    assert bpy.ops.cubegi.wire_materials() == {"FINISHED"}
+    assert bpy.ops.cubegi.bake(**settings) == {"FINISHED"}
+    assert not json.loads(bpy.context.scene.cubegi.last_report)["scene"]["notes"]
+    for name, values in before.items():
+        np.testing.assert_allclose(read(bpy.data.objects[name].data, "CubeGI"), values, rtol=1e-6, atol=1e-9, err_msg=name)

@@ -7,8 +7,11 @@ back face, 0 means nothing was hit; triangle ids are exact in float32 up to 2^24
 """
 
 import atexit
+import contextlib
 import functools
 import math
+import os
+import sys
 
 import bpy
 import gpu
@@ -23,6 +26,22 @@ MAX_TRIANGLES = (1 << 24) - 1
 FAR_AWAY = 3.0e38
 
 _gpu_ready = False
+
+
+@contextlib.contextmanager
+def _quiet_stderr():
+    """Send what C code prints on stderr to /dev/null for the block (Python's own errors
+    still raise). Only around the one render that brings the GPU up."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
 
 
 def ensure_gpu():
@@ -45,7 +64,8 @@ def ensure_gpu():
         scene.camera = cam
         scene.render.engine = "BLENDER_WORKBENCH"
         scene.render.resolution_x = scene.render.resolution_y = 1
-        bpy.ops.render.render(scene=scene.name)
+        with _quiet_stderr():  # Mesa's EGL prints EGL_BAD_MATCH while it probes configs; harmless
+            bpy.ops.render.render(scene=scene.name)
     finally:
         bpy.data.objects.remove(cam)
         bpy.data.cameras.remove(cam_data)

@@ -24,6 +24,9 @@ from .gpu_capture import GpuRenderer
 
 # An object seen from behind over more than this share of what the probes see of it is noted.
 SEEN_FROM_BEHIND_NOTE = 0.1
+# Emitters whose light the probes pass on at less than this share of what they send are
+# noted (too small for the cube maps' texels, so their light is mostly lost).
+EMITTERS_SEEN_NOTE = 0.5
 LIT_CHOICES = (None, "ALL", "INDIRECT")
 
 
@@ -165,6 +168,13 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
 
 
 def _note_capture(collected, result, grid):
+    seen = result.direct_parts.emission_seen
+    if seen is not None and seen < EMITTERS_SEEN_NOTE:
+        collected.notes.append(
+            f"emissive surfaces: the probes pass on {100 * seen:.2g}% of the light they send to other surfaces "
+            "(emitters smaller than a texel of the cube maps are missed); use a light, larger emitters or a larger "
+            "cube-map size"
+        )
     if not result.probe_valid.any():
         collected.notes.append(
             f"all {grid.count} probes see back faces over more than a quarter of their view (inside geometry, or "

@@ -124,11 +124,12 @@ def _surface_shader(material):
     return node
 
 
-def _corner_colour(socket, mesh, loop_ids, loop_vertex, fallback):
+def _corner_colour(socket, mesh, loop_ids, loop_vertex, fallback, problems):
     """Per-corner linear colour ``(k, 3)`` from a colour input socket.
 
     Understands a plain value, an RGB node, an Image Texture (at the UV map given by a UV
     Map node or the mesh's active render UV map) and a Color Attribute / Attribute node.
+    Anything else gives ``fallback``, and why is appended to ``problems``.
     """
     k = len(loop_ids)
     if socket is None:
@@ -147,6 +148,7 @@ def _corner_colour(socket, mesh, loop_ids, loop_vertex, fallback):
         if uv_layer is None:
             uv_layer = next((u for u in mesh.uv_layers if u.active_render), None)
         if rgb is None or uv_layer is None:
+            problems.append(f"image {node.image.name!r} has no pixels (missing file?)" if rgb is None else "no UV map for its image")
             return np.tile(fallback, (k, 1))
         uv = np.empty(len(mesh.loops) * 2, dtype=np.float32)
         uv_layer.data.foreach_get("uv", uv)
@@ -155,12 +157,37 @@ def _corner_colour(socket, mesh, loop_ids, loop_vertex, fallback):
         name = node.layer_name if node.type == "VERTEX_COLOR" else node.attribute_name
         attr = mesh.color_attributes.get(name) if name else mesh.color_attributes.active_color
         if attr is None:
+            problems.append(f"colour attribute {name!r} not on mesh {mesh.name!r}")
             return np.tile(fallback, (k, 1))
         data = np.empty(len(attr.data) * 4, dtype=np.float32)
         attr.data.foreach_get("color", data)
         data = data.reshape(-1, 4)[:, :3].astype(np.float64)
         return data[loop_ids] if attr.domain == "CORNER" else data[loop_vertex[loop_ids]]
+    problems.append(f"fed by a {node.bl_label or node.type} node, which CubeGI does not read" if node.type != "TEX_IMAGE"
+                    else "an Image Texture with no image")
     return np.tile(fallback, (k, 1))
+
+
+def _strength(socket, problems):
+    """A strength input's value: its own, or a Value node's; else its own and a problem."""
+    if not socket.is_linked:
+        return float(socket.default_value)
+    node = socket.links[0].from_node
+    if node.type == "VALUE":
+        return float(node.outputs[0].default_value)
+    problems.append(f"fed by a {node.bl_label or node.type} node, which CubeGI does not read")
+    return float(socket.default_value)
+
+
+def _colour_and_notes(material, label, socket, mesh, loop_ids, loop_vertex, fallback, what, notes):
+    problems = []
+    colour = _corner_colour(socket, mesh, loop_ids, loop_vertex, fallback, problems)
+    notes += [f"material {material.name!r}: {label} {p}; using {what}" for p in problems]
+    return colour
+
+
+# Principled BSDF inputs CubeGI's diffuse model leaves out: above these it says so.
+NOT_DIFFUSE = (("Metallic", "metallic"), ("Transmission Weight", "transmissive"))
 
 
 def _material_corners(material, mesh, loop_ids, loop_vertex, notes):
@@ -173,16 +200,27 @@ def _material_corners(material, mesh, loop_ids, loop_vertex, notes):
     if shader is None:
         notes.append(f"material {material.name!r}: no node surface, using its viewport colour")
         return np.tile(fallback, (k, 1)), np.zeros((k, 3))
+    args = (mesh, loop_ids, loop_vertex)
     if shader.type == "BSDF_PRINCIPLED":
-        albedo = _corner_colour(shader.inputs["Base Color"], mesh, loop_ids, loop_vertex, fallback)
-        strength = shader.inputs["Emission Strength"].default_value
-        emission = _corner_colour(shader.inputs["Emission Color"], mesh, loop_ids, loop_vertex, np.zeros(3)) * strength
-        return albedo, emission
+        ins = shader.inputs
+        albedo = _colour_and_notes(material, "Base Color", ins["Base Color"], *args, fallback, "its viewport colour", notes)
+        problems = []
+        strength = _strength(ins["Emission Strength"], problems)
+        notes += [f"material {material.name!r}: Emission Strength {p}; using {strength:g}" for p in problems]
+        emission = _colour_and_notes(material, "Emission Color", ins["Emission Color"], *args, np.zeros(3), "no emission", notes)
+        for name, adjective in NOT_DIFFUSE:
+            sock = ins.get(name)
+            if sock is not None and (sock.is_linked or float(sock.default_value) > 0.0):
+                notes.append(f"material {material.name!r}: {name} is set; CubeGI bakes it as a diffuse surface, "
+                             f"which a {adjective} surface is not")
+        return albedo, emission * strength
     if shader.type == "BSDF_DIFFUSE":
-        return _corner_colour(shader.inputs["Color"], mesh, loop_ids, loop_vertex, fallback), np.zeros((k, 3))
+        return _colour_and_notes(material, "Color", shader.inputs["Color"], *args, fallback, "its viewport colour", notes), np.zeros((k, 3))
     if shader.type == "EMISSION":
-        strength = shader.inputs["Strength"].default_value
-        emission = _corner_colour(shader.inputs["Color"], mesh, loop_ids, loop_vertex, np.ones(3)) * strength
+        problems = []
+        strength = _strength(shader.inputs["Strength"], problems)
+        notes += [f"material {material.name!r}: Strength {p}; using {strength:g}" for p in problems]
+        emission = _colour_and_notes(material, "Color", shader.inputs["Color"], *args, np.ones(3), "white", notes) * strength
         return np.zeros((k, 3)), emission
     notes.append(f"material {material.name!r}: shader {shader.bl_idname} not understood, using its viewport colour")
     return np.tile(fallback, (k, 1)), np.zeros((k, 3))
@@ -270,7 +308,14 @@ def _shading_points(data):
     }
 
 
-def _world_radiance(scene):
+def _world_radiance(scene, notes):
+    """The world's Background as a uniform sky radiance ``(3,)``.
+
+    A colour input fed by an Environment Texture with an image is averaged over the sphere
+    (each pixel weighted by its solid angle); fed by anything else (a Sky Texture, a
+    gradient, ...) the world's viewport colour stands in. Both are noted: CubeGI's sky is
+    uniform.
+    """
     world = scene.world
     if world is None:
         return np.zeros(3)
@@ -284,9 +329,31 @@ def _world_radiance(scene):
                 return np.zeros(3)
             node = surface.links[0].from_node
             if node.type == "BACKGROUND":
-                colour = node.inputs["Color"]
-                c = np.asarray(colour.default_value[:3] if not colour.is_linked else world.color[:3], dtype=np.float64)
-                return c * float(node.inputs["Strength"].default_value)
+                problems = []
+                strength = _strength(node.inputs["Strength"], problems)
+                notes.extend(f"world {world.name!r}: Background Strength {p}; using {strength:g}" for p in problems)
+                return _background_colour(world, node.inputs["Color"], notes) * strength
+            notes.append(f"world {world.name!r}: its surface is a {node.bl_label} node, not a Background; using its viewport colour")
+    return np.asarray(world.color[:3], dtype=np.float64)
+
+
+def _background_colour(world, socket, notes):
+    if not socket.is_linked:
+        return np.asarray(socket.default_value[:3], dtype=np.float64)
+    node = socket.links[0].from_node
+    if node.type == "TEX_ENVIRONMENT" and node.image is not None:
+        rgb = _image_pixels(node.image)
+        if rgb is not None:
+            h = rgb.shape[0]
+            # Equirectangular rows: solid angle proportional to sin(polar angle) at the row centre.
+            weight = np.sin(np.pi * (np.arange(h) + 0.5) / h)[:, None]
+            mean = (rgb * weight[:, :, None]).sum(axis=(0, 1)) / (weight.sum() * rgb.shape[1])
+            notes.append(f"world {world.name!r}: the environment image {node.image.name!r} is averaged to a uniform sky")
+            return mean
+    notes.append(
+        f"world {world.name!r}: Background Color fed by a {node.bl_label} node, which CubeGI does not read; "
+        f"using the world's viewport colour {tuple(round(c, 3) for c in world.color[:3])}"
+    )
     return np.asarray(world.color[:3], dtype=np.float64)
 
 
@@ -325,6 +392,17 @@ def _light_problem(light):
     if np.any(light.colour < 0):
         return "negative power or colour"
     return None
+
+
+def _same_corners(mesh, data):
+    """True if the evaluated mesh's corners name the same vertices as the original mesh's
+    (modifiers that only move vertices); False if modifiers add, remove or reorder them
+    (a Sort Elements node keeps the count but not the order)."""
+    if data["vertex_count"] != len(mesh.vertices) or len(data["loop_vertex"]) != len(mesh.loops):
+        return False
+    original = np.empty(len(mesh.loops), dtype=np.int64)
+    mesh.loops.foreach_get("vertex_index", original)
+    return bool(np.array_equal(original, data["loop_vertex"]))
 
 
 NON_MESH_GEOMETRY = {"CURVE", "SURFACE", "FONT", "META", "CURVES", "POINTCLOUD", "VOLUME"}
@@ -423,6 +501,10 @@ def _collect(context, depsgraph):
             with_surface.add(original.name)
             continue
         if inst.is_instance:
+            notes.append(
+                f"{top.name}: its instances of {original.name} light the others but are not baked "
+                "(Make Instances Real to bake them)"
+            )
             continue
         mesh = original.data
         if mesh.library is not None:
@@ -434,8 +516,11 @@ def _collect(context, depsgraph):
         if mesh.name in claimed_meshes:
             notes.append(f"{original.name}: shares mesh {mesh.name!r} with an object already baked; not baked again")
             continue
-        if data["vertex_count"] != len(mesh.vertices):
-            notes.append(f"{original.name}: modifiers change its vertex count; it lights others but is not baked")
+        if not _same_corners(mesh, data):
+            notes.append(
+                f"{original.name}: modifiers change its vertex count or order; it lights others but is not baked "
+                "(apply them, or bake a copy without them)"
+            )
             continue
         claimed_meshes.add(mesh.name)
         targets.append(MeshTarget(original.name, mesh.name, loop_point, data["loop_vertex"], len(mesh.vertices)))
@@ -454,13 +539,13 @@ def _collect(context, depsgraph):
         albedo=np.concatenate([p["albedo"] for p in parts]),
         emission=np.concatenate([p["emission"] for p in parts]),
         triangles=np.concatenate([p["triangles"] + o for p, o in zip(parts, tri_offsets)]).astype(np.int64),
-        sky=_world_radiance(scene),
+        sky=_world_radiance(scene, notes),
         lights=lights,
         point_object=np.repeat(np.arange(len(parts)), [len(p["points"]) for p in parts]),
         object_names=[p["name"] for p in parts],
     )
     arrays.dark = _set_aside_non_finite(arrays, parts, notes)
-    return CollectedScene(arrays, targets, notes)
+    return CollectedScene(arrays, targets, list(dict.fromkeys(notes)))  # each note once
 
 
 def _set_aside_non_finite(arrays, parts, notes):

@@ -33,6 +33,9 @@ class DirectLight:
     parts: dict
     source_coeffs: np.ndarray
     emitter_energy_factor: np.ndarray = field(default_factory=lambda: np.ones(3))
+    # The share of the power the emitters send towards surfaces that the probes passed on
+    # before the balance (1 when the probes see every emitter whole; None without emitters).
+    emission_seen: float | None = None
     light_seconds: float = 0.0
     probe_seconds: float = 0.0
 
@@ -86,9 +89,13 @@ def direct_light(scene, renderer, settings, transport, landing=None) -> DirectLi
     t = time.perf_counter()
     coeffs = np.zeros((transport.probe_count, 9, 3), dtype=np.float32)
     factor = np.ones(3)
+    seen = None
     if np.any(scene.emission > 0):
         coeffs = transport.project(transport.texel_radiance(scene.emission))
         from_emitters = scene.zero_dark_points_inplace(transport.interpolate(coeffs).astype(np.float64))
+        areas = scene.point_areas()
+        sent = float((areas[:, None] * scene.emission * (landing if landing is not None else 1.0)).sum())
+        seen = float((areas[:, None] * from_emitters).sum()) / sent if sent > 0 else None
         if landing is not None:
             from_emitters, factor = conserve_energy(from_emitters, scene.emission, landing, scene.point_areas())
             coeffs = coeffs * factor.astype(np.float32)  # the probes see the emitters as balanced
@@ -97,7 +104,7 @@ def direct_light(scene, renderer, settings, transport, landing=None) -> DirectLi
         sky_coeffs = transport.sky_coefficients(scene.sky)
         coeffs = coeffs + sky_coeffs
         parts[SKY] = transport.interpolate(sky_coeffs)
-    return DirectLight(parts, coeffs, factor, light_seconds, time.perf_counter() - t)
+    return DirectLight(parts, coeffs, factor, seen, light_seconds, time.perf_counter() - t)
 
 
 # Sun shadow map frustum: a box around the scene's bounding sphere (radius grown by 1% so

@@ -310,3 +310,124 @@ def test_show_in_renders_does_not_change_the_next_bake(empty_scene, cubegi):
     assert not json.loads(bpy.context.scene.cubegi.last_report)["scene"]["notes"]
     for name, values in before.items():
         np.testing.assert_allclose(read(bpy.data.objects[name].data, "CubeGI"), values, rtol=1e-6, atol=1e-9, err_msg=name)
+
+
+def test_a_modifier_that_reorders_vertices_is_not_baked_onto_the_wrong_ones(empty_scene, cubegi):
+    v, f = scenes.box_mesh((-2, -2, 0), (2, 2, 2.5), (4, 4, 3), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    bv, bf = scenes.box_mesh((-0.5, -0.5, 0.0), (0.5, 0.5, 1.0), (2, 2, 2), inward=False)
+    block = scenes.mesh_object("Block", bv, bf)
+    scenes.add_light("POINT", (0.3, 0.2, 1.8), 80.0)
+    tree = bpy.data.node_groups.new("Sort", "GeometryNodeTree")
+    tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    nodes = tree.nodes
+    gin, gout = nodes.new("NodeGroupInput"), nodes.new("NodeGroupOutput")
+    sort, pos, xyz = nodes.new("GeometryNodeSortElements"), nodes.new("GeometryNodeInputPosition"), nodes.new("ShaderNodeSeparateXYZ")
+    tree.links.new(gin.outputs[0], sort.inputs["Geometry"])
+    tree.links.new(pos.outputs[0], xyz.inputs[0])
+    tree.links.new(xyz.outputs["Z"], sort.inputs["Sort Weight"])
+    tree.links.new(sort.outputs[0], gout.inputs[0])
+    block.modifiers.new("Sort", "NODES").node_group = tree
+    evaluated = block.evaluated_get(bpy.context.evaluated_depsgraph_get()).to_mesh()
+    assert len(evaluated.vertices) == len(block.data.vertices)  # the count is kept ...
+    order = np.empty(len(evaluated.loops), dtype=np.int64)
+    evaluated.loops.foreach_get("vertex_index", order)
+    original = np.empty(len(block.data.loops), dtype=np.int64)
+    block.data.loops.foreach_get("vertex_index", original)
+    assert not np.array_equal(order, original)  # ... the order is not
+    block.evaluated_get(bpy.context.evaluated_depsgraph_get()).to_mesh_clear()
+    assert bpy.ops.cubegi.bake(grid=(2, 2, 2), bounces=1, cube_size=8) == {"FINISHED"}
+    assert "CubeGI" not in block.data.attributes and "CubeGI" in bpy.data.objects["Room"].data.attributes
+    notes = json.loads(bpy.context.scene.cubegi.last_report)["scene"]["notes"]
+    assert any(n.startswith("Block: modifiers change its vertex count or order") for n in notes), notes
+
+
+def test_material_inputs_cubegi_cannot_read_are_named_in_notes(empty_scene, cubegi):
+    """Each fallback says which input of which material, and what was used instead; a Value
+    node feeding Emission Strength is read (it used to be ignored: 50x too dark)."""
+    def principled(name, **values):
+        mat = scenes.material(name, (0.5, 0.5, 0.5))
+        bsdf = mat.node_tree.nodes["Principled BSDF"]
+        for key, value in values.items():
+            bsdf.inputs[key].default_value = value
+        return mat, bsdf
+
+    mixed, bsdf = principled("Mixed")
+    mix = mixed.node_tree.nodes.new("ShaderNodeMix")
+    mix.data_type = "RGBA"
+    mixed.node_tree.links.new(mix.outputs["Result"], bsdf.inputs["Base Color"])
+    glowing, bsdf = principled("Glowing", **{"Emission Color": (1.0, 1.0, 1.0, 1.0), "Emission Strength": 1.0})
+    value = glowing.node_tree.nodes.new("ShaderNodeValue")
+    value.outputs[0].default_value = 50.0
+    glowing.node_tree.links.new(value.outputs[0], bsdf.inputs["Emission Strength"])
+    mathed, bsdf = principled("Mathed", **{"Emission Color": (1.0, 1.0, 1.0, 1.0)})
+    mathed.node_tree.links.new(mathed.node_tree.nodes.new("ShaderNodeMath").outputs[0], bsdf.inputs["Emission Strength"])
+    missing, bsdf = principled("Missing")
+    tex = missing.node_tree.nodes.new("ShaderNodeTexImage")
+    tex.image = bpy.data.images.new("brick.png", 4, 4)
+    tex.image.source, tex.image.filepath = "FILE", "/nonexistent/brick.png"  # as a file moved away
+    missing.node_tree.links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
+    metal, _ = principled("Metal", Metallic=1.0)
+    glass, _ = principled("Glass", **{"Transmission Weight": 1.0})
+    for k, mat in enumerate((mixed, glowing, mathed, missing, metal, glass)):
+        v, f = scenes.box_mesh((3 * k, 0, 0), (3 * k + 1, 1, 1), (1, 1, 1), inward=False)
+        scenes.mesh_object(mat.name, v, f, mat)
+    scenes.add_light("SUN", (0, 0, 5), 2.0)
+    assert bpy.ops.cubegi.bake(grid=(2, 2, 2), bounces=1, cube_size=8) == {"FINISHED"}
+    notes = json.loads(bpy.context.scene.cubegi.last_report)["scene"]["notes"]
+    expected = [
+        "material 'Mixed': Base Color fed by a Mix node, which CubeGI does not read; using its viewport colour",
+        "material 'Mathed': Emission Strength fed by a Math node, which CubeGI does not read; using 0",
+        "material 'Missing': Base Color image 'brick.png' has no pixels (missing file?); using its viewport colour",
+        "material 'Metal': Metallic is set; CubeGI bakes it as a diffuse surface, which a metallic surface is not",
+        "material 'Glass': Transmission Weight is set; CubeGI bakes it as a diffuse surface, which a transmissive surface is not",
+    ]
+    for line in expected:
+        assert line in notes, (line, [n for n in notes if n.startswith(line[:18])])
+    assert not any("'Glowing'" in n for n in notes), notes
+    collected = cubegi.cubegi_addon.scene_data.collect(bpy.context)
+    owner = collected.arrays.point_object == collected.arrays.object_names.index("Glowing")
+    np.testing.assert_allclose(collected.arrays.emission[owner], 50.0)  # the Value node's strength
+
+
+def test_an_emitter_too_small_for_the_probes_is_named_in_a_note(empty_scene, cubegi):
+    v, f = scenes.box_mesh((-2, -2, 0), (2, 2, 2.5), (4, 4, 3), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    tiny = np.array([[0.0, 0.0, 1.5], [0.002, 0.0, 1.5], [0.0, 0.002, 1.5]])
+    scenes.mesh_object("Spark", tiny, [[0, 2, 1]], scenes.material("Hot", (0, 0, 0), emission=(1, 1, 1), strength=1e6))
+    assert bpy.ops.cubegi.bake(grid=(2, 2, 2), bounces=1, cube_size=8) == {"FINISHED"}
+    notes = json.loads(bpy.context.scene.cubegi.last_report)["scene"]["notes"]
+    assert any(n.startswith("emissive surfaces: the probes pass on") for n in notes), notes
+    # A panel the probes see whole raises no such note.
+    empty = bpy.ops.wm.read_factory_settings(use_empty=True)
+    assert empty == {"FINISHED"}
+    scenes.closed_box(albedo=0.5, cells=4, emission=(1, 1, 1), strength=1.0)
+    assert bpy.ops.cubegi.bake(grid=(2, 2, 2), bounces=1, cube_size=8) == {"FINISHED"}
+    assert not any("emissive" in n for n in json.loads(bpy.context.scene.cubegi.last_report)["scene"]["notes"])
+
+
+def test_a_linked_world_colour_is_averaged_or_noted(empty_scene, cubegi):
+    read = cubegi.cubegi_addon.scene_data.collect
+    v, f = scenes.grid_patch((-1, -1, 0), (2, 0, 0), (0, 2, 0), 2, 2)
+    scenes.mesh_object("Ground", v, f)
+    world = scenes.set_world((0.05, 0.05, 0.05))
+    tree = world.node_tree
+    bg = tree.nodes["Background"]
+    sky = tree.nodes.new("ShaderNodeTexSky")
+    tree.links.new(sky.outputs["Color"], bg.inputs["Color"])
+    collected = read(bpy.context)
+    assert any("Background Color fed by a Sky Texture node" in n for n in collected.notes), collected.notes
+    # An environment image: its solid-angle-weighted mean (top half 2.0, bottom half 0.0: 1.0).
+    image = bpy.data.images.new("env", 8, 4, float_buffer=True)
+    px = np.zeros((4, 8, 4), dtype=np.float32)
+    px[2:, :, :3] = 2.0  # image rows run bottom to top: the upper half of the sphere
+    px[..., 3] = 1.0
+    image.pixels.foreach_set(px.ravel())
+    env = tree.nodes.new("ShaderNodeTexEnvironment")
+    env.image = image
+    tree.links.new(env.outputs["Color"], bg.inputs["Color"])
+    bg.inputs["Strength"].default_value = 0.5
+    collected = read(bpy.context)
+    np.testing.assert_allclose(collected.arrays.sky, 0.5, rtol=1e-6)
+    assert any("environment image 'env' is averaged" in n for n in collected.notes), collected.notes

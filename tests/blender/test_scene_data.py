@@ -97,6 +97,7 @@ def test_modifiers_instances_and_hidden_objects(empty_scene, cubegi):
     assert not ((x >= 4) & (x <= 5)).any()  # hidden from render: not there
     assert collected.arrays.points[(x >= 2) & (x <= 3)][:, 2].max() == pytest.approx(0.25)  # displaced: strength x (1 - midlevel 0.5)
     assert any("Base" in n for n in collected.notes)
+    assert "Instancer: its instances of InstSrc light the others but are not baked (Make Instances Real to bake them)" in collected.notes
 
 
 def test_bake_takes_its_grid_from_the_probe_grid_object(empty_scene, cubegi):

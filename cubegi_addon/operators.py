@@ -5,7 +5,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, In
 
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.settings import MAX_BOUNCES, MAX_CUBE_SIZE, MIN_CUBE_SIZE, BakeSettings
-from . import attributes, display, files, grid_objects, materials, pipeline, prefs, probe_view, props, session
+from . import attributes, display, files, grid_objects, live, materials, pipeline, prefs, probe_view, props, session
 
 # Seconds between the modal bake's steps: often enough to feel live, rarely enough that
 # Blender's own events get through (the same pace as Blender's extension manager).
@@ -327,11 +327,44 @@ class CUBEGI_OT_unwire_materials(bpy.types.Operator):
         return {"FINISHED"}
 
 
+class CUBEGI_OT_update_light(bpy.types.Operator):
+    """Apply edits of lights, the world (and materials) to the baked light on the kept capture:
+    no probe is captured again. Geometry edits need Bake"""
+
+    bl_idname = "cubegi.update_light"
+    bl_label = "Update Light"
+    bl_options = {"REGISTER", "UNDO"}
+
+    materials: BoolProperty(
+        name="Materials", description="Also read the materials' colours and emission (reads every mesh)", default=True
+    )
+
+    @classmethod
+    def poll(cls, context):
+        return _poll(
+            cls, context,
+            lambda c: None if session.kept(c.scene) is not None else "Bake first: nothing is kept to update (file loads and undo drop it)",
+        )
+
+    def execute(self, context):
+        try:
+            report = live.update(context, materials=self.materials)
+        except BakeError as exc:
+            self.report({"ERROR"}, f"CubeGI: {exc}")
+            return {"CANCELLED"}
+        context.scene.cubegi.last_update = report.line()
+        self.report({"INFO"}, f"CubeGI: {report.line()}")
+        return {"FINISHED"}
+
+
 def menu_add(self, context):
     self.layout.operator(CUBEGI_OT_add_probe_grid.bl_idname, icon="LIGHTPROBE_VOLUME")
 
 
-classes = (CUBEGI_OT_bake, CUBEGI_OT_clear, CUBEGI_OT_add_probe_grid, CUBEGI_OT_wire_materials, CUBEGI_OT_unwire_materials)
+classes = (
+    CUBEGI_OT_bake, CUBEGI_OT_clear, CUBEGI_OT_add_probe_grid, CUBEGI_OT_wire_materials, CUBEGI_OT_unwire_materials,
+    CUBEGI_OT_update_light,
+)
 _register, _unregister = bpy.utils.register_classes_factory(classes)
 
 

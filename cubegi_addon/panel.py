@@ -58,6 +58,11 @@ class VIEW3D_PT_cubegi(_SidebarTab, bpy.types.Panel):
         row = layout.row(align=True)
         row.operator("cubegi.bake", icon="RENDER_STILL")
         row.operator("cubegi.clear", icon="TRASH")
+        row = layout.row(align=True)
+        row.operator("cubegi.update_light", icon="LIGHT")
+        row.prop(settings, "live", toggle=True, icon="PLAY")
+        if settings.last_update:
+            layout.label(text=settings.last_update)
 
 
 class VIEW3D_PT_cubegi_display(_SidebarTab, bpy.types.Panel):

@@ -19,7 +19,7 @@ from ..cubegi_engine.records import Progress, Stage
 from ..cubegi_engine.report import BakeReport
 from ..cubegi_engine.settings import BakeSettings
 from ..cubegi_engine.solve import area_weighted_mean
-from . import attributes, grid_objects, probe_view, reference, scene_data, session
+from . import attributes, grid_objects, live, probe_view, reference, scene_data, session
 from .gpu_capture import GpuRenderer
 
 # An object seen from behind over more than this share of what the probes see of it is noted.
@@ -157,7 +157,7 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
     if objects:
         grid_objects.store_probe_light(objects, result.field)
         probe_view.forget_drawing()
-    session.keep(context.scene, session.Kept(arrays, collected.targets, result))
+    session.keep(context.scene, session.Kept(arrays, collected.targets, result, settings, lit, placements=live.placements(collected.targets)))
     t_write = t_layers + time.perf_counter() - t
 
     timings = dict(result.timings)

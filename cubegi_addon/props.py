@@ -4,7 +4,7 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, IntVectorProperty, PointerProperty, StringProperty
 
 from ..cubegi_engine.settings import MAX_BOUNCES, MAX_CUBE_SIZE, MIN_CUBE_SIZE, BakeSettings
-from . import display
+from . import display, live
 
 LIT_ITEMS = (
     ("NONE", "None", "Write no lit colour"),
@@ -50,6 +50,12 @@ class CubeGISceneSettings(bpy.types.PropertyGroup):
         name="Bounce", description="Which bounce to show", default=1, min=1, max=MAX_BOUNCES, update=display.on_display_change
     )
     last_report: StringProperty(name="Last Report", description="JSON report of the last bake", default="")
+    live: BoolProperty(
+        name="Live", description="After a bake, apply edits of lights, the world and materials at once, on the kept "
+        "capture (no new capture); also on every frame of playback",
+        default=False, update=live.on_live_toggle,
+    )
+    last_update: StringProperty(name="Last Update", description="What the last update did", default="")
 
 
 class CubeGIObjectSettings(bpy.types.PropertyGroup):

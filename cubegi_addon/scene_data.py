@@ -460,27 +460,49 @@ def collect(context, depsgraph=None):
         return _collect(context, context.evaluated_depsgraph_get())
 
 
-def _collect(context, depsgraph):
-    scene = context.scene
+def _rendered_instances(context, depsgraph):
+    """``(instance, evaluated object, original object, top-level original)`` of every
+    instance of the depsgraph that renders."""
     visible = _render_visible_objects(context.view_layer)
-    notes = []
-    parts, targets, lights = [], [], []
-    offset = 0
-    claimed_meshes = set()
-    non_mesh, with_surface = {}, set()
     for inst in depsgraph.object_instances:
         ob = inst.object
         original = ob.original
         top = inst.parent.original if inst.is_instance and inst.parent else original
         if top.hide_render or top.name not in visible or original.hide_render:
             continue
+        yield inst, ob, original, top
+
+
+def _add_light(inst, ob, lights, notes):
+    light = _light(ob, inst.matrix_world)
+    problem = _light_problem(light) if light is not None else None
+    if problem:
+        notes.append(f"light {ob.name}: {problem}; skipped")
+    elif light is not None:
+        lights.append(light)
+
+
+def scene_lights(context):
+    """The lights and the sky as a bake would see them now, without reading any mesh:
+    ``(lights, sky (3,), notes)``. For updates of light alone (see :mod:`.live`)."""
+    notes, lights = [], []
+    with _as_rendered(context.view_layer):
+        for inst, ob, _, _ in _rendered_instances(context, context.evaluated_depsgraph_get()):
+            if ob.type == "LIGHT":
+                _add_light(inst, ob, lights, notes)
+    return lights, _world_radiance(context.scene, notes), notes
+
+
+def _collect(context, depsgraph):
+    scene = context.scene
+    notes = []
+    parts, targets, lights = [], [], []
+    offset = 0
+    claimed_meshes = set()
+    non_mesh, with_surface = {}, set()
+    for inst, ob, original, top in _rendered_instances(context, depsgraph):
         if ob.type == "LIGHT":
-            light = _light(ob, inst.matrix_world)
-            problem = _light_problem(light) if light is not None else None
-            if problem:
-                notes.append(f"light {ob.name}: {problem}; skipped")
-            elif light is not None:
-                lights.append(light)
+            _add_light(inst, ob, lights, notes)
             continue
         if ob.type in NON_MESH_GEOMETRY:
             # Blender evaluates curves, text, surfaces and metaballs to a mesh that it lists

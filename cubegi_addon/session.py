@@ -24,18 +24,27 @@ MAX_KEPT_BYTES = 2 << 30
 @dataclass
 class Kept:
     """A bake's parts: ``arrays`` (the SceneArrays snapshot), ``targets`` (MeshTargets),
-    ``result`` (the engine's BakeResult: capture, direct light per source, solution, field)."""
+    ``result`` (the engine's BakeResult: capture, direct light per source, solution, field),
+    ``settings`` and ``lit`` (how it was baked); made on first use by :mod:`.live`:
+    ``light`` (the engine's SceneLight, per source) and ``renderer`` (for shadow maps)."""
 
     arrays: object
     targets: list
     result: object
+    settings: object = None
+    lit: object = None
+    light: object = None
+    renderer: object = None
+    unsettled: bool = False  # an instant update left the balance and bounce layers behind
+    placements: dict = None  # object name -> world matrix at the bake (see live.placements)
 
     @property
     def nbytes(self):
         field = self.result.field
         arrays = (self.arrays.points, self.arrays.normals, self.arrays.albedo, self.arrays.emission, self.arrays.triangles)
         light = [self.result.solution.direct, *self.result.solution.bounces, *self.result.direct_parts.parts.values()]
-        return self.result.capture.nbytes + field.nbytes + sum(a.nbytes for a in (*arrays, *light))
+        extra = self.light.op.nbytes if self.light is not None else 0
+        return self.result.capture.nbytes + field.nbytes + extra + sum(a.nbytes for a in (*arrays, *light))
 
 
 _kept = OrderedDict()

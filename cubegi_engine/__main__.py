@@ -30,8 +30,12 @@ def load_extension(register=True):
         spec.loader.exec_module(module)
         engine = sys.modules.get(__package__ or "cubegi_engine")
         if engine is not None and os.path.dirname(os.path.abspath(engine.__file__)) == os.path.join(ROOT, "cubegi_engine"):
-            # This package is already loaded (as ``cubegi_engine``, to run this file): one module, two names.
+            # This package is already loaded (as ``cubegi_engine``, to run this file): one module,
+            # two names. Its own name becomes the package's, so that ``from ..cubegi_engine
+            # import x`` (which imports ``<the package's __name__>.x``) loads x once, as
+            # ``cubegi.cubegi_engine.x``, like every relative import does.
             sys.modules[f"{PACKAGE}.cubegi_engine"] = engine
+            engine.__name__ = engine.__package__ = f"{PACKAGE}.cubegi_engine"
             module.cubegi_engine = engine
     if register and not getattr(module, "_registered", False):
         module.register()

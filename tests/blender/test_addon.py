@@ -25,14 +25,17 @@ def box(empty_scene, cubegi):
 
 NAMED = (
     "CUBEGI_OT_bake", "CUBEGI_OT_clear", "CUBEGI_OT_add_probe_grid", "CUBEGI_OT_wire_materials",
-    "CUBEGI_OT_unwire_materials", "VIEW3D_PT_cubegi", "VIEW3D_PT_cubegi_display", "VIEW3D_PT_cubegi_report",
+    "CUBEGI_OT_unwire_materials", "CUBEGI_OT_update_light", "VIEW3D_PT_cubegi", "VIEW3D_PT_cubegi_display",
+    "VIEW3D_PT_cubegi_report",
 )
 
 
 def test_unregister_leaves_nothing_behind_and_register_restores_everything(cubegi):
     addon = cubegi.cubegi_addon
     classes = [c for m in (addon.prefs, addon.props, addon.operators, addon.panel) for c in m.classes]
-    assert len(classes) == 11 and all(c.is_registered for c in classes)
+    assert len(classes) == 12 and all(c.is_registered for c in classes)
+    handlers = [(addon.session.HANDLER_LISTS, addon.session._forget_all),
+                (("depsgraph_update_post",), addon.live._persistent_update), (("frame_change_post",), addon.live._persistent_frame)]
     menu = bpy.types.VIEW3D_MT_add
     assert addon.probe_view._handle is not None
     cubegi.unregister()
@@ -43,11 +46,13 @@ def test_unregister_leaves_nothing_behind_and_register_restores_everything(cubeg
         assert not any(getattr(f, "__name__", "") == "menu_add" for f in menu._dyn_ui_initialize())
         assert addon.probe_view._handle is None
         assert not any(addon.probe_view._forget_all in getattr(bpy.app.handlers, n) for n in addon.probe_view._HANDLER_LISTS)
+        assert not any(fn in getattr(bpy.app.handlers, n) for lists, fn in handlers for n in lists)
     finally:
         cubegi.register()
     assert all(c.is_registered for c in classes) and all(getattr(bpy.types, c, None) for c in NAMED)
     assert hasattr(bpy.types.Scene, "cubegi") and addon.probe_view._handle is not None
     assert all(getattr(bpy.app.handlers, n).count(addon.probe_view._forget_all) == 1 for n in addon.probe_view._HANDLER_LISTS)
+    assert all(getattr(bpy.app.handlers, n).count(fn) == 1 for lists, fn in handlers for n in lists)
     assert sum(getattr(f, "__name__", "") == "menu_add" for f in menu._dyn_ui_initialize()) == 1
 
 
@@ -63,6 +68,7 @@ def test_every_operator_says_why_it_refuses(empty_scene, cubegi):
     assert "no mesh in the scene has CubeGI attributes" in _refusal(bpy.ops.cubegi.clear)
     assert "Bake first" in _refusal(bpy.ops.cubegi.wire_materials)
     assert "No material of the scene has CubeGI's light wired in" in _refusal(bpy.ops.cubegi.unwire_materials)
+    assert "Bake first: nothing is kept to update" in _refusal(bpy.ops.cubegi.update_light)
     scenes.closed_box(albedo=0.5, cells=2)
     bpy.context.view_layer.objects.active = bpy.data.objects["Box"]
     bpy.ops.object.mode_set(mode="EDIT")
@@ -273,7 +279,7 @@ def test_the_panels_show_grid_and_bake_settings_display_choice_and_the_last_repo
     bpy.context.view_layer.objects.active = grid
     main = _draw("VIEW3D_PT_cubegi")
     assert {"resolution", "show_probes", "show_irradiance", "cube_size", "bounces", "tolerance", "add_tail", "visibility", "lit"} <= set(main.props)
-    assert main.operators == ["cubegi.add_probe_grid", "cubegi.bake", "cubegi.clear"]
+    assert main.operators == ["cubegi.add_probe_grid", "cubegi.bake", "cubegi.clear", "cubegi.update_light"]
     shown = _draw("VIEW3D_PT_cubegi_display")
     assert shown.props == ["display"] and shown.operators == ["cubegi.wire_materials", "cubegi.unwire_materials"]
     bpy.context.scene.cubegi.display = "BOUNCE"

@@ -1,0 +1,329 @@
+"""Updates of a baked scene on its kept capture: no probe is drawn again.
+
+| what changed | what runs |
+|---|---|
+| a light's power or colour, the world's colour | a weighted sum of the kept sources (``settle=False``: that alone, and only the direct, indirect, total and lit layers are written: the instant path of Live editing); then the energy balance of the new mix and every layer |
+| a light moved, turned, resized, its cone or shadow setting; a new light | that light's direct light (its shadow map), then one solve of every bounce |
+| a light removed | it leaves the sum, then the balance |
+| a material's colour or emission (``materials=True``: reads the meshes' materials) | the bounce operator is rebuilt for the new albedo; emitters projected again |
+| geometry (a mesh edited or moved, an object added) | refused: Bake again (the capture is what changed) |
+
+The engine side is :class:`cubegi_engine.relight.SceneLight`, made from the kept bake on
+first use and kept with it (:mod:`.session`). The attributes are written in place, the
+probe light on the grid objects and the kept probe field follow.
+"""
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..cubegi_engine import relight
+from ..cubegi_engine.direct import light_direct
+from ..cubegi_engine.errors import BakeError
+from . import attributes, grid_objects, probe_view, scene_data, session
+from .gpu_capture import GpuRenderer
+
+# Light fields whose change needs the light's direct light drawn again (not its colour).
+PLACEMENT = ("kind", "position", "direction", "radius", "spot_size", "spot_blend", "polygon", "area", "casts_shadow", "samples")
+
+
+@dataclass
+class Update:
+    """What an update did: ``path`` is "none", "weights" (power and colour only), "lights"
+    (a light drawn again), "materials"; ``seconds`` by stage."""
+
+    path: str = "none"
+    changed: list = field(default_factory=list)
+    seconds: dict = field(default_factory=dict)
+
+    def line(self):
+        total = sum(self.seconds.values())
+        what = ", ".join(self.changed) if self.changed else "nothing changed"
+        return f"updated ({self.path}) in {1000 * total:.1f} ms: {what}"
+
+
+def _same_place(a, b):
+    for name in PLACEMENT:
+        x, y = getattr(a, name), getattr(b, name)
+        if (x is None) != (y is None):
+            return False
+        if x is not None and not np.array_equal(np.asarray(x), np.asarray(y)):
+            return False
+    return True
+
+
+def state_of(context):
+    """The kept bake of the context's scene with its SceneLight (made now if needed)."""
+    kept = session.kept(context.scene)
+    if kept is None:
+        raise BakeError("nothing to update: bake first (a file load, undo or Clear drops what a bake keeps)")
+    if kept.light is None:
+        arrays, settings = kept.arrays, kept.settings
+
+        def draw(light):
+            if kept.renderer is None:
+                kept.renderer = GpuRenderer(arrays.points, arrays.triangles)
+            return light_direct(arrays, kept.renderer, settings, light)
+
+        kept.light = relight.from_bake(kept.result, arrays, draw, settings.add_tail, settings.conserve_energy)
+    return kept
+
+
+def update(context, materials=False, write=True, settle=True):
+    """Bring the baked light up to date with the scene's lights, world (and with
+    ``materials``, the materials' colours and emission). Returns an :class:`Update`.
+
+    ``settle=False``: a power or colour edit is applied as a weighted sum alone, with the
+    energy balance's factors as they were and the bounce layers left for the next settled
+    update (the one-shot bake's numbers come back then)."""
+    t0 = time.perf_counter()
+    kept = state_of(context)
+    state, report = kept.light, Update()
+    report.seconds["prepare"] = time.perf_counter() - t0
+
+    t = time.perf_counter()
+    lights, sky, _ = scene_data.scene_lights(context)
+    report.seconds["read"] = time.perf_counter() - t
+    t = time.perf_counter()
+    drawn = _update_lights(state, lights, sky, report)
+    if materials:
+        drawn |= _update_materials(context, kept, report)
+    report.seconds["lights"] = time.perf_counter() - t
+    if report.changed or (settle and kept.unsettled):
+        report.path = "materials" if materials and any(c.startswith("material") for c in report.changed) else (
+            "lights" if drawn else "weights" if report.changed else "settle")
+        instant = not settle and report.path == "weights"
+        if not instant:
+            t = time.perf_counter()
+            state.solve()
+            report.seconds["solve"] = time.perf_counter() - t
+        kept.unsettled = instant
+        kept.arrays.lights = list(lights)
+        kept.arrays.sky = np.asarray(sky, dtype=np.float64)
+        if write:
+            t = time.perf_counter()
+            write_light(context, kept, bounces=not instant)
+            report.seconds["write"] = time.perf_counter() - t
+    return report
+
+
+def _update_lights(state, lights, sky, report):
+    """Apply the lights and sky to ``state``; returns whether a light was drawn again."""
+    drawn = False
+    wanted = {}
+    for k, light in enumerate(lights):
+        wanted[relight.light_key(light, k)] = light
+    for key in [k for k in state.sources if k.startswith("light:") and k not in wanted]:
+        state.remove(key)
+        report.changed.append(f"{key[6:]} removed")
+    for key, light in wanted.items():
+        src = state.sources.get(key)
+        colour = np.asarray(light.colour, dtype=np.float64)
+        if src is not None and _same_place(src.light, light):
+            if not np.array_equal(src.weight, colour):
+                state.set_weight(key, colour)
+                src.light = light
+                report.changed.append(f"{key[6:]} power or colour")
+            continue
+        state.set_light(key, light)
+        drawn = True
+        report.changed.append(f"{key[6:]} {'placed' if src is None else 'moved or reshaped'}")
+    sky = np.asarray(sky, dtype=np.float64)
+    src = state.sources.get(relight.SKY)
+    if np.any(sky > 0) and src is None:
+        state.set_sky(sky)
+        report.changed.append("world colour")
+    elif src is not None and not np.array_equal(src.weight, sky):
+        state.set_weight(relight.SKY, sky)
+        report.changed.append("world colour")
+    return drawn
+
+
+def _update_materials(context, kept, report):
+    collected = scene_data.collect(context)
+    arrays = collected.arrays
+    if arrays.fingerprint().changed(kept.arrays.fingerprint()):
+        raise BakeError("the geometry changed since the bake: Bake again (an update keeps the capture, which only a bake redraws)")
+    state = kept.light
+    albedo = np.where(arrays.dark[:, None], 0.0, arrays.albedo) if arrays.dark is not None else arrays.albedo
+    if not np.array_equal(albedo, state.op.albedo):
+        state.set_albedo(albedo)
+        kept.arrays.albedo = arrays.albedo
+        report.changed.append("material colours")
+    if not np.array_equal(arrays.emission, kept.arrays.emission):
+        state.set_emission(arrays.emission)
+        kept.arrays.emission = arrays.emission
+        report.changed.append("material emission")
+    return False
+
+
+def write_light(context, kept, bounces=True):
+    """Write the kept SceneLight's light to the meshes (in place) and the probe field
+    (``bounces``: the per-bounce layers and the probe field too)."""
+    state, arrays = kept.light, kept.arrays
+    direct, indirect = state.direct(), state.indirect()
+    layers = {attributes.DIRECT: direct, attributes.INDIRECT: indirect, attributes.TOTAL: direct + indirect}
+    for k in range(1, state.count + 1 if bounces else 1):
+        layers[attributes.bounce_name(k)] = state.bounce(k)
+    if kept.lit:
+        layers[attributes.LIT] = arrays.albedo * (indirect if kept.lit == "INDIRECT" else direct + indirect)
+    import bpy
+
+    for target in kept.targets:
+        mesh = bpy.data.meshes.get(target.mesh_name)
+        if mesh is None or len(mesh.vertices) != target.vertex_count:
+            continue
+        for name, values in layers.items():
+            attributes.put(mesh, name, attributes.vertex_values(target, values))
+        mesh.update()
+    if not bounces:
+        return
+    kept.result.field.coeffs = state.field_coeffs()
+    objects = grid_objects.probe_grid_objects(context.scene)
+    if objects:
+        grid_objects.store_probe_light(objects, kept.result.field)
+        probe_view.forget_drawing()
+
+
+# --- Live: updates as the user edits -----------------------------------------------------------
+
+# Seconds after the last edit before the settled update (energy balance, bounce layers).
+SETTLE_SECONDS = 0.25
+_pending = {"scene": None, "instant": False, "settle": False, "materials": False}
+_status = {"writing": False}
+
+
+def _kinds(depsgraph, kept):
+    """What a depsgraph update touched: a subset of {"light", "materials", "geometry"}."""
+    import bpy
+
+    kinds = set()
+    for u in depsgraph.updates:
+        data = u.id
+        if isinstance(data, (bpy.types.Light, bpy.types.World)):
+            kinds.add("light")
+        elif isinstance(data, bpy.types.Object):
+            if data.type == "LIGHT":
+                kinds.add("light")
+            elif data.type == "MESH" and u.is_updated_transform and data.name in kept.placements:
+                if kept.placements[data.name] != _placement(data.original):
+                    kinds.add("geometry")
+        elif isinstance(data, (bpy.types.Material, bpy.types.ShaderNodeTree)):
+            kinds.add("materials")
+    return kinds
+
+
+def _placement(ob):
+    return tuple(round(v, 9) for row in ob.matrix_world for v in row)
+
+
+def placements(targets):
+    """Each baked object's world matrix, to tell a moved object from our own writes."""
+    import bpy
+
+    return {t.object_name: _placement(bpy.data.objects[t.object_name]) for t in targets if t.object_name in bpy.data.objects}
+
+
+def on_depsgraph_update(scene, depsgraph):
+    """With Live on: schedule the cheapest update for what the user changed."""
+    if _status["writing"] or not getattr(scene, "cubegi", None) or not scene.cubegi.live:
+        return
+    kept = session.kept(scene)
+    if kept is None:
+        return
+    kinds = _kinds(depsgraph, kept)
+    if "geometry" in kinds:
+        scene.cubegi.last_update = "geometry changed: Bake again (Live updates keep the capture)"
+        return
+    if not kinds:
+        return
+    _pending.update(scene=scene, instant=True, settle=True)
+    _pending["materials"] |= "materials" in kinds
+    _schedule(0.0)
+
+
+def on_frame_change(scene, depsgraph=None):
+    """With Live on, every frame's lights are applied (playback, scrubbing)."""
+    if getattr(scene, "cubegi", None) and scene.cubegi.live and session.kept(scene) is not None:
+        _pending.update(scene=scene, instant=False, settle=True)
+        run_pending()
+
+
+def _schedule(delay):
+    import bpy
+
+    if not bpy.app.timers.is_registered(_tick):
+        bpy.app.timers.register(_tick, first_interval=delay)
+
+
+def _tick():
+    return run_pending()
+
+
+def run_pending():
+    """Run what is pending: the instant update now, the settled one once edits pause.
+    Returns the seconds until it wants to run again (None: nothing left), as a timer does."""
+    import bpy
+
+    scene = _pending["scene"]
+    if scene is None or not _pending["settle"]:
+        return None
+    context = bpy.context
+    if context.scene != scene:
+        _pending.update(scene=None, instant=False, settle=False, materials=False)
+        return None
+    _status["writing"] = True
+    try:
+        if _pending["instant"]:
+            _pending["instant"] = False
+            scene.cubegi.last_update = update(context, settle=False).line()
+            return SETTLE_SECONDS
+        materials = _pending["materials"]
+        _pending.update(scene=None, settle=False, materials=False)
+        scene.cubegi.last_update = update(context, materials=materials).line()
+    except BakeError as exc:
+        scene.cubegi.last_update = f"not updated: {exc}"
+    finally:
+        _status["writing"] = False
+    return None
+
+
+def stop():
+    """Forget what is pending (Live turned off, unregister)."""
+    import bpy
+
+    _pending.update(scene=None, instant=False, settle=False, materials=False)
+    if bpy.app.timers.is_registered(_tick):
+        bpy.app.timers.unregister(_tick)
+
+
+def on_live_toggle(settings, context):
+    if not settings.live:
+        stop()
+
+
+def register():
+    import bpy
+
+    bpy.app.handlers.depsgraph_update_post.append(_persistent_update)
+    bpy.app.handlers.frame_change_post.append(_persistent_frame)
+
+
+def unregister():
+    import bpy
+
+    stop()
+    for handlers, fn in ((bpy.app.handlers.depsgraph_update_post, _persistent_update), (bpy.app.handlers.frame_change_post, _persistent_frame)):
+        if fn in handlers:
+            handlers.remove(fn)
+
+
+def _persistent(fn):
+    import bpy
+
+    return bpy.app.handlers.persistent(fn)
+
+
+_persistent_update = _persistent(on_depsgraph_update)
+_persistent_frame = _persistent(on_frame_change)

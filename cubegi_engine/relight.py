@@ -1,0 +1,355 @@
+"""Relighting on a kept capture: every source's light kept apart, so that an edit of a
+light, the sky or an emitter costs a weighted sum or a small solve, never a capture.
+
+Pure numpy; must not import bpy.
+
+The bounce operator of a capture is linear in probe-coefficient space. Per colour channel,
+with ``K`` the gather-and-project matrix (points' radiance -> probes' SH coefficients,
+``(9p, s)``), ``A`` the albedo, ``I`` the interpolation matrix (coefficients -> points'
+diffuse light, ``(s, 9p)``) and ``M = K A I`` (one bounce, coefficients to coefficients),
+the one-shot bake's bounces of a direct light ``d`` are
+
+    c_1 = K A d,   b_k = g_k c_k (bounce k's coefficients, balanced),   c_{k+1} = M b_k,
+    light_k = I b_k,   the tail after bounce N: I (1 - g M)^-1 g M b_N   (g = g_N)
+
+with ``g_k`` the energy balance's factor of bounce k (:func:`cubegi_engine.solve.
+conserve_energy`). Everything the balance needs is a dot product in coefficient space
+(``areas @ I`` and ``(areas albedo landing) @ I`` are kept), so :meth:`SceneLight.solve`
+recomputes the factors of the scene's whole light and every source's bounces in
+``O(N (9p)^2)`` plus one ``I`` product per source: the one-shot bake's numbers up to its
+tail solve's tolerance, float rounding, and the clamp of a ringing probe (none in the
+demo Room; measured in ``tests/blender/test_relight.py``).
+
+A power or colour edit changes only a source's weight: the scene's light is the weighted
+sum of the sources' (:meth:`SceneLight.set_weight`, microseconds), with the balance's
+factors as they were; :meth:`SceneLight.solve` brings them up to date (milliseconds).
+"""
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .convergence import gmres
+from .errors import BakeError
+from .solve import ENERGY_FACTOR_RANGE
+
+__all__ = ["BounceOperator", "Source", "SceneLight", "from_bake", "MAX_OPERATOR_ELEMENTS", "SKY", "EMISSION"]
+
+SKY, EMISSION = "sky", "emission"
+
+# The dense gather-project and interpolation matrices hold 9p x s numbers each (float32);
+# past this many (200 MB each) relighting in place is refused: the caller re-solves on the
+# kept capture instead (:func:`cubegi_engine.solve.solve_steps`).
+MAX_OPERATOR_ELEMENTS = 50_000_000
+# M = K A I is built (3 x 9p x 9p) when that costs at most this many multiply-adds (about a
+# second on two cores); past it, M is applied as K (A (I x)) without being formed.
+MAX_M_FLOPS = 2e10
+# The tail is an explicit inverse of (1 - g M) up to this size, GMRES beyond.
+MAX_INVERSE_SIZE = 1500
+
+
+def _gather_project_matrix(transport, s):
+    """``K (9p, s)``: SH coefficients of the probes from per-point radiance (one channel)."""
+    p = transport.probe_count
+    corners = transport.corners.reshape(p, -1, 3).astype(np.int64)  # (p, t, 3)
+    bary = transport.bary.reshape(p, -1, 3).astype(np.float64)
+    w = transport.sh_weights.astype(np.float64)  # (t, 9)
+    flat = (np.arange(p)[:, None, None] * s + corners).ravel()
+    out = np.empty((p, 9, s), dtype=np.float32)
+    for j in range(9):
+        out[:, j, :] = np.bincount(flat, (bary * w[None, :, j, None]).ravel(), minlength=p * s).reshape(p, s)
+    return out.reshape(p * 9, s)
+
+
+def _interpolation_matrix(transport, s):
+    """``I (s, 9p)``: diffuse light at the points from probe coefficients (one channel)."""
+    p = transport.probe_count
+    cols = (transport.index[:, :, None] * 9 + np.arange(9)[None, None, :]).reshape(s, -1)  # (s, 72)
+    flat = (np.arange(s)[:, None] * (9 * p) + cols).ravel()
+    return np.bincount(flat, transport.point_weights.astype(np.float64).ravel(), minlength=s * 9 * p).reshape(s, 9 * p).astype(np.float32)
+
+
+def _balance(target, got):
+    """:func:`cubegi_engine.solve.conserve_energy`'s factor from the two totals ``(3,)``."""
+    factor = np.ones(3)
+    ok = (got > 0) & (target > 0)
+    factor[ok] = target[ok] / got[ok]
+    lo, hi = ENERGY_FACTOR_RANGE
+    return np.where((factor >= lo) & (factor <= hi), factor, 1.0)
+
+
+class BounceOperator:
+    """The bounce operator of one capture as matrices (see the module docstring).
+
+    ``landing``: ``(s, 3)`` share of each point's view that is surface (None: no energy
+    balance); ``areas``: ``(s,)``.
+    """
+
+    def __init__(self, transport, albedo, landing=None, areas=None):
+        s, p = len(transport.index), transport.probe_count
+        if 9 * p * s > MAX_OPERATOR_ELEMENTS:
+            raise BakeError(
+                f"{p} probes x {s} points is too large to relight in place ({9 * p * s:,} numbers per matrix); bake again"
+            )
+        t = time.perf_counter()
+        self.K = _gather_project_matrix(transport, s)
+        self.I = _interpolation_matrix(transport, s)
+        self.landing = None if landing is None else np.asarray(landing, dtype=np.float64)
+        self.areas = np.ones(s) if areas is None else np.asarray(areas, dtype=np.float64)
+        self.u = self.areas @ self.I  # (9p,): area-weighted total of a coefficient vector's light
+        self.matrix_seconds = time.perf_counter() - t
+        self.set_albedo(albedo)
+
+    def set_albedo(self, albedo):
+        """Rebuild ``M`` for new albedo ``(s, 3)`` (a material edit)."""
+        t = time.perf_counter()
+        self.albedo = np.asarray(albedo, dtype=np.float64)
+        n, s = self.K.shape
+        self.M = None
+        if 3.0 * n * n * s <= MAX_M_FLOPS:
+            self.M = np.stack([(self.K * self.albedo[:, c].astype(np.float32)) @ self.I for c in range(3)]).astype(np.float64)
+        if self.landing is not None:  # (3, 9p): power sent on that lands, per coefficient vector
+            self.v = np.stack([(self.areas * self.albedo[:, c] * self.landing[:, c]) @ self.I for c in range(3)])
+        self.albedo_seconds = time.perf_counter() - t
+
+    @property
+    def size(self):
+        return self.K.shape[0]
+
+    @property
+    def nbytes(self):
+        return int(self.K.nbytes + self.I.nbytes + (self.M.nbytes if self.M is not None else 0))
+
+    def project(self, radiance):
+        """Probe coefficients ``(9p, 3)`` of per-point radiance ``(s, 3)``."""
+        return (self.K @ np.asarray(radiance, dtype=np.float32)).astype(np.float64)
+
+    def light(self, coeffs):
+        """Diffuse light ``(s, 3)`` at the points from coefficients ``(9p, 3)``."""
+        return (self.I @ np.asarray(coeffs, dtype=np.float32)).astype(np.float64)
+
+    def apply(self, coeffs, factor=None):
+        """``M (factor * coeffs)`` per channel: the next bounce's unbalanced coefficients."""
+        x = coeffs if factor is None else coeffs * factor
+        if self.M is not None:
+            return np.stack([self.M[c] @ x[:, c] for c in range(3)], axis=1)
+        return self.project(self.albedo * self.light(x))
+
+    def factors(self, direct, count):
+        """The balance's factors ``(count, 3)`` of the bounces of ``direct (s, 3)``, as the
+        one-shot bake computes them (ones without a balance)."""
+        g = np.ones((count, 3))
+        if self.landing is None or count == 0:
+            return g
+        c = self.project(self.albedo * direct)
+        target = (self.areas[:, None] * self.albedo * np.asarray(direct) * self.landing).sum(axis=0)
+        for k in range(count):
+            g[k] = _balance(target, self.u @ c)
+            b = g[k] * c
+            target = np.einsum("cq,qc->c", self.v, b)
+            c = self.apply(b)
+        return g
+
+    def inverse(self, factor):
+        """``(1 - factor M)^-1`` per channel ``(3, 9p, 9p)``, or None where GMRES is used."""
+        n = self.size
+        if self.M is None or n > MAX_INVERSE_SIZE:
+            return None
+        return np.stack([np.linalg.inv(np.eye(n) - factor[c] * self.M[c]) for c in range(3)])
+
+    def bounces(self, c1, g, inverse=None, tail=True, tol=1e-5):
+        """Balanced coefficients of bounces 1..N ``(N, 9p, 3)`` and of the tail after them
+        ``(9p, 3)`` (zeros without ``tail``) from bounce 1's unbalanced ``c1``. ``inverse``:
+        from :meth:`inverse` (None: GMRES to ``tol``)."""
+        out = np.empty((len(g),) + c1.shape)
+        c = c1
+        for k in range(len(g)):
+            out[k] = g[k] * c
+            c = self.apply(out[k])
+        rest = np.zeros_like(c1)
+        if tail and len(g):
+            f = g[-1]
+            if inverse is not None:
+                rest = np.stack([f[ch] * (inverse[ch] @ c[:, ch]) for ch in range(3)], axis=1)
+            elif np.any(c):
+                def step(x):
+                    y = x.reshape(c.shape)
+                    return (y - self.apply(y, f)).ravel()
+
+                total, _, _ = gmres(step, c.ravel(), tol=tol)
+                rest = total.reshape(c.shape) * f
+        return out, rest
+
+
+@dataclass
+class Source:
+    """One source of light at unit weight, and its weight now (``(3,)``: a light's colour
+    times power; the sky's radiance; an emitter's scale).
+
+    direct: ``(s, 3)``; first: ``(9p, 3)`` bounce 1's unbalanced coefficients; own:
+    ``(9p, 3)`` what the probes see of the source itself (sky, emitters; zero for a light);
+    bounces ``(N, 9p, 3)`` and tail ``(9p, 3)``: balanced, from the last :meth:`SceneLight.solve`;
+    indirect: ``(s, 3)`` their light. ``light``: the Light it is (None for sky and emitters).
+    """
+
+    key: str
+    direct: np.ndarray
+    first: np.ndarray
+    own: np.ndarray
+    weight: np.ndarray
+    light: object = None
+    emitter: bool = False
+    bounces: np.ndarray = None
+    tail: np.ndarray = None
+    indirect: np.ndarray = None
+    emission_at_points: np.ndarray = None  # (s, 3) for an emitter: what it sends
+
+
+class SceneLight:
+    """The light of a scene on a kept capture, per source; see the module docstring.
+
+    ``scene``: the SceneArrays the capture was taken of; ``op``: its BounceOperator;
+    ``light_direct(light) -> (s, 3)``: one Light's direct light with shadows (the renderer
+    lives with the caller); ``count``: bounces kept apart (the rest is the tail, added if
+    ``add_tail``).
+    """
+
+    def __init__(self, scene, transport, light_direct, op: BounceOperator, count, add_tail=True):
+        self.scene, self.transport, self.light_direct, self.op = scene, transport, light_direct, op
+        self.count, self.add_tail = int(count), bool(add_tail)
+        self.sources = {}
+        self.factors = np.ones((self.count, 3))
+        self.emitter_factor = np.ones(3)
+        self.solve_seconds = 0.0
+
+    def _add(self, key, direct, own, weight, light=None, emitter=False):
+        direct = self.scene.zero_dark_points_inplace(np.asarray(direct, dtype=np.float64).copy())
+        first = self.op.project(self.op.albedo * direct)
+        self.sources[key] = Source(key, direct, first, own, np.asarray(weight, dtype=np.float64), light, emitter)
+        return self.sources[key]
+
+    # --- edits -------------------------------------------------------------------------------
+    def set_light(self, key, light, direct=None):
+        """Add a light, or replace one that moved, turned or changed shape (its direct light
+        is drawn again, at unit colour, unless ``direct`` at its colour is given)."""
+        colour = np.asarray(light.colour, dtype=np.float64)
+        if direct is not None and np.all(colour > 0):
+            unit = np.asarray(direct) / colour
+        else:
+            unit = self.light_direct(replace(light, colour=np.ones(3)))
+        return self._add(key, unit, np.zeros((self.op.size, 3)), colour, light)
+
+    def set_sky(self, radiance):
+        """The uniform sky, of radiance ``(3,)``."""
+        own = self.transport.sky_coefficients(np.ones(3)).reshape(-1, 3).astype(np.float64)
+        return self._add(SKY, self._seen(own), own, radiance)
+
+    def set_emission(self, emission):
+        """Every emitter of the scene, sending ``emission (s, 3)``: one source (as in the
+        one-shot bake, whose deringing sees their light together). An emitter's strength
+        edit sets this again (a projection and an interpolation: milliseconds)."""
+        if not np.any(emission > 0):
+            self.remove(EMISSION)
+            return None
+        own = self.op.project(emission)
+        src = self._add(EMISSION, self._seen(own), own, np.ones(3), emitter=True)
+        src.emission_at_points = np.asarray(emission, dtype=np.float64)
+        return src
+
+    def _seen(self, own):
+        """The diffuse light of what probes see directly (sky, emitters), as the bake
+        interpolates it: ringing probes deringed, clamped at zero (both commute with a
+        positive weight, so the source stays linear in it)."""
+        return self.transport.interpolate(np.asarray(own, dtype=np.float32).reshape(-1, 9, 3)).astype(np.float64)
+
+    def set_weight(self, key, weight):
+        """A power or colour edit: the source's new weight ``(3,)``. The balance's factors
+        stay as they are until :meth:`solve`."""
+        self.sources[key].weight = np.asarray(weight, dtype=np.float64)
+
+    def remove(self, key):
+        self.sources.pop(key, None)
+
+    def set_albedo(self, albedo):
+        """A material's colour edit: new albedo ``(s, 3)``; then :meth:`solve`."""
+        self.op.set_albedo(albedo)
+        for src in self.sources.values():
+            src.first = self.op.project(self.op.albedo * src.direct)
+
+    # --- solving -----------------------------------------------------------------------------
+    def solve(self):
+        """Balance the scene's whole light as the one-shot bake does, and bounce every source
+        with those factors (see the module docstring)."""
+        t = time.perf_counter()
+        self._balance_emitters()
+        direct = self.direct()
+        self.factors = self.op.factors(direct, self.count)
+        inverse = self.op.inverse(self.factors[-1]) if self.add_tail and self.count else None
+        for src in self.sources.values():
+            scale = self.emitter_factor if src.emitter else 1.0
+            src.bounces, src.tail = self.op.bounces(src.first * scale, self.factors, inverse, self.add_tail)
+            src.indirect = self.scene.zero_dark_points_inplace(self.op.light(src.bounces.sum(axis=0) + src.tail))
+        self.solve_seconds = time.perf_counter() - t
+
+    def _balance_emitters(self):
+        emitters = [s for s in self.sources.values() if s.emitter]
+        self.emitter_factor = np.ones(3)
+        if not emitters or self.op.landing is None:
+            return
+        seen = sum(s.direct * s.weight for s in emitters)  # as the bake interpolates it
+        emission = sum(s.emission_at_points * s.weight for s in emitters)
+        target = (self.op.areas[:, None] * emission * self.op.landing).sum(axis=0)
+        self.emitter_factor = _balance(target, self.op.areas @ seen)
+
+    # --- the scene's light now ---------------------------------------------------------------
+    def _sum(self, term):
+        out = None
+        for src in self.sources.values():
+            value = term(src) * src.weight
+            out = value if out is None else out + value
+        return out
+
+    def direct(self):
+        """``(s, 3)`` every source's direct light, weighted (emitters balanced)."""
+        if not self.sources:
+            return np.zeros((len(self.scene.points), 3))
+        return self._sum(lambda s: s.direct * (self.emitter_factor if s.emitter else 1.0))
+
+    def indirect(self):
+        if not self.sources:
+            return np.zeros((len(self.scene.points), 3))
+        return self._sum(lambda s: s.indirect)
+
+    def bounce(self, k):
+        """``(s, 3)`` the light of bounce ``k`` (1-based)."""
+        if not self.sources or not 1 <= k <= self.count:
+            return np.zeros((len(self.scene.points), 3))
+        return self.scene.zero_dark_points_inplace(self.op.light(self._sum(lambda s: s.bounces[k - 1])))
+
+    def field_coeffs(self):
+        """``(p, 9, 3)`` float32: what the probes see, the sky, emitters and every bounce."""
+        total = self._sum(lambda s: s.own * (self.emitter_factor if s.emitter else 1.0) + s.bounces.sum(axis=0) + s.tail)
+        return np.asarray(total, dtype=np.float32).reshape(-1, 9, 3)
+
+
+def light_key(light, index=0):
+    return f"light:{light.name}" if light.name else f"light:#{index}"
+
+
+def from_bake(result, scene, light_direct, add_tail=True, conserve_energy=True):
+    """A solved :class:`SceneLight` of a finished bake: its capture, and its lights' direct
+    light (no drawing). ``light_direct``: for lights that change later."""
+    transport = result.capture.transport
+    albedo = np.where(scene.dark[:, None], 0.0, scene.albedo) if scene.dark is not None else scene.albedo
+    landing = transport.landing_share() if conserve_energy else None
+    op = BounceOperator(transport, albedo, landing, scene.point_areas())
+    state = SceneLight(scene, transport, light_direct, op, len(result.solution.bounces), add_tail)
+    parts = result.direct_parts.parts
+    for k, light in enumerate(scene.lights):
+        state.set_light(light_key(light, k), light, parts.get(f"light:{light.name}"))
+    if np.any(scene.sky > 0):
+        state.set_sky(scene.sky)
+    state.set_emission(scene.emission)
+    state.solve()
+    return state

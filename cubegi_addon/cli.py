@@ -62,6 +62,10 @@ def _bake_options(p, demo=False):
             "--lit", nargs="?", const="all", choices=("all", "indirect"),
             help="also write CubeGI_lit: albedo x all light (all, the default) or x indirect light only",
         )
+        p.add_argument(
+            "--dynamic", nargs="+", metavar="NAME", default=[],
+            help="objects left out of the capture and lit from the probe field (they move without a new bake)",
+        )
 
 
 def _settings(args):
@@ -151,6 +155,15 @@ def _open_for_baking(bpy, path):
         bpy.ops.object.mode_set(mode="OBJECT")
 
 
+def _mark_dynamic(bpy, names):
+    """Set Object > CubeGI > Dynamic on the named objects of the loaded copy."""
+    missing = [n for n in names if n not in bpy.data.objects or bpy.data.objects[n].type != "MESH"]
+    if missing:
+        raise BakeError(f"--dynamic: no mesh object named {', '.join(map(repr, missing))} in the file")
+    for name in names:
+        bpy.data.objects[name].cubegi.dynamic = True
+
+
 def cmd_bake(args):
     settings = _settings(args)
     src, compressed, dst, report_path = _check_io(args)
@@ -159,6 +172,7 @@ def cmd_bake(args):
     from . import pipeline
 
     _open_for_baking(bpy, src)
+    _mark_dynamic(bpy, args.dynamic)
     lit = args.lit.upper() if args.lit else None
     report = pipeline.bake(bpy.context, settings, tuple(args.grid) if args.grid else None, lit=lit,
                            reference_samples=args.reference_samples if args.reference else None, progress=_print_progress)

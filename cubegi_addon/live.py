@@ -20,6 +20,7 @@ import numpy as np
 
 from ..cubegi_engine import relight
 from ..cubegi_engine.direct import light_direct
+from ..cubegi_engine.moving import light_moving
 from ..cubegi_engine.errors import BakeError
 from . import attributes, grid_objects, probe_view, scene_data, session
 from .gpu_capture import GpuRenderer
@@ -64,7 +65,8 @@ def state_of(context):
         def draw(light):
             if kept.renderer is None:
                 kept.renderer = GpuRenderer(arrays.points, arrays.triangles)
-            return light_direct(arrays, kept.renderer, settings, light)
+            shadows = kept.result.shadows if kept.moving else None  # moving objects test against them
+            return light_direct(arrays, kept.renderer, settings, light, shadows)
 
         kept.light = relight.from_bake(kept.result, arrays, draw, settings.add_tail, settings.conserve_energy)
     return kept
@@ -90,7 +92,17 @@ def update(context, materials=False, write=True, settle=True):
     if materials:
         drawn |= _update_materials(context, kept, report)
     report.seconds["lights"] = time.perf_counter() - t
-    if report.changed or (settle and kept.unsettled):
+    moved = _moved_objects(context, kept) if kept.moving else []
+    if report.changed or (settle and kept.unsettled) or moved:
+        if moved and not (report.changed or kept.unsettled):
+            report.path = "dynamic"
+            report.changed += [f"{name} moved" for name in moved]
+            t = time.perf_counter()
+            if write:
+                write_moving(context, kept)
+            report.seconds["dynamic"] = time.perf_counter() - t
+            return report
+        report.changed += [f"{name} moved" for name in moved]
         report.path = "materials" if materials and any(c.startswith("material") for c in report.changed) else (
             "lights" if drawn else "weights" if report.changed else "settle")
         instant = not settle and report.path == "weights"
@@ -158,6 +170,42 @@ def _update_materials(context, kept, report):
     return False
 
 
+def _moved_objects(context, kept):
+    """Names of the dynamic objects whose vertices moved since they were last lit; the
+    kept arrays are brought up to date."""
+    now = scene_data.moving_objects(context)
+    before = {t.object_name: a for a, t in kept.moving}
+    moved = [t.object_name for a, t in now if t.object_name not in before or not (
+        np.array_equal(a.points, before[t.object_name].points) and np.array_equal(a.normals, before[t.object_name].normals))]
+    moved += [name for name in before if name not in {t.object_name for _, t in now}]
+    kept.moving = now
+    return moved
+
+
+def moving_layers(obj, target, field, lights, shadows, settings, lit):
+    """The attribute layers of one dynamic object lit from ``field`` (see
+    :func:`cubegi_engine.moving.light_moving`)."""
+    direct, indirect = light_moving(obj, lights, shadows, field, GpuRenderer(obj.points, obj.triangles), settings)
+    layers = {attributes.DIRECT: direct, attributes.INDIRECT: indirect, attributes.TOTAL: direct + indirect}
+    if lit:
+        layers[attributes.LIT] = obj.albedo * (indirect if lit == "INDIRECT" else direct + indirect)
+    return {name: attributes.vertex_values(target, values) for name, values in layers.items()}
+
+
+def write_moving(context, kept):
+    """Light and write every dynamic object from the kept probe field."""
+    import bpy
+
+    for obj, target in kept.moving or ():
+        mesh = bpy.data.meshes.get(target.mesh_name)
+        if mesh is None or len(mesh.vertices) != target.vertex_count:
+            continue
+        for name, values in moving_layers(obj, target, kept.result.field, kept.arrays.lights, kept.result.shadows,
+                                          kept.settings, kept.lit).items():
+            attributes.put(mesh, name, values)
+        mesh.update()
+
+
 def write_light(context, kept, bounces=True):
     """Write the kept SceneLight's light to the meshes (in place) and the probe field
     (``bounces``: the per-bounce layers and the probe field too)."""
@@ -179,11 +227,12 @@ def write_light(context, kept, bounces=True):
         mesh.update()
     if not bounces:
         return
-    kept.result.field.coeffs = state.field_coeffs()
+    kept.result.field.coeffs, kept.result.field.source_coeffs = state.field_coeffs()
     objects = grid_objects.probe_grid_objects(context.scene)
     if objects:
         grid_objects.store_probe_light(objects, kept.result.field)
         probe_view.forget_drawing()
+    write_moving(context, kept)
 
 
 # --- Live: updates as the user edits -----------------------------------------------------------
@@ -206,6 +255,8 @@ def _kinds(depsgraph, kept):
         elif isinstance(data, bpy.types.Object):
             if data.type == "LIGHT":
                 kinds.add("light")
+            elif data.type == "MESH" and data.original.cubegi.dynamic and (u.is_updated_transform or u.is_updated_geometry):
+                kinds.add("dynamic")
             elif data.type == "MESH" and u.is_updated_transform and data.name in kept.placements:
                 if kept.placements[data.name] != _placement(data.original):
                     kinds.add("geometry")
@@ -238,7 +289,7 @@ def on_depsgraph_update(scene, depsgraph):
         return
     if not kinds:
         return
-    _pending.update(scene=scene, instant=True, settle=True)
+    _pending.update(scene=scene, instant=_pending["instant"] or "light" in kinds, settle=True)
     _pending["materials"] |= "materials" in kinds
     _schedule(0.0)
 

@@ -44,6 +44,8 @@ class VIEW3D_PT_cubegi(_SidebarTab, bpy.types.Panel):
             col.prop(ob.cubegi, "resolution")
             col.prop(ob.cubegi, "show_probes")
             col.prop(ob.cubegi, "show_irradiance")
+        elif ob is not None and ob.type == "MESH":
+            layout.prop(ob.cubegi, "dynamic")
         else:
             col.label(text=f"{len(grids)} probe grid objects" if grids else "Fitted to the scene (no grid object)")
         col.operator("cubegi.add_probe_grid", icon="LIGHTPROBE_VOLUME")

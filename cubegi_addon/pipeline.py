@@ -119,6 +119,10 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
         [(bpy.data.objects[t.object_name], bpy.data.meshes[t.mesh_name]) for t in collected.targets],
         attributes.bake_names(settings.bounces, lit, reference_samples),
     )
+    attributes.check_clashes(
+        [(bpy.data.objects[t.object_name], bpy.data.meshes[t.mesh_name]) for _, t in collected.moving],
+        attributes.bake_names(0, lit)[:3] + ([attributes.LIT] if lit else []),
+    )
     grid, grid_source, outside = grid_objects.resolve_grid(context.scene, arrays, resolution)
     if outside > 0:
         collected.notes.append(
@@ -130,7 +134,8 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
     renderer = GpuRenderer(arrays.points, arrays.triangles)
     t_setup = time.perf_counter() - t
     earlier = session.kept(context.scene)
-    steps = engine_bake_steps(arrays, grid, renderer, settings, capture=earlier.result.capture if earlier else None)
+    steps = engine_bake_steps(arrays, grid, renderer, settings, capture=earlier.result.capture if earlier else None,
+                              keep_shadows=bool(collected.moving))
     if preview is not None:
         preview.start(collected.targets)
         steps = _previewed(steps, preview)
@@ -152,12 +157,19 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
             layers.update(ref)
 
     t = time.perf_counter()
-    write_all(collected.targets, layers_per_target)
+    moving = [(target, live.moving_layers(obj, target, result.field, arrays.lights, result.shadows, settings, lit))
+              for obj, target in collected.moving]
+    if moving:
+        names = ", ".join(t.object_name for t, _ in moving)
+        collected.notes.append(f"dynamic objects lit from the probe field (not captured, cast no light on the rest): {names}")
+    write_all(collected.targets + [t for t, _ in moving], layers_per_target + [layers for _, layers in moving])
     objects = grid_objects.probe_grid_objects(context.scene)
     if objects:
         grid_objects.store_probe_light(objects, result.field)
         probe_view.forget_drawing()
-    session.keep(context.scene, session.Kept(arrays, collected.targets, result, settings, lit, placements=live.placements(collected.targets)))
+    session.keep(context.scene, session.Kept(
+        arrays, collected.targets, result, settings, lit, placements=live.placements(collected.targets), moving=collected.moving,
+    ))
     t_write = t_layers + time.perf_counter() - t
 
     timings = dict(result.timings)

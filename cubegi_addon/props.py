@@ -60,6 +60,11 @@ class CubeGISceneSettings(bpy.types.PropertyGroup):
 
 class CubeGIObjectSettings(bpy.types.PropertyGroup):
     is_probe_grid: BoolProperty(name="Probe Grid", description="This Empty's cube is a CubeGI probe grid", default=False)
+    dynamic: BoolProperty(
+        name="Dynamic", description="Left out of the capture and lit from the kept probe field: moving or deforming it "
+        "updates its light at once, without a new bake (it does not shadow or light the rest of the scene)",
+        default=False,
+    )
     resolution: IntVectorProperty(
         name="Resolution", description="Probes along X, Y and Z", size=3, default=(4, 4, 2), min=1, max=256
     )

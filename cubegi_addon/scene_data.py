@@ -46,6 +46,7 @@ class CollectedScene:
     arrays: SceneArrays
     targets: list
     notes: list = field(default_factory=list)
+    moving: list = field(default_factory=list)  # (SceneArrays of one dynamic object, MeshTarget)
 
 
 def _render_visible_objects(view_layer):
@@ -482,6 +483,42 @@ def _add_light(inst, ob, lights, notes):
         lights.append(light)
 
 
+def _is_dynamic(inst, original):
+    settings = getattr(original, "cubegi", None)
+    return original.type == "MESH" and not inst.is_instance and settings is not None and settings.dynamic
+
+
+def _moving_object(ob, inst, original, notes):
+    """``(SceneArrays, MeshTarget)`` of one dynamic object as it stands, or None."""
+    data = _mesh_arrays(ob, inst.matrix_world, notes)
+    if data is None:
+        return None
+    pts = _shading_points(data)
+    mesh = original.data
+    if mesh.library is not None or not _same_corners(mesh, data):
+        notes.append(f"{original.name}: dynamic, but its mesh is linked or its modifiers change its vertices; not lit")
+        return None
+    n = len(pts["points"])
+    arrays = SceneArrays(
+        pts["points"], pts["normals"], pts["albedo"], pts["emission"], pts["triangles"].astype(np.int64),
+        point_object=np.zeros(n, dtype=np.int64), object_names=[original.name],
+    )
+    return arrays, MeshTarget(original.name, mesh.name, pts["loop_point"], data["loop_vertex"], len(mesh.vertices))
+
+
+def moving_objects(context):
+    """The dynamic objects as they stand now: ``[(SceneArrays, MeshTarget)]`` (reads only
+    them: for updates of moving objects, see :mod:`.live`)."""
+    notes, out = [], []
+    with _as_rendered(context.view_layer):
+        for inst, ob, original, _ in _rendered_instances(context, context.evaluated_depsgraph_get()):
+            if ob.type == "MESH" and _is_dynamic(inst, original):
+                part = _moving_object(ob, inst, original, notes)
+                if part is not None:
+                    out.append(part)
+    return out
+
+
 def scene_lights(context):
     """The lights and the sky as a bake would see them now, without reading any mesh:
     ``(lights, sky (3,), notes)``. For updates of light alone (see :mod:`.live`)."""
@@ -496,7 +533,7 @@ def scene_lights(context):
 def _collect(context, depsgraph):
     scene = context.scene
     notes = []
-    parts, targets, lights = [], [], []
+    parts, targets, lights, moving = [], [], [], []
     offset = 0
     claimed_meshes = set()
     non_mesh, with_surface = {}, set()
@@ -510,6 +547,11 @@ def _collect(context, depsgraph):
             non_mesh.setdefault(original.name, original.type)
             continue
         if ob.type != "MESH":
+            continue
+        if _is_dynamic(inst, original):
+            part = _moving_object(ob, inst, original, notes)
+            if part is not None:
+                moving.append(part)
             continue
         data = _mesh_arrays(ob, inst.matrix_world, notes)
         if data is None:
@@ -567,7 +609,7 @@ def _collect(context, depsgraph):
         object_names=[p["name"] for p in parts],
     )
     arrays.dark = _set_aside_non_finite(arrays, parts, notes)
-    return CollectedScene(arrays, targets, list(dict.fromkeys(notes)))  # each note once
+    return CollectedScene(arrays, targets, list(dict.fromkeys(notes)), moving)  # each note once
 
 
 def _set_aside_non_finite(arrays, parts, notes):

@@ -37,6 +37,7 @@ class Kept:
     renderer: object = None
     unsettled: bool = False  # an instant update left the balance and bounce layers behind
     placements: dict = None  # object name -> world matrix at the bake (see live.placements)
+    moving: list = None  # [(SceneArrays, MeshTarget)] of the dynamic objects as last lit
 
     @property
     def nbytes(self):

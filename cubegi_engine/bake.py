@@ -57,6 +57,7 @@ class BakeResult:
     field: ProbeField
     timings: dict = field(default_factory=dict)
     capture_reused: bool = False
+    shadows: dict = field(default_factory=dict)  # light name -> Shadow, when kept (moving objects)
 
     @property
     def direct(self) -> np.ndarray:
@@ -114,11 +115,13 @@ def check_memory(probes, cube_size, points, limit=None) -> int:
     return need
 
 
-def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capture: ProbeCapture | None = None):
+def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capture: ProbeCapture | None = None,
+               keep_shadows: bool = False):
     """Bake ``scene`` on ``grid``; a generator of :class:`Progress`, returning a BakeResult.
 
     ``capture``: a capture kept from an earlier bake; used if it is still valid for this
-    scene, grid and settings (else a new one is taken).
+    scene, grid and settings (else a new one is taken). ``keep_shadows``: keep every
+    light's depth maps of the scene in the result (moving objects are tested against them).
     """
     settings = (settings or BakeSettings()).validate()
     t_start = time.perf_counter()
@@ -140,7 +143,8 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
     t = time.perf_counter()
     landing = transport.landing_share() if settings.conserve_energy else None
     t_landing = time.perf_counter() - t
-    parts = direct_light(scene, renderer, settings, transport, landing)
+    shadows = {} if keep_shadows else None
+    parts = direct_light(scene, renderer, settings, transport, landing, shadows)
     direct = parts.total(scene)
     timings["direct_lights"], timings["direct_probes"] = parts.light_seconds, parts.probe_seconds + t_landing
     timings["direct"] = timings["direct_lights"] + timings["direct_probes"]
@@ -153,9 +157,9 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
     coeffs = parts.source_coeffs + solution.bounce_coeffs
     if solution.tail_coeffs is not None and solution.tail_report.added:
         coeffs = coeffs + solution.tail_coeffs
-    probe_field = ProbeField(grid, coeffs, capture.probe_valid.copy())
+    probe_field = ProbeField(grid, coeffs, capture.probe_valid.copy(), parts.source_coeffs)
     timings["total"] = time.perf_counter() - t_start
-    return BakeResult(capture, parts, solution, probe_field, timings, reused)
+    return BakeResult(capture, parts, solution, probe_field, timings, reused, shadows or {})
 
 
 def run(steps, progress=None):

@@ -16,9 +16,19 @@ from . import cubemap, lights as lights_mod
 from .solve import conserve_energy
 from .transport import capture_cubes, clip_planes
 
-__all__ = ["DirectLight", "light_direct", "direct_light", "EMISSION", "SKY"]
+__all__ = ["DirectLight", "Shadow", "draw_shadow", "visibility", "light_direct", "direct_light", "EMISSION", "SKY"]
 
 EMISSION, SKY = "emission", "sky"
+
+# Sun shadow map frustum: a box around the scene's bounding sphere (radius grown by 1% so
+# that its surface is inside), seen from two radii away along the sun's direction; near
+# and far leave a margin of a thousandth of the radius and two radii beyond the scene.
+SUN_BOX_MARGIN = 1.01
+SUN_EYE_DISTANCE = 2.0
+SUN_NEAR, SUN_FAR = 1e-3, 4.0
+# Area light shadow eyes sit this share of the scene's size off the light's plane, so the
+# light's own geometry (if any) and surfaces it rests on do not shadow it.
+AREA_EYE_LIFT = 1e-4
 
 
 @dataclass
@@ -51,32 +61,108 @@ def light_key(light) -> str:
     return f"light:{light.name}"
 
 
-def light_direct(scene, renderer, settings, light) -> np.ndarray:
-    """Diffuse light ``(s, 3)`` from one light, with shadows from depth maps."""
+@dataclass
+class Shadow:
+    """A light's depth maps of some geometry: a cube map per eye (point, spot: the light's
+    position; area: its sample points) or one orthographic map (sun). Kept so that other
+    receivers (a moving object) can be tested against the same occluders.
+
+    cubes: CubeCapture; eyes: ``(k, 3)``; ortho: ``(view_proj, axis, eye, tid, dist, back,
+    radius)`` for a sun; ``triangles``, ``vertices``: the occluders the maps were drawn of.
+    """
+
+    light: object
+    triangles: np.ndarray
+    vertices: np.ndarray
+    scale: float
+    cubes: object = None
+    eyes: np.ndarray = None
+    ortho: tuple = None
+
+    @property
+    def nbytes(self):
+        arrays = [self.cubes.tid, self.cubes.bary, self.cubes.dist, self.cubes.backface] if self.cubes is not None else []
+        arrays += [a for a in (self.ortho or ())[3:6]]
+        return int(sum(a.nbytes for a in arrays))
+
+
+def draw_shadow(scene, renderer, settings, light, size=None) -> Shadow:
+    """Draw ``light``'s depth maps of ``scene`` (see :class:`Shadow`); ``size``: the maps'
+    edge (default: the settings' for the light's kind)."""
+    shadow = Shadow(light, scene.triangles, scene.points, scene.scale)
+    if light.kind == "SUN":
+        lo, hi = scene.bounds()
+        centre, radius = 0.5 * (lo + hi), 0.5 * scene.scale * SUN_BOX_MARGIN
+        axis = light.direction / np.linalg.norm(light.direction)
+        eye = centre - axis * radius * SUN_EYE_DISTANCE
+        view = cubemap.look_matrix(eye, axis, cubemap.any_perpendicular(axis))
+        vp = cubemap.orthographic(radius, SUN_NEAR * radius, SUN_FAR * radius) @ view
+        tid, _, dist, back = renderer.render(vp[None], eye[None], axis[None], size or settings.sun_shadow_size)
+        shadow.ortho = (vp, axis, eye, tid[0], dist[0], back[0], radius)
+        return shadow
+    near, far = clip_planes(scene.scale)
+    if light.kind == "AREA":
+        samples = light.samples if light.samples is not None and len(light.samples) else light.position[None]
+        shadow.eyes = samples + light.direction * (AREA_EYE_LIFT * scene.scale)
+        shadow.cubes = capture_cubes(renderer, shadow.eyes, size or settings.area_shadow_size, near, far)
+    else:
+        shadow.eyes = light.position[None]
+        shadow.cubes = capture_cubes(renderer, shadow.eyes, size or settings.shadow_size, near, far)
+    return shadow
+
+
+def visibility(shadow, pts, nrm, ids) -> np.ndarray:
+    """``(k,)`` in [0, 1]: how much of ``shadow``'s light reaches each receiver (``ids``: the
+    receivers' indices among the shadow's vertices, -1 for a receiver not among them)."""
+    light = shadow.light
+    if shadow.ortho is not None:
+        vp, axis, eye, tid, dist, back, radius = shadow.ortho
+        return lights_mod.ortho_visibility(
+            pts, nrm, vp, axis, eye, tid, dist, back, shadow.triangles, shadow.vertices, ids, radius, shadow.scale
+        )
+    cap = shadow.cubes
+    if light.kind != "AREA":
+        return lights_mod.shadow_visibility(
+            pts, nrm, light.position, cap.tid[0], cap.dist[0], cap.backface[0], shadow.triangles, shadow.vertices, ids, shadow.scale
+        )
+    num = np.zeros(len(pts))
+    den = np.zeros(len(pts))
+    for k, eye in enumerate(shadow.eyes):
+        rel = eye - pts
+        d2 = np.einsum("sc,sc->s", rel, rel)
+        cos_r = np.maximum(0.0, np.einsum("sc,sc->s", nrm, rel)) / np.sqrt(np.maximum(d2, 1e-300))
+        cos_l = np.maximum(0.0, -(rel @ light.direction)) / np.sqrt(np.maximum(d2, 1e-300))
+        w = cos_r * cos_l / np.maximum(d2, 1e-300) + 1e-12
+        vis = lights_mod.shadow_visibility(
+            pts, nrm, eye, cap.tid[k], cap.dist[k], cap.backface[k], shadow.triangles, shadow.vertices, ids, shadow.scale,
+            reach=0,
+        )
+        num += w * vis
+        den += w
+    return num / den
+
+
+def light_direct(scene, renderer, settings, light, shadows=None) -> np.ndarray:
+    """Diffuse light ``(s, 3)`` from one light, with shadows from depth maps. ``shadows``: a
+    dict that keeps the light's :class:`Shadow` under its name, if given."""
     value = lights_mod.unshadowed(light, scene.points, scene.normals)
     lit = np.any(value > 0, axis=1)
     if not light.casts_shadow or not lit.any():
         return value
-    pts, nrm, ids = scene.points[lit], scene.normals[lit], np.arange(len(scene.points))[lit]
-    if light.kind == "SUN":
-        vis = _sun_visibility(scene, renderer, settings, light, pts, nrm, ids)
-    elif light.kind == "AREA":
-        vis = _area_visibility(scene, renderer, settings, light, pts, nrm, ids)
-    else:
-        near, far = clip_planes(scene.scale)
-        cap = capture_cubes(renderer, light.position[None], settings.shadow_size, near, far)
-        vis = lights_mod.shadow_visibility(
-            pts, nrm, light.position, cap.tid[0], cap.dist[0], cap.backface[0], scene.triangles, scene.points, ids, scene.scale
-        )
-    value[lit] *= vis[:, None]
+    shadow = draw_shadow(scene, renderer, settings, light)
+    if shadows is not None:
+        shadows[light.name] = shadow
+    ids = np.arange(len(scene.points))[lit]
+    value[lit] *= visibility(shadow, scene.points[lit], scene.normals[lit], ids)[:, None]
     return value
 
 
-def direct_light(scene, renderer, settings, transport, landing=None) -> DirectLight:
+def direct_light(scene, renderer, settings, transport, landing=None, shadows=None) -> DirectLight:
     """The direct light of every source of ``scene`` (see :class:`DirectLight`).
 
     ``landing``: as for :func:`cubegi_engine.solve.solve_steps`; the light from emitters is
-    balanced with it (None: not balanced).
+    balanced with it (None: not balanced). ``shadows``: a dict that keeps each light's
+    :class:`Shadow`, if given.
     """
     import time
 
@@ -84,7 +170,7 @@ def direct_light(scene, renderer, settings, transport, landing=None) -> DirectLi
     parts = {}
     for k, light in enumerate(scene.lights):
         key = light_key(light)
-        parts[key if key not in parts else f"{key}#{k}"] = light_direct(scene, renderer, settings, light)
+        parts[key if key not in parts else f"{key}#{k}"] = light_direct(scene, renderer, settings, light, shadows)
     light_seconds = time.perf_counter() - t
     t = time.perf_counter()
     coeffs = np.zeros((transport.probe_count, 9, 3), dtype=np.float32)
@@ -105,50 +191,3 @@ def direct_light(scene, renderer, settings, transport, landing=None) -> DirectLi
         coeffs = coeffs + sky_coeffs
         parts[SKY] = transport.interpolate(sky_coeffs)
     return DirectLight(parts, coeffs, factor, seen, light_seconds, time.perf_counter() - t)
-
-
-# Sun shadow map frustum: a box around the scene's bounding sphere (radius grown by 1% so
-# that its surface is inside), seen from two radii away along the sun's direction; near
-# and far leave a margin of a thousandth of the radius and two radii beyond the scene.
-SUN_BOX_MARGIN = 1.01
-SUN_EYE_DISTANCE = 2.0
-SUN_NEAR, SUN_FAR = 1e-3, 4.0
-# Area light shadow eyes sit this share of the scene's size off the light's plane, so the
-# light's own geometry (if any) and surfaces it rests on do not shadow it.
-AREA_EYE_LIFT = 1e-4
-
-
-def _sun_visibility(scene, renderer, settings, light, pts, nrm, ids):
-    lo, hi = scene.bounds()
-    centre, radius = 0.5 * (lo + hi), 0.5 * scene.scale * SUN_BOX_MARGIN
-    axis = light.direction / np.linalg.norm(light.direction)
-    eye = centre - axis * radius * SUN_EYE_DISTANCE
-    view = cubemap.look_matrix(eye, axis, cubemap.any_perpendicular(axis))
-    vp = cubemap.orthographic(radius, SUN_NEAR * radius, SUN_FAR * radius) @ view
-    n = settings.sun_shadow_size
-    tid, _, dist, back = renderer.render(vp[None], eye[None], axis[None], n)
-    return lights_mod.ortho_visibility(
-        pts, nrm, vp, axis, eye, tid[0], dist[0], back[0], scene.triangles, scene.points, ids, radius, scene.scale
-    )
-
-
-def _area_visibility(scene, renderer, settings, light, pts, nrm, ids):
-    near, far = clip_planes(scene.scale)
-    samples = light.samples if light.samples is not None and len(light.samples) else light.position[None]
-    eyes = samples + light.direction * (AREA_EYE_LIFT * scene.scale)
-    cap = capture_cubes(renderer, eyes, settings.area_shadow_size, near, far)
-    num = np.zeros(len(pts))
-    den = np.zeros(len(pts))
-    for k, eye in enumerate(eyes):
-        rel = eye - pts
-        d2 = np.einsum("sc,sc->s", rel, rel)
-        cos_r = np.maximum(0.0, np.einsum("sc,sc->s", nrm, rel)) / np.sqrt(np.maximum(d2, 1e-300))
-        cos_l = np.maximum(0.0, -(rel @ light.direction)) / np.sqrt(np.maximum(d2, 1e-300))
-        w = cos_r * cos_l / np.maximum(d2, 1e-300) + 1e-12
-        vis = lights_mod.shadow_visibility(
-            pts, nrm, eye, cap.tid[k], cap.dist[k], cap.backface[k], scene.triangles, scene.points, ids, scene.scale,
-            reach=0,
-        )
-        num += w * vis
-        den += w
-    return num / den

@@ -1,10 +1,10 @@
 """The probe field: SH radiance per probe, and the light it gives at any point.
 
 Pure numpy; must not import bpy. After a bake the field holds what each probe sees of the
-lit scene (emitters, sky, and every bounce of light off the surfaces, the tail included
-when added). It lights any point in the grid, a vertex of an object that moves or was never
-captured, with no capture: trilinear weights over the valid probes, evaluated for the
-point's normal (R&H irradiance).
+lit scene: the sky and emitters (``source_coeffs``, which CubeGI counts as direct light) and
+every bounce of light off the surfaces, the tail included when added. It lights any point
+in the grid, a vertex of an object that moves or was never captured, with no capture:
+trilinear weights over the valid probes, evaluated for the point's normal (R&H irradiance).
 """
 
 from dataclasses import dataclass
@@ -18,29 +18,57 @@ __all__ = ["ProbeField"]
 
 @dataclass
 class ProbeField:
-    """grid: ProbeGrid or GridSet; coeffs: ``(p, 9, 3)`` SH radiance; valid: ``(p,)`` bool
-    (False for a probe inside geometry, left out of every interpolation)."""
+    """grid: ProbeGrid or GridSet; coeffs: ``(p, 9, 3)`` SH radiance, everything the probes
+    see; valid: ``(p,)`` bool (False for a probe inside geometry, left out of every
+    interpolation); source_coeffs: ``(p, 9, 3)`` the part that is the sky and emitters."""
 
     grid: object
     coeffs: np.ndarray
     valid: np.ndarray
+    source_coeffs: np.ndarray | None = None
 
-    def light_at(self, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    def weights(self, points, normals=None):
+        """``(index (s, 8), weight (s, 8))``: trilinear weights over the valid probes; with
+        ``normals``, probes behind a point's surface (inside the object it belongs to) are
+        left out too. A point with no probe left keeps its plain trilinear weights."""
+        index, plain = self.grid.trilinear(np.asarray(points, dtype=np.float64))
+        valid = self.valid[index]
+        weight = plain * valid
+        if normals is not None:
+            to_probe = self.grid.positions()[index] - np.asarray(points, dtype=np.float64)[:, None, :]
+            front = np.einsum("skc,sc->sk", to_probe, np.asarray(normals, dtype=np.float64)) > 0.0
+            facing = weight * front
+            has = facing.sum(axis=1, keepdims=True) > 1e-9
+            weight = np.where(has, facing, weight)
+        total = weight.sum(axis=1, keepdims=True)
+        weight = np.where(total > 1e-9, weight, plain)
+        return index, weight / np.maximum(weight.sum(axis=1, keepdims=True), 1e-30)
+
+    def light_at(self, points: np.ndarray, normals: np.ndarray, part: str = "all", one_sided: bool = False) -> np.ndarray:
         """Diffuse light ``(s, 3)`` (E / pi) at ``points (s, 3)`` facing ``normals (s, 3)``.
 
-        Probes inside geometry are left out and the weights of the rest renormalised (a
-        point whose probes are all invalid keeps its plain trilinear weights). No visibility
+        ``part``: "all", "direct" (the sky and emitters) or "indirect" (the bounces).
+        ``one_sided``: leave out probes behind each point's surface (for an object the
+        capture never saw: a probe inside it would light it from inside). No visibility
         test: the field is smooth by construction, so light can leak through walls thinner
         than a cell, as in every probe volume without depth data."""
-        index, weight = self.grid.trilinear(np.asarray(points, dtype=np.float64))
-        w = weight * self.valid[index]
-        total = w.sum(axis=1, keepdims=True)
-        weight = np.where(total > 1e-9, w / np.maximum(total, 1e-30), weight)
-        coeffs, _ = sh.dering(self.coeffs)
+        coeffs = self._coeffs(part)
+        index, weight = self.weights(points, normals if one_sided else None)
         basis = sh.diffuse_basis(np.asarray(normals, dtype=np.float64))  # (s, 9)
         # light = sum over probes k and coefficients j of w_k * basis_j * c_kj
-        out = np.einsum("sk,sj,skjc->sc", weight, basis, coeffs[index], optimize=True)
-        return np.maximum(out, 0.0)
+        out = np.einsum("sk,skjc->sjc", weight, coeffs[index], optimize=True)
+        return np.maximum(np.einsum("sj,sjc->sc", basis, out), 0.0)
+
+    def _coeffs(self, part):
+        key = (part, id(self.coeffs), id(self.source_coeffs))
+        cached = getattr(self, "_deringed", None)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        source = self.source_coeffs if self.source_coeffs is not None else np.zeros_like(self.coeffs)
+        raw = {"all": self.coeffs, "direct": source, "indirect": self.coeffs - source}[part]
+        deringed, _ = sh.dering(np.asarray(raw, dtype=np.float64))
+        self._deringed = (key, deringed)
+        return deringed
 
     @property
     def nbytes(self) -> int:

@@ -328,9 +328,11 @@ class SceneLight:
         return self.scene.zero_dark_points_inplace(self.op.light(self._sum(lambda s: s.bounces[k - 1])))
 
     def field_coeffs(self):
-        """``(p, 9, 3)`` float32: what the probes see, the sky, emitters and every bounce."""
-        total = self._sum(lambda s: s.own * (self.emitter_factor if s.emitter else 1.0) + s.bounces.sum(axis=0) + s.tail)
-        return np.asarray(total, dtype=np.float32).reshape(-1, 9, 3)
+        """``(coeffs, source_coeffs)``, each ``(p, 9, 3)`` float32: what the probes see (the sky,
+        emitters and every bounce), and the part that is the sky and emitters."""
+        own = self._sum(lambda s: s.own * (self.emitter_factor if s.emitter else 1.0))
+        total = own + self._sum(lambda s: s.bounces.sum(axis=0) + s.tail)
+        return tuple(np.asarray(a, dtype=np.float32).reshape(-1, 9, 3) for a in (total, own))
 
 
 def light_key(light, index=0):

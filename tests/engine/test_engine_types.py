@@ -112,3 +112,22 @@ def test_the_report_json_has_no_nan_or_inf():
     text = _report(direct_mean_light=[float("nan"), float("inf"), 1.0]).to_json()
     assert "NaN" not in text and "Infinity" not in text
     assert json.loads(text)["direct"]["mean_light"] == [None, None, 1.0]
+
+
+def test_a_probe_behind_a_points_surface_does_not_light_it():
+    """A moving object sits on a probe: the probe behind each vertex's surface (inside the
+    object) is left out with ``one_sided``, so it cannot light the object from inside."""
+    grid = ProbeGrid((0, 0, 0), (2, 1, 1), (2, 1, 1))  # probes at x = 0.5 (inside) and 1.5
+    coeffs = np.zeros((2, 9, 3), dtype=np.float32)
+    coeffs[0, 0, :], coeffs[1, 0, :] = 100.0, 1.0  # the probe inside sees a bright inside
+    field = ProbeField(grid, coeffs, np.ones(2, dtype=bool))
+    pts = np.array([[0.9, 0.5, 0.5]])
+    out = np.array([[1.0, 0.0, 0.0]])  # facing +X: the probe at 0.5 is behind it
+    e = float(sh.diffuse_basis(out[0])[0])
+    both = field.light_at(pts, out)
+    one = field.light_at(pts, out, one_sided=True)
+    np.testing.assert_allclose(one[0, 0], 1.0 * e, rtol=FIELD_TOL)  # the outside probe's light alone
+    assert both[0, 0] > 30 * one[0, 0]
+    # No probe in front: the plain weights stand (never a zero weight sum).
+    back = field.light_at(np.array([[1.7, 0.5, 0.5]]), out, one_sided=True)
+    assert np.isfinite(back).all() and back[0, 0] > 0

@@ -8,6 +8,7 @@ written. Outputs are written whole or not at all (:mod:`.files`).
 """
 
 import argparse
+import json
 import os
 import sys
 
@@ -28,6 +29,11 @@ def _parser():
     b.add_argument("input", help="the .blend file to bake (never written)")
     b.add_argument("-o", "--output", required=True, help="where to write the baked .blend")
     _bake_options(b)
+    a = sub.add_parser("bake-animation", help="bake every frame's light into a cache folder beside the output (OUT.cubegi/)")
+    a.add_argument("input", help="the .blend file to bake (never written)")
+    a.add_argument("-o", "--output", required=True, help="where to write the baked .blend (its cache: OUT.cubegi/ beside it)")
+    a.add_argument("--frames", nargs=2, type=int, metavar=("FIRST", "LAST"), help="frames to bake (default: the scene's range)")
+    _bake_options(a)
     d = sub.add_parser("demo", help="build, bake and render the demo Room")
     d.add_argument("--out", default="out/demo", help="folder for room.blend, room.png and report.json")
     d.add_argument("--no-render", action="store_true", help="skip the PNG")
@@ -189,6 +195,43 @@ def _summary(report):
         print(f"cubegi: {line}", flush=True)
 
 
+def cmd_bake_animation(args):
+    settings = _settings(args)
+    src, compressed, dst, report_path = _check_io(args)
+    from .animation import cache_folder
+
+    folder = cache_folder(dst)
+    if os.path.exists(folder) and not os.path.isdir(folder):
+        raise BakeError(f"the cache folder {folder!r} is a file; move it or give another output")
+    if args.frames and args.frames[1] < args.frames[0]:
+        raise BakeError(f"--frames: the last frame comes before the first ({args.frames[0]} {args.frames[1]})")
+    bpy = _blender()
+    from ..cubegi_engine.bake import run
+    from .animation import bake_animation_steps
+
+    _open_for_baking(bpy, src)
+    _mark_dynamic(bpy, args.dynamic)
+    scene = bpy.context.scene
+    first, last = args.frames or (scene.frame_start, scene.frame_end)
+    lit = args.lit.upper() if args.lit else None
+    result = run(bake_animation_steps(bpy.context, settings, range(first, last + 1), folder,
+                                      tuple(args.grid) if args.grid else None, lit), _print_progress)
+    scene.cubegi.animation_cache = folder
+    scene.frame_set(first)  # the saved file shows the first frame's light
+    scene.cubegi.animation_cache = "//" + os.path.basename(folder)  # beside the output
+    jobs = [(dst, _save_blend(compressed))]
+    if report_path:
+        text = json.dumps({"input": src, "output": dst, **result}, indent=2, allow_nan=False)
+        jobs.append((report_path, lambda tmp: open(tmp, "w").write(text)))
+    files.write_all(jobs)
+    paths = {}
+    for rec in result["frames"]:
+        paths[rec["path"]] = paths.get(rec["path"], 0) + 1
+    per = result["seconds"] / len(result["frames"])
+    print(f"cubegi: baked {len(result['frames'])} frames in {result['seconds']:.2f} s ({per * 1000:.0f} ms a frame; "
+          + ", ".join(f"{n} {p}" for p, n in paths.items()) + f") into {folder}", flush=True)
+
+
 def cmd_demo(args):
     settings = _settings(args)
     out = os.path.abspath(args.out)
@@ -228,7 +271,8 @@ def main(argv=None):
     """Run the command line; returns the exit status (0 done, 2 refused, 3 CubeGI failed)."""
     args = _parser().parse_args(argv)
     try:
-        {"bake": cmd_bake, "demo": cmd_demo, "benchmark": cmd_benchmark}[args.command](args)
+        commands = {"bake": cmd_bake, "bake-animation": cmd_bake_animation, "demo": cmd_demo, "benchmark": cmd_benchmark}
+        commands[args.command](args)
     except BakeError as exc:
         print(f"cubegi: error: {exc}", file=sys.stderr)
         return 2

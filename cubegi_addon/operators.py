@@ -1,11 +1,13 @@
 """Operators: bake (``cubegi.bake``), clear (``cubegi.clear``), add a probe grid."""
 
+import os
+
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, IntVectorProperty, StringProperty
 
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.settings import MAX_BOUNCES, MAX_CUBE_SIZE, MIN_CUBE_SIZE, BakeSettings
-from . import attributes, display, files, grid_objects, live, materials, pipeline, prefs, probe_view, props, session
+from . import animation, attributes, display, files, grid_objects, live, materials, pipeline, prefs, probe_view, props, session
 
 # Seconds between the modal bake's steps: often enough to feel live, rarely enough that
 # Blender's own events get through (the same pace as Blender's extension manager).
@@ -16,7 +18,8 @@ def _settings_from(op, scene):
     s = scene.cubegi
 
     def pick(name):
-        return getattr(op, name) if op.properties.is_property_set(name) else getattr(s, name)
+        set_here = hasattr(op, name) and op.properties.is_property_set(name)
+        return getattr(op, name) if set_here else getattr(s, name)
 
     tolerance = pick("tolerance")
     return BakeSettings(
@@ -25,18 +28,12 @@ def _settings_from(op, scene):
     )
 
 
-class BakeJob:
-    """One bake driven a step at a time: by the modal operator's timer, or by tests.
+class StepJob:
+    """A generator of Progress driven a step at a time: by a modal operator's timer, or by
+    tests. :meth:`cancel` closes it (the generator undoes what it must)."""
 
-    The light so far is on the meshes after every step; :meth:`cancel` (or a failure) puts
-    every mesh back as it was.
-    """
-
-    def __init__(self, context, settings, resolution=None, lit="NONE", reference_samples=None, progressive=True):
-        self.steps = pipeline.bake_steps(
-            context, settings, resolution, lit=None if lit == "NONE" else lit, reference_samples=reference_samples,
-            progressive=progressive,
-        )
+    def __init__(self, steps):
+        self.steps = steps
         self.report_path = None
         self.last = None
         self.report = None
@@ -54,11 +51,99 @@ class BakeJob:
         self.steps.close()
 
 
+class BakeJob(StepJob):
+    """One bake, a step at a time. The light so far is on the meshes after every step;
+    :meth:`cancel` (or a failure) puts every mesh back as it was."""
+
+    def __init__(self, context, settings, resolution=None, lit="NONE", reference_samples=None, progressive=True):
+        super().__init__(pipeline.bake_steps(
+            context, settings, resolution, lit=None if lit == "NONE" else lit, reference_samples=reference_samples,
+            progressive=progressive,
+        ))
+
+
+class _ModalJob:
+    """A job operator: ``execute`` drains the job (background runs, scripts); ``invoke`` steps
+    it from a timer with the progress bar and status text, and Esc cancels. Subclasses give
+    ``_job(context, progressive)`` and ``_finish(context, job)``."""
+
+    CANCELLED_MESSAGE = "CubeGI: bake cancelled; nothing was changed"
+
+    def execute(self, context):
+        try:
+            job = self._job(context, progressive=False)
+            while not job.step():
+                pass
+            return self._finish(context, job)
+        except BakeError as exc:
+            self.report({"ERROR"}, f"CubeGI: {exc}")
+            return {"CANCELLED"}
+
+    def invoke(self, context, event):
+        if bpy.app.background or context.window is None:
+            return self.execute(context)
+        self._start(context)
+        context.window_manager.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def _start(self, context):
+        """Start the job, the timer that steps it, the progress bar and status text."""
+        self._view = display.view_state()
+        self._bake = self._job(context, progressive=True)
+        wm = context.window_manager
+        wm.progress_begin(0, 100)
+        self._timer = wm.event_timer_add(MODAL_STEP_SECONDS, window=context.window)
+        context.workspace.status_text_set("CubeGI: starting (Esc to cancel)")
+
+    def modal(self, context, event):
+        if event.type == "ESC":
+            self.cancel(context)
+            self.report({"WARNING"}, self.CANCELLED_MESSAGE)
+            return {"CANCELLED"}
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        try:
+            done = self._bake.step()
+        except Exception as exc:  # the job has put the meshes back; end the modal state too
+            self._end(context)
+            display.restore_views(self._view)
+            self.report({"ERROR"}, f"CubeGI: {exc}" if isinstance(exc, BakeError) else f"CubeGI: the bake failed: {exc!r}")
+            return {"CANCELLED"}
+        if done:
+            self._end(context)
+            try:
+                return self._finish(context, self._bake)
+            except BakeError as exc:
+                self.report({"ERROR"}, f"CubeGI: {exc}")
+                return {"CANCELLED"}
+        step = self._bake.last
+        context.window_manager.progress_update(int(100 * step.done / max(step.total, 1)))
+        context.workspace.status_text_set(f"CubeGI [{step.done}/{step.total}]: {step.message} (Esc to cancel)")
+        if step.light is not None:
+            display.show(context.scene)
+        for area in context.screen.areas if context.screen else ():
+            if area.type == "VIEW_3D":
+                area.tag_redraw()
+        return {"RUNNING_MODAL"}
+
+    def cancel(self, context):
+        """Esc, or the window manager ending the job (a file load)."""
+        self._bake.cancel()
+        self._end(context)
+        display.restore_views(self._view)
+
+    def _end(self, context):
+        wm = context.window_manager
+        wm.event_timer_remove(self._timer)
+        wm.progress_end()
+        context.workspace.status_text_set(None)
+
+
 # The operator's limits are soft (the slider's range): a script's out-of-range value is
 # refused with the reason by BakeSettings.validate, not silently clamped.
 
 
-class CUBEGI_OT_bake(bpy.types.Operator):
+class CUBEGI_OT_bake(_ModalJob, bpy.types.Operator):
     """Bake direct and indirect diffuse light into CubeGI colour attributes on every mesh.
     From the UI it runs in the background of the window: the light appears bounce by bounce,
     Esc cancels and leaves everything as it was"""
@@ -106,75 +191,6 @@ class CUBEGI_OT_bake(bpy.types.Operator):
         job.report_path = report_path
         return job
 
-    def execute(self, context):
-        try:
-            job = self._job(context, progressive=False)
-            while not job.step():
-                pass
-            return self._finish(context, job)
-        except BakeError as exc:
-            self.report({"ERROR"}, f"CubeGI: {exc}")
-            return {"CANCELLED"}
-
-    def invoke(self, context, event):
-        if bpy.app.background or context.window is None:
-            return self.execute(context)
-        self._start(context)
-        context.window_manager.modal_handler_add(self)
-        return {"RUNNING_MODAL"}
-
-    def _start(self, context):
-        """Start the bake job, the timer that steps it, the progress bar and status text."""
-        self._view = display.view_state()
-        self._bake = self._job(context, progressive=True)
-        wm = context.window_manager
-        wm.progress_begin(0, 100)
-        self._timer = wm.event_timer_add(MODAL_STEP_SECONDS, window=context.window)
-        context.workspace.status_text_set("CubeGI: starting the bake (Esc to cancel)")
-
-    def modal(self, context, event):
-        if event.type == "ESC":
-            self.cancel(context)
-            self.report({"WARNING"}, "CubeGI: bake cancelled; nothing was changed")
-            return {"CANCELLED"}
-        if event.type != "TIMER":
-            return {"PASS_THROUGH"}
-        try:
-            done = self._bake.step()
-        except Exception as exc:  # the job has put the meshes back; end the modal state too
-            self._end(context)
-            display.restore_views(self._view)
-            self.report({"ERROR"}, f"CubeGI: {exc}" if isinstance(exc, BakeError) else f"CubeGI: the bake failed: {exc!r}")
-            return {"CANCELLED"}
-        if done:
-            self._end(context)
-            try:
-                return self._finish(context, self._bake)
-            except BakeError as exc:
-                self.report({"ERROR"}, f"CubeGI: {exc}")
-                return {"CANCELLED"}
-        step = self._bake.last
-        context.window_manager.progress_update(int(100 * step.done / max(step.total, 1)))
-        context.workspace.status_text_set(f"CubeGI [{step.done}/{step.total}]: {step.message} (Esc to cancel)")
-        if step.light is not None:
-            display.show(context.scene)
-        for area in context.screen.areas if context.screen else ():
-            if area.type == "VIEW_3D":
-                area.tag_redraw()
-        return {"RUNNING_MODAL"}
-
-    def cancel(self, context):
-        """Esc, or the window manager ending the bake (a file load): undo every change."""
-        self._bake.cancel()
-        self._end(context)
-        display.restore_views(self._view)
-
-    def _end(self, context):
-        wm = context.window_manager
-        wm.event_timer_remove(self._timer)
-        wm.progress_end()
-        context.workspace.status_text_set(None)
-
     def _finish(self, context, job):
         report = job.report
         if job.report_path:
@@ -190,6 +206,45 @@ class CUBEGI_OT_bake(bpy.types.Operator):
             f"{report.total_seconds:.2f} s; estimated missing indirect light {100 * report.estimated_remaining_error:.2g}%"
             + (" (added as the tail)" if report.tail.added else ""),
         )
+        return {"FINISHED"}
+
+
+class CUBEGI_OT_bake_animation(_ModalJob, bpy.types.Operator):
+    """Bake every frame of the scene's range: the first in full, the rest by the cheapest
+    update (lights, world, materials, dynamic objects), into a cache folder beside the .blend
+    file; changing the frame then shows each frame's light. Esc stops: the frames baked so
+    far stay in the cache"""
+
+    bl_idname = "cubegi.bake_animation"
+    bl_label = "Bake Animation"
+    bl_options = {"REGISTER"}
+    CANCELLED_MESSAGE = "CubeGI: animation bake stopped; the frames baked so far are in the cache"
+
+    @classmethod
+    def poll(cls, context):
+        return _poll(cls, context, lambda c: None if bpy.data.filepath else "Save the file first: the cache goes beside it")
+
+    def _job(self, context, progressive):
+        scene = context.scene
+        folder = animation.cache_folder(bpy.data.filepath)
+        if os.path.exists(folder) and not os.path.isdir(folder):
+            raise BakeError(f"the cache folder {folder!r} is a file; move it away")
+        settings = _settings_from(self, scene).validate()
+        lit = None if scene.cubegi.lit == "NONE" else scene.cubegi.lit
+        frames = range(scene.frame_start, scene.frame_end + 1)
+        scene.cubegi.animation_cache = ""  # while baking, frame changes must not show an older cache
+        job = StepJob(animation.bake_animation_steps(context, settings, frames, folder, None, lit))
+        job.folder = folder
+        return job
+
+    def cancel(self, context):
+        super().cancel(context)
+        context.scene.cubegi.animation_cache = "//" + os.path.basename(self._bake.folder)
+
+    def _finish(self, context, job):
+        context.scene.cubegi.animation_cache = "//" + os.path.basename(job.folder)
+        frames = job.report["frames"]
+        self.report({"INFO"}, f"CubeGI: baked {len(frames)} frames in {job.report['seconds']:.2f} s into {job.folder}")
         return {"FINISHED"}
 
 
@@ -363,7 +418,7 @@ def menu_add(self, context):
 
 classes = (
     CUBEGI_OT_bake, CUBEGI_OT_clear, CUBEGI_OT_add_probe_grid, CUBEGI_OT_wire_materials, CUBEGI_OT_unwire_materials,
-    CUBEGI_OT_update_light,
+    CUBEGI_OT_update_light, CUBEGI_OT_bake_animation,
 )
 _register, _unregister = bpy.utils.register_classes_factory(classes)
 

@@ -62,6 +62,7 @@ class VIEW3D_PT_cubegi(_SidebarTab, bpy.types.Panel):
         row.operator("cubegi.clear", icon="TRASH")
         row = layout.row(align=True)
         row.operator("cubegi.update_light", icon="LIGHT")
+        row.operator("cubegi.bake_animation", icon="RENDER_ANIMATION")
         row.prop(settings, "live", toggle=True, icon="PLAY")
         if settings.last_update:
             layout.label(text=settings.last_update)

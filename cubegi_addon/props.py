@@ -56,6 +56,11 @@ class CubeGISceneSettings(bpy.types.PropertyGroup):
         default=False, update=live.on_live_toggle,
     )
     last_update: StringProperty(name="Last Update", description="What the last update did", default="")
+    animation_cache: StringProperty(
+        name="Animation Cache", description="Folder of a baked animation's light, one file per frame (set by Bake "
+        "Animation); each frame's light is shown when the frame changes", default="", subtype="DIR_PATH",
+        options={"PATH_SUPPORTS_BLEND_RELATIVE"},
+    )
 
 
 class CubeGIObjectSettings(bpy.types.PropertyGroup):

@@ -9,6 +9,7 @@ be gone), when the add-on is unregistered, and by :func:`forget`. Bounded: at mo
 dropped first; a bake larger than the budget alone is not kept.
 """
 
+import atexit
 import os
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -82,6 +83,11 @@ def forget(scene=None):
         _kept.clear()
     else:
         _kept.pop(scene.session_uid, None)
+
+
+# A kept bake may hold GPU batches (a renderer for shadow maps): they must go while the GPU
+# context still exists, before the interpreter's own teardown (else a crash at exit).
+atexit.register(lambda: forget())
 
 
 def kept_bytes():

@@ -25,7 +25,7 @@ def box(empty_scene, cubegi):
 
 NAMED = (
     "CUBEGI_OT_bake", "CUBEGI_OT_clear", "CUBEGI_OT_add_probe_grid", "CUBEGI_OT_wire_materials",
-    "CUBEGI_OT_unwire_materials", "CUBEGI_OT_update_light", "VIEW3D_PT_cubegi", "VIEW3D_PT_cubegi_display",
+    "CUBEGI_OT_unwire_materials", "CUBEGI_OT_update_light", "CUBEGI_OT_bake_animation", "VIEW3D_PT_cubegi", "VIEW3D_PT_cubegi_display",
     "VIEW3D_PT_cubegi_report",
 )
 
@@ -33,9 +33,10 @@ NAMED = (
 def test_unregister_leaves_nothing_behind_and_register_restores_everything(cubegi):
     addon = cubegi.cubegi_addon
     classes = [c for m in (addon.prefs, addon.props, addon.operators, addon.panel) for c in m.classes]
-    assert len(classes) == 12 and all(c.is_registered for c in classes)
+    assert len(classes) == 13 and all(c.is_registered for c in classes)
     handlers = [(addon.session.HANDLER_LISTS, addon.session._forget_all),
-                (("depsgraph_update_post",), addon.live._persistent_update), (("frame_change_post",), addon.live._persistent_frame)]
+                (("depsgraph_update_post",), addon.live._persistent_update), (("frame_change_post",), addon.live._persistent_frame),
+                (("frame_change_post",), addon.animation.on_frame_change)]
     menu = bpy.types.VIEW3D_MT_add
     assert addon.probe_view._handle is not None
     cubegi.unregister()
@@ -69,6 +70,7 @@ def test_every_operator_says_why_it_refuses(empty_scene, cubegi):
     assert "Bake first" in _refusal(bpy.ops.cubegi.wire_materials)
     assert "No material of the scene has CubeGI's light wired in" in _refusal(bpy.ops.cubegi.unwire_materials)
     assert "Bake first: nothing is kept to update" in _refusal(bpy.ops.cubegi.update_light)
+    assert "Save the file first" in _refusal(bpy.ops.cubegi.bake_animation)
     scenes.closed_box(albedo=0.5, cells=2)
     bpy.context.view_layer.objects.active = bpy.data.objects["Box"]
     bpy.ops.object.mode_set(mode="EDIT")
@@ -279,7 +281,7 @@ def test_the_panels_show_grid_and_bake_settings_display_choice_and_the_last_repo
     bpy.context.view_layer.objects.active = grid
     main = _draw("VIEW3D_PT_cubegi")
     assert {"resolution", "show_probes", "show_irradiance", "cube_size", "bounces", "tolerance", "add_tail", "visibility", "lit"} <= set(main.props)
-    assert main.operators == ["cubegi.add_probe_grid", "cubegi.bake", "cubegi.clear", "cubegi.update_light"]
+    assert main.operators == ["cubegi.add_probe_grid", "cubegi.bake", "cubegi.clear", "cubegi.update_light", "cubegi.bake_animation"]
     shown = _draw("VIEW3D_PT_cubegi_display")
     assert shown.props == ["display"] and shown.operators == ["cubegi.wire_materials", "cubegi.unwire_materials"]
     bpy.context.scene.cubegi.display = "BOUNCE"
@@ -327,6 +329,7 @@ def _modal_operator(cubegi, **props):
     op.properties = types.SimpleNamespace(is_property_set=lambda name: name in props)
     for name in ("_job", "_start", "_finish", "_end", "cancel", "modal"):
         setattr(op, name, getattr(op_class, name).__get__(op))
+    op.CANCELLED_MESSAGE = op_class.CANCELLED_MESSAGE
     return op, op_class, messages
 
 

@@ -1,0 +1,144 @@
+"""Animation bakes: every frame's light, each by the cheapest valid path, into a cache folder
+that other tools can read, and applied to the attributes when the frame changes.
+
+Cache format (documented in the README, "Dynamic scenes"): for ``OUT.blend`` the folder
+``OUT.cubegi/`` holds one ``frame_NNNN.npz`` per frame (four digits, zero-padded), with, for
+every baked object, the arrays ``"<object name>:direct"`` and ``"<object name>:indirect"``:
+float32, shape ``(vertices, 3)``, in vertex order, the values the attributes
+``CubeGI_direct`` and ``CubeGI`` take at that frame (diffuse light, irradiance / pi).
+
+Per frame, after ``scene.frame_set``: the first frame is a full bake; later frames update on
+the kept capture (:func:`cubegi_addon.live.update`: lights, the world, materials, dynamic
+objects), and a frame whose static geometry changed is baked in full again ("full"; the
+capture is redrawn).
+"""
+
+import os
+import time
+
+import bpy
+import numpy as np
+
+from ..cubegi_engine.errors import BakeError
+from ..cubegi_engine.records import Progress, Stage
+from . import attributes, files, live, pipeline, session
+
+FRAME_FILE = "frame_{:04d}.npz"
+# Scene.cubegi.animation_cache holds the cache folder (relative to the .blend, "//...").
+
+
+def cache_folder(blend_path):
+    """The cache folder of the baked file ``blend_path``: ``OUT.cubegi`` beside ``OUT.blend``."""
+    root, _ = os.path.splitext(blend_path)
+    return root + ".cubegi"
+
+
+def frame_path(folder, frame):
+    return os.path.join(folder, FRAME_FILE.format(int(frame)))
+
+
+def _baked_objects(scene):
+    """Every mesh object of the scene whose mesh holds CubeGI's light, by name."""
+    return sorted(
+        (ob for ob in scene.objects if ob.type == "MESH" and {attributes.DIRECT, attributes.INDIRECT} <= attributes.owned(ob.data)),
+        key=lambda ob: ob.name,
+    )
+
+
+def frame_arrays(scene):
+    """``{"<object>:direct": (v, 3) float32, "<object>:indirect": ...}`` as the attributes hold now."""
+    out = {}
+    for ob in _baked_objects(scene):
+        for part, name in (("direct", attributes.DIRECT), ("indirect", attributes.INDIRECT)):
+            out[f"{ob.name}:{part}"] = attributes.read(ob.data, name).astype(np.float32)
+    return out
+
+
+def _mean(arrays):
+    direct = [v for k, v in arrays.items() if k.endswith(":direct")]
+    indirect = [v for k, v in arrays.items() if k.endswith(":indirect")]
+    mean = (lambda vs: np.concatenate(vs).mean(axis=0).tolist() if vs else [0.0, 0.0, 0.0])
+    return mean(direct), mean(indirect)
+
+
+def bake_animation_steps(context, settings, frames, folder, resolution=None, lit=None):
+    """Bake frames ``frames`` (an iterable of ints) into ``folder``; a generator of Progress
+    (one per frame), returning ``{"frames": [...], ...}`` (see the module docstring)."""
+    scene = context.scene
+    frames = [int(f) for f in frames]
+    if not frames:
+        raise BakeError("no frames to bake")
+    os.makedirs(folder, exist_ok=True)
+    records = []
+    t_all = time.perf_counter()
+    for k, frame in enumerate(frames):
+        yield Progress(Stage.BOUNCE, k, len(frames), f"frame {frame} ({k + 1}/{len(frames)})")
+        t = time.perf_counter()
+        scene.frame_set(frame)
+        path, detail = _frame(context, settings, resolution, lit, first=k == 0)
+        arrays = frame_arrays(scene)
+        files.write_all([(frame_path(folder, frame), _npz(arrays))])
+        direct, indirect = _mean(arrays)
+        records.append({"frame": frame, "seconds": time.perf_counter() - t, "path": path, **detail,
+                        "mean_direct": direct, "mean_indirect": indirect})
+    yield Progress(Stage.TAIL, len(frames), len(frames), f"baked {len(frames)} frames")
+    return {"frames": records, "seconds": time.perf_counter() - t_all, "cache": folder}
+
+
+def _frame(context, settings, resolution, lit, first):
+    """Bring the attributes to the current frame; ``(path, details)``."""
+    if not first and session.kept(context.scene) is not None:
+        try:
+            report = live.update(context, materials=True)
+            return report.path, {"changed": report.changed}
+        except BakeError:  # the static geometry changed: a full bake
+            pass
+    had = session.kept(context.scene)
+    report = pipeline.bake(context, settings, resolution, lit=lit)
+    path = "lights" if report.capture_reused and had is not None else "full"
+    return path, {"probes": report.grid["probes"], "capture_reused": report.capture_reused}
+
+
+def _npz(arrays):
+    def write(tmp):
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **arrays)
+
+    return write
+
+
+def apply_frame(scene, folder, frame):
+    """Put a cached frame's light on the attributes (direct, indirect, total); False if the
+    cache has no such frame or it does not fit the meshes."""
+    path = frame_path(folder, frame)
+    if not os.path.isfile(path):
+        return False
+    with np.load(path) as data:
+        for ob in _baked_objects(scene):
+            direct, indirect = data.get(f"{ob.name}:direct"), data.get(f"{ob.name}:indirect")
+            if direct is None or indirect is None or direct.shape != (len(ob.data.vertices), 3):
+                continue
+            attributes.put(ob.data, attributes.DIRECT, direct)
+            attributes.put(ob.data, attributes.INDIRECT, indirect)
+            attributes.put(ob.data, attributes.TOTAL, direct + indirect)
+            ob.data.update()
+    return True
+
+
+@bpy.app.handlers.persistent
+def on_frame_change(scene, depsgraph=None):
+    """With a baked animation cache on the scene, show each frame's light (scrubbing,
+    playback, ``blender -b -a`` renders)."""
+    settings = getattr(scene, "cubegi", None)
+    if settings is None or not settings.animation_cache or settings.live:
+        return
+    apply_frame(scene, bpy.path.abspath(settings.animation_cache), scene.frame_current)
+
+
+def register():
+    bpy.app.handlers.frame_change_post.append(on_frame_change)
+
+
+def unregister():
+    if on_frame_change in bpy.app.handlers.frame_change_post:
+        bpy.app.handlers.frame_change_post.remove(on_frame_change)

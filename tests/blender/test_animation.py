@@ -1,0 +1,128 @@
+"""Animation bakes: every frame's light into ``OUT.cubegi/frame_NNNN.npz`` by the cheapest
+path, equal to a full bake of that frame; the frame's light shown when the frame changes, so
+renders of an animation show each frame's light."""
+
+import json
+import os
+import subprocess
+import sys
+
+import bpy
+import numpy as np
+import pytest
+
+import scenes
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+# The cache is what the update path computes; a full bake of the same frame agrees to the
+# tail solve's tolerance (float32 bounces, GMRES to 1e-5).
+SOLVE_TOL = 2e-5
+FAST = ("--grid", "3", "3", "2", "--cube-size", "16", "--bounces", "3")
+
+
+def _animated_room(tmp_path, dynamic=True):
+    v, f = scenes.box_mesh((-2, -2, 0), (2, 2, 2.5), (6, 6, 4), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    bv, bf = scenes.box_mesh((-0.5, 0.3, 0.0), (0.4, 1.1, 0.9), (2, 2, 2), inward=False)
+    scenes.mesh_object("Block", bv, bf, scenes.material("Red", (0.7, 0.1, 0.1)))
+    lamp = scenes.add_light("POINT", (1.2, -1.2, 2.0), 150.0)
+    lamp.keyframe_insert("location", frame=1)
+    lamp.location = (-1.2, 1.2, 1.6)
+    lamp.keyframe_insert("location", frame=3)
+    if dynamic:
+        cv, cf = scenes.box_mesh((-0.2, -0.2, 0.0), (0.2, 0.2, 0.4), (2, 2, 2), inward=False)
+        cube = scenes.mesh_object("Crate", cv, cf, scenes.material("Grey", (0.5, 0.5, 0.5)))
+        cube.location = (1.0, -1.0, 0.0)
+        cube.keyframe_insert("location", frame=1)
+        cube.location = (-1.0, -1.0, 0.0)
+        cube.keyframe_insert("location", frame=3)
+    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    cam.location, cam.rotation_euler = (0.0, -1.9, 1.2), (1.45, 0.0, 0.0)
+    bpy.context.scene.collection.objects.link(cam)
+    bpy.context.scene.camera = cam
+    bpy.context.scene.frame_start, bpy.context.scene.frame_end = 1, 3
+    path = tmp_path / "anim.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    return path
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "cubegi_engine", *map(str, args)], cwd=ROOT, capture_output=True, text=True, timeout=300)
+
+
+def test_bake_animation_writes_the_documented_cache_and_each_frame_equals_a_full_bake(empty_scene, cubegi, tmp_path):
+    src = _animated_room(tmp_path)
+    out, report = tmp_path / "out.blend", tmp_path / "report.json"
+    r = _cli("bake-animation", src, "-o", out, "--dynamic", "Crate", "--report", report, *FAST)
+    assert r.returncode == 0, r.stderr
+    folder = tmp_path / "out.cubegi"
+    assert sorted(os.listdir(folder)) == ["frame_0001.npz", "frame_0002.npz", "frame_0003.npz"]
+    rep = json.loads(report.read_text())
+    assert [f["frame"] for f in rep["frames"]] == [1, 2, 3]
+    assert [f["path"] for f in rep["frames"]] == ["full", "lights", "lights"]
+    assert all(f["seconds"] > 0 and len(f["mean_direct"]) == 3 for f in rep["frames"])
+    bpy.ops.wm.open_mainfile(filepath=str(out))
+    counts = {n: len(bpy.data.objects[n].data.vertices) for n in ("Room", "Block", "Crate")}
+    with np.load(folder / "frame_0003.npz") as data:
+        assert sorted(data.files) == sorted(f"{n}:{p}" for n in counts for p in ("direct", "indirect"))
+        for name, count in counts.items():
+            assert data[f"{name}:direct"].dtype == np.float32 and data[f"{name}:direct"].shape == (count, 3)
+        cached = {k: data[k] for k in data.files}
+    # Changing the frame shows that frame's light (the saved file opens on frame 1).
+    read = cubegi.cubegi_addon.attributes.read
+    assert bpy.context.scene.cubegi.animation_cache == "//out.cubegi"
+    bpy.context.scene.frame_set(3)
+    for name in counts:
+        np.testing.assert_array_equal(read(bpy.data.objects[name].data, "CubeGI").astype(np.float32), cached[f"{name}:indirect"])
+        np.testing.assert_array_equal(read(bpy.data.objects[name].data, "CubeGI_direct").astype(np.float32), cached[f"{name}:direct"])
+    # A full bake of frame 3 gives the same light.
+    bpy.ops.wm.open_mainfile(filepath=str(src))
+    bpy.data.objects["Crate"].cubegi.dynamic = True
+    bpy.context.scene.frame_set(3)
+    assert bpy.ops.cubegi.bake(grid=(3, 3, 2), cube_size=16, bounces=3) == {"FINISHED"}
+    peak = max(float(v.max()) for v in cached.values())
+    for name in counts:
+        for part, layer in (("direct", "CubeGI_direct"), ("indirect", "CubeGI")):
+            np.testing.assert_allclose(read(bpy.data.objects[name].data, layer), cached[f"{name}:{part}"],
+                                       rtol=0, atol=SOLVE_TOL * peak, err_msg=f"{name}:{part}")
+
+
+def test_renders_of_two_frames_show_each_frames_light(empty_scene, cubegi, tmp_path):
+    src = _animated_room(tmp_path, dynamic=False)
+    out = tmp_path / "out.blend"
+    assert _cli("bake-animation", src, "-o", out, *FAST).returncode == 0
+    bpy.ops.wm.open_mainfile(filepath=str(out))
+    bpy.context.scene.view_settings.exposure = -4.0  # 150 W in a small room: keep the pixels below white
+    demo = __import__("cubegi.cubegi_addon.demo", fromlist=["x"])
+
+    def render(frame, name):
+        bpy.context.scene.frame_set(frame)
+        path = str(tmp_path / name)
+        demo.render_png(path, attribute="CubeGI_total", resolution=(64, 36))
+        image = bpy.data.images.load(path)
+        px = np.empty(64 * 36 * 4, dtype=np.float32)
+        image.pixels.foreach_get(px)
+        bpy.data.images.remove(image)
+        return px.reshape(36, 64, 4)[..., :3]
+
+    first, third = render(1, "f1.png"), render(3, "f3.png")
+    assert np.abs(first - third).mean() > 0.02  # the light moved across the room
+    # Without the cache, changing the frame leaves the light as it is: the same image.
+    bpy.context.scene.cubegi.animation_cache = ""
+    bpy.context.scene.frame_set(1)
+    again = render(3, "f3_nocache.png")
+    assert np.abs(again - render(1, "f1_again.png")).max() < 1e-6
+
+
+def test_the_bake_animation_operator_fills_the_cache_beside_the_file(empty_scene, cubegi, tmp_path):
+    src = _animated_room(tmp_path, dynamic=False)
+    bpy.ops.wm.open_mainfile(filepath=str(src))
+    bpy.context.scene.cubegi.cube_size, bpy.context.scene.cubegi.bounces = 16, 2
+    assert bpy.ops.cubegi.bake_animation() == {"FINISHED"}
+    assert sorted(os.listdir(tmp_path / "anim.cubegi")) == ["frame_0001.npz", "frame_0002.npz", "frame_0003.npz"]
+    assert bpy.context.scene.cubegi.animation_cache == "//anim.cubegi"
+    with np.load(tmp_path / "anim.cubegi" / "frame_0002.npz") as data:
+        two = data["Room:indirect"]
+    bpy.context.scene.frame_set(2)
+    read = cubegi.cubegi_addon.attributes.read
+    np.testing.assert_array_equal(read(bpy.data.objects["Room"].data, "CubeGI").astype(np.float32), two)

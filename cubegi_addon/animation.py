@@ -85,11 +85,42 @@ def bake_animation_steps(context, settings, frames, folder, resolution=None, lit
     return {"frames": records, "seconds": time.perf_counter() - t_all, "cache": folder}
 
 
+def _animated_materials():
+    """True if any material (or its node tree) is animated or driven: only then does a frame
+    read the materials again (which reads every mesh)."""
+    for material in bpy.data.materials:
+        for data in (material, material.node_tree):
+            anim = getattr(data, "animation_data", None) if data is not None else None
+            if anim is not None and (anim.action is not None or len(anim.drivers)):
+                return True
+    return False
+
+
+def _static_changed(context, kept):
+    """True if the static geometry differs from the kept bake's: an object moved (its world
+    matrix), or one that can deform (modifiers, shape keys, animated mesh data) has other
+    vertices now (then the scene is read again and fingerprinted)."""
+    deforming = False
+    for name in kept.arrays.object_names:
+        ob = bpy.data.objects.get(name)
+        if ob is None or (name in kept.placements and kept.placements[name] != live.placement(ob)):
+            return True
+        data = ob.data
+        deforming |= bool(len(ob.modifiers)) or getattr(data, "shape_keys", None) is not None or (
+            getattr(data, "animation_data", None) is not None)
+    if not deforming:
+        return False
+    from . import scene_data
+
+    return bool(scene_data.collect(context).arrays.fingerprint().changed(kept.arrays.fingerprint()))
+
+
 def _frame(context, settings, resolution, lit, first):
     """Bring the attributes to the current frame; ``(path, details)``."""
-    if not first and session.kept(context.scene) is not None:
+    kept = session.kept(context.scene)
+    if not first and kept is not None and not _static_changed(context, kept):
         try:
-            report = live.update(context, materials=True)
+            report = live.update(context, materials=_animated_materials())
             return report.path, {"changed": report.changed}
         except BakeError:  # the static geometry changed: a full bake
             pass

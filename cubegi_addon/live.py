@@ -258,22 +258,23 @@ def _kinds(depsgraph, kept):
             elif data.type == "MESH" and data.original.cubegi.dynamic and (u.is_updated_transform or u.is_updated_geometry):
                 kinds.add("dynamic")
             elif data.type == "MESH" and u.is_updated_transform and data.name in kept.placements:
-                if kept.placements[data.name] != _placement(data.original):
+                if kept.placements[data.name] != placement(data.original):
                     kinds.add("geometry")
         elif isinstance(data, (bpy.types.Material, bpy.types.ShaderNodeTree)):
             kinds.add("materials")
     return kinds
 
 
-def _placement(ob):
+def placement(ob):
+    """An object's world matrix, as a hashable key."""
     return tuple(round(v, 9) for row in ob.matrix_world for v in row)
 
 
-def placements(targets):
-    """Each baked object's world matrix, to tell a moved object from our own writes."""
+def placements(names):
+    """Each named object's world matrix now, to tell a moved object from our own writes."""
     import bpy
 
-    return {t.object_name: _placement(bpy.data.objects[t.object_name]) for t in targets if t.object_name in bpy.data.objects}
+    return {name: placement(bpy.data.objects[name]) for name in names if name in bpy.data.objects}
 
 
 def on_depsgraph_update(scene, depsgraph):

@@ -168,7 +168,7 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
         grid_objects.store_probe_light(objects, result.field)
         probe_view.forget_drawing()
     session.keep(context.scene, session.Kept(
-        arrays, collected.targets, result, settings, lit, placements=live.placements(collected.targets), moving=collected.moving,
+        arrays, collected.targets, result, settings, lit, placements=live.placements(arrays.object_names), moving=collected.moving,
     ))
     t_write = t_layers + time.perf_counter() - t
 

@@ -15,6 +15,10 @@ from . import sh
 
 __all__ = ["ProbeField"]
 
+# Up to this many probes, light_at evaluates every probe for every point (one matrix
+# product, s x 27p multiply-adds) before picking each point's 8; beyond, it gathers.
+ALL_PROBES_LIMIT = 256
+
 
 @dataclass
 class ProbeField:
@@ -35,8 +39,14 @@ class ProbeField:
         valid = self.valid[index]
         weight = plain * valid
         if normals is not None:
-            to_probe = self.grid.positions()[index] - np.asarray(points, dtype=np.float64)[:, None, :]
-            front = np.einsum("skc,sc->sk", to_probe, np.asarray(normals, dtype=np.float64)) > 0.0
+            # probe . n > point . n: the probe is in front of the point's tangent plane
+            normals = np.asarray(normals, dtype=np.float64)
+            positions = self._positions()
+            if len(positions) <= ALL_PROBES_LIMIT:
+                probe_n = _pick(normals @ positions.T, index)
+            else:
+                probe_n = np.einsum("skc,sc->sk", positions[index], normals)
+            front = probe_n > np.einsum("sc,sc->s", np.asarray(points, dtype=np.float64), normals)[:, None]
             facing = weight * front
             has = facing.sum(axis=1, keepdims=True) > 1e-9
             weight = np.where(has, facing, weight)
@@ -53,11 +63,28 @@ class ProbeField:
         test: the field is smooth by construction, so light can leak through walls thinner
         than a cell, as in every probe volume without depth data."""
         coeffs = self._coeffs(part)
+        normals = np.asarray(normals, dtype=np.float64)
         index, weight = self.weights(points, normals if one_sided else None)
-        basis = sh.diffuse_basis(np.asarray(normals, dtype=np.float64))  # (s, 9)
-        # light = sum over probes k and coefficients j of w_k * basis_j * c_kj
-        out = np.einsum("sk,skjc->sjc", weight, coeffs[index], optimize=True)
-        return np.maximum(np.einsum("sj,sjc->sc", basis, out), 0.0)
+        basis = sh.diffuse_basis(normals).astype(np.float32)  # (s, 9)
+        weight = weight.astype(np.float32)
+        p = len(coeffs)
+        if p <= ALL_PROBES_LIMIT:
+            # Every probe's light for every point's normal in one BLAS product, then the 8
+            # each point uses: fastest while probes are few.
+            each = (basis @ coeffs.transpose(1, 0, 2).reshape(9, p * 3)).reshape(len(basis), p, 3)
+            per_probe = _pick(each, index)  # (s, 8, 3)
+            out = np.einsum("sk,skc->sc", weight, per_probe)
+        else:
+            pw = (weight[:, :, None] * basis[:, None, :]).reshape(len(basis), 72)
+            out = np.einsum("sk,skc->sc", pw, coeffs[index].reshape(len(basis), 72, 3), optimize=True)
+        return np.maximum(out, 0.0).astype(np.float64)
+
+    def _positions(self):
+        cached = getattr(self, "_probe_positions", None)
+        if cached is None or cached[0] is not self.grid:
+            cached = (self.grid, self.grid.positions())
+            self._probe_positions = cached
+        return cached[1]
 
     def _coeffs(self, part):
         key = (part, id(self.coeffs), id(self.source_coeffs))
@@ -67,9 +94,18 @@ class ProbeField:
         source = self.source_coeffs if self.source_coeffs is not None else np.zeros_like(self.coeffs)
         raw = {"all": self.coeffs, "direct": source, "indirect": self.coeffs - source}[part]
         deringed, _ = sh.dering(np.asarray(raw, dtype=np.float64))
+        deringed = deringed.astype(np.float32)
         self._deringed = (key, deringed)
         return deringed
 
     @property
     def nbytes(self) -> int:
         return int(self.coeffs.nbytes + self.valid.nbytes)
+
+
+def _pick(per_point, index):
+    """``per_point[i, index[i, k]]`` for every point i and k: ``(s, 8, ...)`` (flat indexing,
+    faster than take_along_axis)."""
+    s, p = per_point.shape[:2]
+    flat = per_point.reshape((s * p,) + per_point.shape[2:])
+    return flat[(np.arange(s)[:, None] * p + index).ravel()].reshape(index.shape + per_point.shape[2:])

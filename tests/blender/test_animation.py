@@ -126,3 +126,16 @@ def test_the_bake_animation_operator_fills_the_cache_beside_the_file(empty_scene
     bpy.context.scene.frame_set(2)
     read = cubegi.cubegi_addon.attributes.read
     np.testing.assert_array_equal(read(bpy.data.objects["Room"].data, "CubeGI").astype(np.float32), two)
+
+
+def test_a_frame_whose_static_geometry_moved_is_baked_in_full(empty_scene, cubegi, tmp_path):
+    src = _animated_room(tmp_path, dynamic=False)
+    bpy.ops.wm.open_mainfile(filepath=str(src))
+    block = bpy.data.objects["Block"]
+    block.keyframe_insert("location", frame=2)
+    block.location.x += 0.5
+    block.keyframe_insert("location", frame=3)
+    bpy.ops.wm.save_as_mainfile(filepath=str(src))
+    report = tmp_path / "r.json"
+    assert _cli("bake-animation", src, "-o", tmp_path / "out.blend", "--report", report, *FAST).returncode == 0
+    assert [f["path"] for f in json.loads(report.read_text())["frames"]] == ["full", "lights", "full"]

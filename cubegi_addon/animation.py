@@ -103,7 +103,7 @@ def _static_changed(context, kept):
     deforming = False
     for name in kept.arrays.object_names:
         ob = bpy.data.objects.get(name)
-        if ob is None or (name in kept.placements and kept.placements[name] != live.placement(ob)):
+        if ob is None or (name in kept.placements and kept.placements[name] != session.placement(ob)):
             return True
         data = ob.data
         deforming |= bool(len(ob.modifiers)) or getattr(data, "shape_keys", None) is not None or (
@@ -124,10 +124,11 @@ def _frame(context, settings, resolution, lit, first):
             return report.path, {"changed": report.changed}
         except BakeError:  # the static geometry changed: a full bake
             pass
-    had = session.kept(context.scene)
     report = pipeline.bake(context, settings, resolution, lit=lit)
-    path = "lights" if report.capture_reused and had is not None else "full"
-    return path, {"probes": report.grid["probes"], "capture_reused": report.capture_reused}
+    details = {"probes": report.grid["probes"], "capture_reused": report.capture_reused}
+    if report.probes_recaptured is not None:
+        return "recapture", dict(details, probes_recaptured=report.probes_recaptured)
+    return "full", details
 
 
 def _npz(arrays):

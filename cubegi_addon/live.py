@@ -6,7 +6,7 @@
 | a light moved, turned, resized, its cone or shadow setting; a new light | that light's direct light (its shadow map), then one solve of every bounce |
 | a light removed | it leaves the sum, then the balance |
 | a material's colour or emission (``materials=True``: reads the meshes' materials) | the bounce operator is rebuilt for the new albedo; emitters projected again |
-| geometry (a mesh edited or moved, an object added) | refused: Bake again (the capture is what changed) |
+| geometry (a mesh edited or moved, an object added) | :func:`update` refuses (Bake again); Live bakes again once edits pause, and the bake re-captures only the probes the moved objects concern |
 
 The engine side is :class:`cubegi_engine.relight.SceneLight`, made from the kept bake on
 first use and kept with it (:mod:`.session`). The attributes are written in place, the
@@ -20,9 +20,8 @@ import numpy as np
 
 from ..cubegi_engine import relight
 from ..cubegi_engine.direct import light_direct
-from ..cubegi_engine.moving import light_moving
 from ..cubegi_engine.errors import BakeError
-from . import attributes, grid_objects, probe_view, scene_data, session
+from . import attributes, dynamic, grid_objects, probe_view, scene_data, session
 from .gpu_capture import GpuRenderer
 
 # Light fields whose change needs the light's direct light drawn again (not its colour).
@@ -99,7 +98,7 @@ def update(context, materials=False, write=True, settle=True):
             report.changed += [f"{name} moved" for name in moved]
             t = time.perf_counter()
             if write:
-                write_moving(context, kept)
+                dynamic.write_moving(context, kept)
             report.seconds["dynamic"] = time.perf_counter() - t
             return report
         report.changed += [f"{name} moved" for name in moved]
@@ -182,30 +181,6 @@ def _moved_objects(context, kept):
     return moved
 
 
-def moving_layers(obj, target, field, lights, shadows, settings, lit):
-    """The attribute layers of one dynamic object lit from ``field`` (see
-    :func:`cubegi_engine.moving.light_moving`)."""
-    direct, indirect = light_moving(obj, lights, shadows, field, GpuRenderer(obj.points, obj.triangles), settings)
-    layers = {attributes.DIRECT: direct, attributes.INDIRECT: indirect, attributes.TOTAL: direct + indirect}
-    if lit:
-        layers[attributes.LIT] = obj.albedo * (indirect if lit == "INDIRECT" else direct + indirect)
-    return {name: attributes.vertex_values(target, values) for name, values in layers.items()}
-
-
-def write_moving(context, kept):
-    """Light and write every dynamic object from the kept probe field."""
-    import bpy
-
-    for obj, target in kept.moving or ():
-        mesh = bpy.data.meshes.get(target.mesh_name)
-        if mesh is None or len(mesh.vertices) != target.vertex_count:
-            continue
-        for name, values in moving_layers(obj, target, kept.result.field, kept.arrays.lights, kept.result.shadows,
-                                          kept.settings, kept.lit).items():
-            attributes.put(mesh, name, values)
-        mesh.update()
-
-
 def write_light(context, kept, bounces=True):
     """Write the kept SceneLight's light to the meshes (in place) and the probe field
     (``bounces``: the per-bounce layers and the probe field too)."""
@@ -232,14 +207,14 @@ def write_light(context, kept, bounces=True):
     if objects:
         grid_objects.store_probe_light(objects, kept.result.field)
         probe_view.forget_drawing()
-    write_moving(context, kept)
+    dynamic.write_moving(context, kept)
 
 
 # --- Live: updates as the user edits -----------------------------------------------------------
 
 # Seconds after the last edit before the settled update (energy balance, bounce layers).
 SETTLE_SECONDS = 0.25
-_pending = {"scene": None, "instant": False, "settle": False, "materials": False}
+_pending = {"scene": None, "instant": False, "settle": False, "materials": False, "rebake": False}
 _status = {"writing": False}
 
 
@@ -258,23 +233,11 @@ def _kinds(depsgraph, kept):
             elif data.type == "MESH" and data.original.cubegi.dynamic and (u.is_updated_transform or u.is_updated_geometry):
                 kinds.add("dynamic")
             elif data.type == "MESH" and u.is_updated_transform and data.name in kept.placements:
-                if kept.placements[data.name] != placement(data.original):
+                if kept.placements[data.name] != session.placement(data.original):
                     kinds.add("geometry")
         elif isinstance(data, (bpy.types.Material, bpy.types.ShaderNodeTree)):
             kinds.add("materials")
     return kinds
-
-
-def placement(ob):
-    """An object's world matrix, as a hashable key."""
-    return tuple(round(v, 9) for row in ob.matrix_world for v in row)
-
-
-def placements(names):
-    """Each named object's world matrix now, to tell a moved object from our own writes."""
-    import bpy
-
-    return {name: placement(bpy.data.objects[name]) for name in names if name in bpy.data.objects}
 
 
 def on_depsgraph_update(scene, depsgraph):
@@ -285,10 +248,11 @@ def on_depsgraph_update(scene, depsgraph):
     if kept is None:
         return
     kinds = _kinds(depsgraph, kept)
-    if "geometry" in kinds:
-        scene.cubegi.last_update = "geometry changed: Bake again (Live updates keep the capture)"
-        return
     if not kinds:
+        return
+    if "geometry" in kinds:  # a static mesh moved: bake again once edits pause, redrawing the probes it concerns
+        _pending.update(scene=scene, instant=False, settle=True, rebake=True)
+        _schedule(SETTLE_SECONDS)
         return
     _pending.update(scene=scene, instant=_pending["instant"] or "light" in kinds, settle=True)
     _pending["materials"] |= "materials" in kinds
@@ -331,9 +295,12 @@ def run_pending():
             _pending["instant"] = False
             scene.cubegi.last_update = update(context, settle=False).line()
             return SETTLE_SECONDS
-        materials = _pending["materials"]
-        _pending.update(scene=None, settle=False, materials=False)
-        scene.cubegi.last_update = update(context, materials=materials).line()
+        materials, rebake = _pending["materials"], _pending["rebake"]
+        _pending.update(scene=None, settle=False, materials=False, rebake=False)
+        if rebake:
+            scene.cubegi.last_update = _rebake(context)
+        else:
+            scene.cubegi.last_update = update(context, materials=materials).line()
     except BakeError as exc:
         scene.cubegi.last_update = f"not updated: {exc}"
     finally:
@@ -341,11 +308,23 @@ def run_pending():
     return None
 
 
+def _rebake(context):
+    """Static geometry moved: bake again with the kept settings; the kept capture is patched
+    (only the probes the moved objects concern are drawn again)."""
+    from . import pipeline
+
+    kept = session.kept(context.scene)
+    t = time.perf_counter()
+    report = pipeline.bake(context, kept.settings, kept.resolution, lit=kept.lit)
+    drawn = report.probes_recaptured if report.probes_recaptured is not None else report.grid["probes"]
+    return f"baked again in {1000 * (time.perf_counter() - t):.0f} ms: geometry moved, {drawn} of {report.grid['probes']} probes re-captured"
+
+
 def stop():
     """Forget what is pending (Live turned off, unregister)."""
     import bpy
 
-    _pending.update(scene=None, instant=False, settle=False, materials=False)
+    _pending.update(scene=None, instant=False, settle=False, materials=False, rebake=False)
     if bpy.app.timers.is_registered(_tick):
         bpy.app.timers.unregister(_tick)
 

@@ -19,7 +19,7 @@ from ..cubegi_engine.records import Progress, Stage
 from ..cubegi_engine.report import BakeReport
 from ..cubegi_engine.settings import BakeSettings
 from ..cubegi_engine.solve import area_weighted_mean
-from . import attributes, grid_objects, live, probe_view, reference, scene_data, session
+from . import attributes, dynamic, grid_objects, probe_view, reference, scene_data, session
 from .gpu_capture import GpuRenderer
 
 # An object seen from behind over more than this share of what the probes see of it is noted.
@@ -157,7 +157,7 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
             layers.update(ref)
 
     t = time.perf_counter()
-    moving = [(target, live.moving_layers(obj, target, result.field, arrays.lights, result.shadows, settings, lit))
+    moving = [(target, dynamic.moving_layers(obj, target, result.field, arrays.lights, result.shadows, settings, lit))
               for obj, target in collected.moving]
     if moving:
         names = ", ".join(t.object_name for t, _ in moving)
@@ -168,7 +168,8 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
         grid_objects.store_probe_light(objects, result.field)
         probe_view.forget_drawing()
     session.keep(context.scene, session.Kept(
-        arrays, collected.targets, result, settings, lit, placements=live.placements(arrays.object_names), moving=collected.moving,
+        arrays, collected.targets, result, settings, lit, placements=session.placements(arrays.object_names), moving=collected.moving,
+        resolution=resolution,
     ))
     t_write = t_layers + time.perf_counter() - t
 
@@ -231,7 +232,7 @@ def _report(settings, lit, grid, grid_source, collected, result, timings, refere
         bounces=solution.records, indirect_mean_light=area_weighted_mean(result.indirect, areas).tolist(),
         tail=solution.tail_report, timings=timings, attributes=names,
         warnings=[w for w in (solution.tail_report.warning,) if w], reference=reference_report,
-        capture_reused=result.capture_reused,
+        capture_reused=result.capture_reused, probes_recaptured=result.probes_recaptured,
     )
 
 

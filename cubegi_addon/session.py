@@ -39,6 +39,7 @@ class Kept:
     unsettled: bool = False  # an instant update left the balance and bounce layers behind
     placements: dict = None  # object name -> world matrix at the bake (see live.placements)
     moving: list = None  # [(SceneArrays, MeshTarget)] of the dynamic objects as last lit
+    resolution: tuple = None  # the grid resolution the bake was asked for (None: the scene's)
 
     @property
     def nbytes(self):
@@ -88,6 +89,16 @@ def forget(scene=None):
 # A kept bake may hold GPU batches (a renderer for shadow maps): they must go while the GPU
 # context still exists, before the interpreter's own teardown (else a crash at exit).
 atexit.register(lambda: forget())
+
+
+def placement(ob):
+    """An object's world matrix, as a hashable key."""
+    return tuple(round(v, 9) for row in ob.matrix_world for v in row)
+
+
+def placements(names):
+    """Each named object's world matrix now, to tell a moved object from our own writes."""
+    return {name: placement(bpy.data.objects[name]) for name in names if name in bpy.data.objects}
 
 
 def kept_bytes():

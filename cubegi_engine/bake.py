@@ -57,6 +57,7 @@ class BakeResult:
     field: ProbeField
     timings: dict = field(default_factory=dict)
     capture_reused: bool = False
+    probes_recaptured: int | None = None  # a patched capture: how many probes were drawn again
     shadows: dict = field(default_factory=dict)  # light name -> Shadow, when kept (moving objects)
 
     @property
@@ -129,9 +130,16 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
     total = 3 + settings.bounces
 
     reused = capture is not None and capture.valid_for(scene, grid, settings.cube_size, settings.visibility)
+    patched = None
+    if not reused and capture is not None:
+        patched = capture.patched(scene, grid, renderer, settings.cube_size, settings.visibility)
     if reused:
         yield Progress(Stage.CAPTURE, 0, total, f"reusing the capture of {grid.count} probes (the geometry is unchanged)")
         timings["capture"] = timings["tables"] = 0.0
+    elif patched is not None:
+        capture, redrawn = patched
+        yield Progress(Stage.CAPTURE, 0, total, f"re-captured {redrawn} of {grid.count} probes (the ones a moved object concerns)")
+        timings["capture"], timings["tables"] = capture.capture_seconds, capture.tables_seconds
     else:
         check_memory(grid.count, settings.cube_size, len(scene.points))
         yield Progress(Stage.CAPTURE, 0, total, f"capturing {grid.count} probes at {settings.cube_size}x{settings.cube_size}")
@@ -159,7 +167,7 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
         coeffs = coeffs + solution.tail_coeffs
     probe_field = ProbeField(grid, coeffs, capture.probe_valid.copy(), parts.source_coeffs)
     timings["total"] = time.perf_counter() - t_start
-    return BakeResult(capture, parts, solution, probe_field, timings, reused, shadows or {})
+    return BakeResult(capture, parts, solution, probe_field, timings, reused, patched[1] if patched else None, shadows or {})
 
 
 def run(steps, progress=None):

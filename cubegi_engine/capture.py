@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import cubemap
 from .scene import GeometryFingerprint
 from .transport import CubeCapture, Transport, capture_cubes, clip_planes
 
@@ -48,6 +49,57 @@ class ProbeCapture:
             self.cube_size == int(cube_size) and self.visibility == bool(visibility)
             and _same_grid(self.grid, grid) and not self.fingerprint.changed(scene.fingerprint())
         )
+
+    def patched(self, scene, grid, renderer, cube_size: int, visibility: bool = True):
+        """This capture brought up to date for ``scene`` whose geometry moved but kept its
+        layout (the same objects, point counts and triangles): only the probes that saw a
+        moved object, or may see it where it is now, are drawn again; the tables are built
+        anew. Returns ``(ProbeCapture, probes drawn)``, or None where it cannot be patched
+        (another grid or setting, or a changed layout: take a new capture)."""
+        fingerprint = scene.fingerprint()
+        if (self.cube_size != int(cube_size) or self.visibility != bool(visibility) or not _same_grid(self.grid, grid)
+                or not fingerprint.same_layout(self.fingerprint)):
+            return None
+        moved = fingerprint.changed(self.fingerprint)
+        names = [name for name, _ in fingerprint.objects]
+        index = [names.index(n) for n in moved if n in names]
+        t = time.perf_counter()
+        redraw = self.probes_seeing(index) | self._may_see(scene, index)
+        if redraw.all():  # every probe concerned: a new capture is as cheap
+            return None
+        cubes = CubeCapture(*(a.copy() for a in (self.cubes.tid, self.cubes.bary, self.cubes.dist, self.cubes.backface)))
+        if redraw.any():
+            near, far = clip_planes(scene.scale)
+            fresh = capture_cubes(renderer, grid.positions()[redraw], cube_size, near, far)
+            for mine, theirs in zip((cubes.tid, cubes.bary, cubes.dist, cubes.backface), (fresh.tid, fresh.bary, fresh.dist, fresh.backface)):
+                mine[redraw] = theirs
+        t_capture = time.perf_counter() - t
+        t = time.perf_counter()
+        transport = Transport(scene, grid, cubes, visibility=visibility)
+        patched = ProbeCapture(grid, int(cube_size), bool(visibility), fingerprint, cubes, transport, t_capture, time.perf_counter() - t)
+        return patched, int(redraw.sum())
+
+    def _may_see(self, scene, objects) -> np.ndarray:
+        """``(p,)`` bool: probes that may see any of ``objects`` where they are in ``scene``:
+        some direction towards the object's points (its box corners and centre) in which the
+        kept cube map records a surface farther than the object (or sky)."""
+        if not objects:
+            return np.zeros(len(self.cubes.tid), dtype=bool)
+        owner = scene.point_object
+        eyes = self.grid.positions()
+        n = self.cube_size
+        seen = np.zeros(len(eyes), dtype=bool)
+        for k in objects:
+            pts = scene.points[owner == k]
+            lo, hi = pts.min(axis=0), pts.max(axis=0)
+            corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+            samples = np.concatenate([corners, [(lo + hi) / 2], pts[:: max(1, len(pts) // 64)]])  # (m, 3)
+            rel = samples[None, :, :] - eyes[:, None, :]  # (p, m, 3)
+            dist = np.linalg.norm(rel, axis=-1)
+            face, row, col, _, _ = cubemap.direction_to_texel(np.where(dist[..., None] > 0, rel, 1.0), n)
+            recorded = self.cubes.dist[np.arange(len(eyes))[:, None], face, row, col]
+            seen |= np.any(recorded > dist * (1.0 - 2.0 / n), axis=1)
+        return seen
 
     @property
     def probe_valid(self) -> np.ndarray:

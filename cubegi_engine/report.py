@@ -35,6 +35,7 @@ class BakeReport:
     warnings: list = field(default_factory=list)
     reference: dict | None = None
     capture_reused: bool = False
+    probes_recaptured: int | None = None
     input: str | None = None
     output: str | None = None
     version: str = __version__
@@ -67,6 +68,7 @@ class BakeReport:
             "tail": self.tail.to_dict(),
             "estimated_remaining_error": self.estimated_remaining_error,
             "capture_reused": self.capture_reused,
+            "probes_recaptured": self.probes_recaptured,
             "timings": self.timings,
             "total_seconds": self.total_seconds,
             "reference": self.reference,
@@ -94,6 +96,7 @@ class BakeReport:
             bounces=[BounceRecord(**b) for b in d["bounces"]], indirect_mean_light=d["indirect"]["mean_light"],
             tail=TailReport.from_dict(d["tail"]), timings=timings, attributes=d.get("attributes", []),
             warnings=d.get("warnings", []), reference=d.get("reference"), capture_reused=d.get("capture_reused", False),
+            probes_recaptured=d.get("probes_recaptured"),
             input=d.get("input"), output=d.get("output"), version=d.get("cubegi_version", __version__),
         )
 
@@ -103,7 +106,8 @@ class BakeReport:
 
     def summary_lines(self) -> list:
         """The report in a few lines of text (the CLI prints them; the add-on shows them)."""
-        reused = ", capture reused" if self.capture_reused else ""
+        reused = ", capture reused" if self.capture_reused else (
+            f", {self.probes_recaptured} re-captured" if self.probes_recaptured is not None else "")
         lines = [
             f"baked {len(self.meshes_baked)} meshes, {self.grid['probes']} probes{reused}, "
             f"{len(self.bounces)} bounces in {self.total_seconds:.3f} s"

@@ -22,11 +22,18 @@ class GeometryFingerprint:
     points, normals and triangles."""
 
     objects: tuple  # ((name, digest hex), ...)
+    # ((name, point count, digest of the triangles), ...): the layout of the arrays; equal
+    # layouts index every point and triangle alike, so captures can be patched in place.
+    layout: tuple = ()
 
     def changed(self, other: "GeometryFingerprint") -> set:
         """Names of the objects added, removed or changed between ``other`` and this one."""
         mine, theirs = dict(self.objects), dict(other.objects)
         return {n for n in mine.keys() | theirs.keys() if mine.get(n) != theirs.get(n)}
+
+    def same_layout(self, other: "GeometryFingerprint") -> bool:
+        """True if only positions and normals differ (objects, order, counts, triangles alike)."""
+        return self.layout == other.layout
 
 
 @dataclass
@@ -80,13 +87,15 @@ class SceneArrays:
         count = int(owner.max()) + 1 if len(owner) else 0
         names = list(self.object_names) or [f"object {k}" for k in range(count)]
         tri_owner = owner[self.triangles[:, 0]] if len(self.triangles) else np.zeros(0, dtype=np.int64)
-        out = []
+        out, layout = [], []
         for k in range(count):
-            h = hashlib.blake2b(digest_size=16)
+            h, t = hashlib.blake2b(digest_size=16), hashlib.blake2b(digest_size=16)
             sel = owner == k
             h.update(np.ascontiguousarray(self.points[sel]).tobytes())
             h.update(np.ascontiguousarray(self.normals[sel]).tobytes())
             first = int(np.argmax(sel)) if sel.any() else 0  # triangles relative to the object's points
-            h.update(np.ascontiguousarray(self.triangles[tri_owner == k] - first).tobytes())
+            t.update(np.ascontiguousarray(self.triangles[tri_owner == k] - first).tobytes())
+            h.update(t.digest())
             out.append((names[k], h.hexdigest()))
-        return GeometryFingerprint(tuple(out))
+            layout.append((names[k], int(sel.sum()), t.hexdigest()))
+        return GeometryFingerprint(tuple(out), tuple(layout))

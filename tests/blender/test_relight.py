@@ -158,15 +158,20 @@ def test_live_applies_edits_on_depsgraph_updates_and_frames(room):
     updated = _light()
     scene.cubegi.live = False
     _assert_same(updated, _full_bake(room))
-    # A moved baked mesh: Live says to bake again, and changes nothing.
+    # A moved baked mesh: Live bakes again once edits pause (nothing changes before that).
     scene.cubegi.live = True
     before = _light()
     bpy.data.objects["Block"].location.z += 0.2
     bpy.context.evaluated_depsgraph_get()
-    assert scene.cubegi.last_update.startswith("geometry changed: Bake again") and live._pending["scene"] is None
+    assert live._pending["rebake"] and live._pending["scene"] == scene
     _assert_same(_light(), before, tol=0.0)
+    assert live.run_pending() is None and scene.cubegi.last_update.startswith("baked again in")
+    rebaked = _light()
+    scene.cubegi.live = False
+    _assert_same(rebaked, _full_bake(room))
     bpy.data.objects["Block"].location.z -= 0.2
-    bpy.context.evaluated_depsgraph_get()
+    assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
+    scene.cubegi.live = True
     live.stop()
     # Keyframed light power: each frame change applies its light.
     lamp = bpy.data.lights["point"]

@@ -91,12 +91,46 @@ def resolve_grid(scene, arrays, resolution=None):
         grid = grids[0] if len(grids) == 1 else GridSet(grids)
         source = f"probe grid object{'s' if len(grids) > 1 else ''} {names}"
         return grid, source, float(1.0 - inside_any.mean())
-    lo, hi = arrays.bounds()
-    pad = np.maximum(hi - lo, 1e-9 * max(arrays.scale, 1e-30)) * FITTED_PAD
-    lo, hi = lo - pad, hi + pad
+    lo, hi = _padded(*arrays.bounds(), arrays.scale)
     if resolution:
         return ProbeGrid(lo, hi, resolution), "scene bounds", 0.0
-    return ProbeGrid(lo, hi, fit_bounds(lo, hi, max_probes=MAX_FITTED_PROBES)), "fitted to scene bounds", 0.0
+    whole = ProbeGrid(lo, hi, fit_bounds(lo, hi, max_probes=MAX_FITTED_PROBES))
+    dense = dense_region(arrays)
+    if dense is not None and np.max(dense[1] - dense[0]) < DENSE_SHARE * np.max(hi - lo):
+        dlo, dhi = _padded(*dense, arrays.scale)
+        fine = ProbeGrid(dlo, dhi, fit_bounds(dlo, dhi, max_probes=MAX_FITTED_PROBES))
+        return GridSet([whole, fine]), "fitted to scene bounds, and finer over where most of its geometry is", 0.0
+    return whole, "fitted to scene bounds", 0.0
+
+
+# A fitted grid gets a second, finer grid over the region where most of the geometry is
+# when that region's longest side is under this share of the scene's (a room on a large
+# ground plane): the probes go where the light changes, not over empty ground.
+DENSE_SHARE = 0.25
+# The region: the objects with at least half of their points inside the box of the middle
+# 90% of all points (per axis).
+DENSE_QUANTILES = (0.05, 0.95)
+
+
+def dense_region(arrays):
+    """``(lo, hi)`` of the objects most of whose points lie where most of the scene's points
+    are, or None (see DENSE_SHARE)."""
+    if arrays.point_object is None or len(arrays.points) < 16:
+        return None
+    q_lo, q_hi = np.quantile(arrays.points, DENSE_QUANTILES, axis=0)
+    inside = np.all((arrays.points >= q_lo) & (arrays.points <= q_hi), axis=1)
+    count = int(arrays.point_object.max()) + 1
+    share = np.bincount(arrays.point_object, inside, minlength=count) / np.maximum(np.bincount(arrays.point_object, minlength=count), 1)
+    keep = np.isin(arrays.point_object, np.nonzero(share >= 0.5)[0])
+    if not keep.any() or keep.all():
+        return None
+    pts = arrays.points[keep]
+    return pts.min(axis=0), pts.max(axis=0)
+
+
+def _padded(lo, hi, scale):
+    pad = np.maximum(hi - lo, 1e-9 * max(scale, 1e-30)) * FITTED_PAD
+    return lo - pad, hi + pad
 
 
 def grids_of(grid):

@@ -180,7 +180,22 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
     return _report(settings, lit, grid, grid_source, collected, result, timings, reference_report, list(layers_per_target[0]))
 
 
+# Points no probe lights are noted above this share (of the points that are not set aside).
+NO_PROBE_NOTE = 0.01
+
+
 def _note_capture(collected, result, grid):
+    no_probe = result.capture.transport.no_probe
+    if collected.arrays.dark is not None:
+        no_probe = no_probe & ~collected.arrays.dark
+    if no_probe.mean() > NO_PROBE_NOTE:
+        owners = collected.arrays.point_object[no_probe]
+        names = [collected.arrays.object_names[k] for k in np.unique(owners)][:5]
+        collected.notes.append(
+            f"{100 * no_probe.mean():.1f}% of the shading points get no probe light (the probes of their grid around "
+            f"them all lie in a finer grid's box), on {', '.join(names)}; add a probe grid over them if they should "
+            "get indirect light"
+        )
     seen = result.direct_parts.emission_seen
     if seen is not None and seen < EMITTERS_SEEN_NOTE:
         collected.notes.append(

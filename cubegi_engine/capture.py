@@ -35,9 +35,10 @@ class ProbeCapture:
     @classmethod
     def take(cls, scene, grid, renderer, cube_size: int, visibility: bool = True) -> "ProbeCapture":
         """Draw every probe's cube map of ``scene`` and build the tables."""
-        near, far = clip_planes(scene.scale)
+        positions = grid.positions()
+        near, far = clip_planes(scene.scale, grid.point_cell_edge(positions))
         t = time.perf_counter()
-        cubes = capture_cubes(renderer, grid.positions(), cube_size, near, far)
+        cubes = capture_cubes(renderer, positions, cube_size, near, far)
         t_capture = time.perf_counter() - t
         t = time.perf_counter()
         transport = Transport(scene, grid, cubes, visibility=visibility)
@@ -69,8 +70,9 @@ class ProbeCapture:
             return None
         cubes = CubeCapture(*(a.copy() for a in (self.cubes.tid, self.cubes.bary, self.cubes.dist, self.cubes.backface)))
         if redraw.any():
-            near, far = clip_planes(scene.scale)
-            fresh = capture_cubes(renderer, grid.positions()[redraw], cube_size, near, far)
+            eyes = grid.positions()[redraw]
+            near, far = clip_planes(scene.scale, grid.point_cell_edge(eyes))
+            fresh = capture_cubes(renderer, eyes, cube_size, near, far)
             for mine, theirs in zip((cubes.tid, cubes.bary, cubes.dist, cubes.backface), (fresh.tid, fresh.bary, fresh.dist, fresh.backface)):
                 mine[redraw] = theirs
         t_capture = time.perf_counter() - t

@@ -100,7 +100,7 @@ def draw_shadow(scene, renderer, settings, light, size=None) -> Shadow:
         tid, _, dist, back = renderer.render(vp[None], eye[None], axis[None], size or settings.sun_shadow_size)
         shadow.ortho = (vp, axis, eye, tid[0], dist[0], back[0], radius)
         return shadow
-    near, far = clip_planes(scene.scale)
+    near, far = clip_planes(scene.scale, _nearest_distance(scene.points, light.position))
     if light.kind == "AREA":
         samples = light.samples if light.samples is not None and len(light.samples) else light.position[None]
         shadow.eyes = samples + light.direction * (AREA_EYE_LIFT * scene.scale)
@@ -109,6 +109,11 @@ def draw_shadow(scene, renderer, settings, light, size=None) -> Shadow:
         shadow.eyes = light.position[None]
         shadow.cubes = capture_cubes(renderer, shadow.eyes, size or settings.shadow_size, near, far)
     return shadow
+
+
+def _nearest_distance(points, eye):
+    """Distance from ``eye`` to the nearest point (what a light's near plane must not clip)."""
+    return float(np.sqrt(np.min(np.einsum("sc,sc->s", points - eye, points - eye)))) if len(points) else 1.0
 
 
 def visibility(shadow, pts, nrm, ids) -> np.ndarray:

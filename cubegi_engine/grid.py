@@ -91,7 +91,11 @@ class GridSet:
     The rule for a point: of the grids whose boxes contain it, the one with the smallest
     cell volume (the finest); on a tie, the first given. A point inside no grid uses the
     grid whose box is nearest (the finest of those at the same distance), with clamped
-    trilinear weights at that box's faces. Probes are numbered grid after grid.
+    trilinear weights at that box's faces. A grid's probes that lie inside a finer grid's
+    box are left out of its points' weights (that region is the finer grid's: a coarse probe
+    inside a room must not light the ground outside it); a point left with no probe gets
+    all-zero weights (no probe light; the bake notes how many).
+    Probes are numbered grid after grid.
     """
 
     def __init__(self, grids):
@@ -122,11 +126,22 @@ class GridSet:
         which = self.assign(p)
         index = np.zeros((len(p), 8), dtype=np.int64)
         weight = np.zeros((len(p), 8), dtype=np.float64)
+        volume = [float(np.prod(g.cell_size)) for g in self.grids]
         for g, grid in enumerate(self.grids):
             sel = which == g
-            if sel.any():
-                i, w = grid.trilinear(p[sel])
-                index[sel], weight[sel] = i + self.offsets[g], w
+            if not sel.any():
+                continue
+            i, w = grid.trilinear(p[sel])
+            pos = grid.positions()
+            covered = np.zeros(grid.count, dtype=bool)
+            for h, other in enumerate(self.grids):
+                if volume[h] < volume[g] or (volume[h] == volume[g] and h < g):
+                    covered |= np.all((pos >= np.asarray(other.lo)) & (pos <= np.asarray(other.hi)), axis=1)
+            if covered.any():
+                kept = w * ~covered[i]
+                total = kept.sum(axis=1, keepdims=True)
+                w = kept / np.maximum(total, 1e-300)
+            index[sel], weight[sel] = i + self.offsets[g], w
         return index, weight
 
     def point_cell_edge(self, points):
@@ -191,7 +206,7 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     fallback = weight * valid
     fallback_total = fallback.sum(axis=1, keepdims=True)
     w = np.where(total > 1e-9, w, np.where(fallback_total > 1e-9, fallback, weight))
-    w = w / w.sum(axis=1, keepdims=True)
+    w = w / np.maximum(w.sum(axis=1, keepdims=True), 1e-300)  # a point with no probe at all keeps zeros
     dark = (total[:, 0] <= 1e-9) & covered.any(axis=1)
     w[dark] = 0.0
     return w

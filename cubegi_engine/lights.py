@@ -193,6 +193,10 @@ def shadow_visibility(points, normals, eye, face_tid, face_dist, face_back, tria
     return (~occluded).astype(np.float64)
 
 
+# Shadow test margins (see _occluded): in texel footprints, as a share of the receiver's
+# distance along the ray, and as a share of the scene's size (GPU float32 distances); the
+# cosine below which the slope term stops growing.
+BIAS_FOOTPRINTS, BIAS_OF_DEPTH, SLOPE_OF_SCALE, MIN_COS = 0.1, 1e-5, 1e-4, 0.2
 # How far (in texel footprints at the receiver) a receiver is lifted along its normal
 # before its shadow-map lookup: enough to step off its own curved surface, well below the
 # gap under a rug.
@@ -231,8 +235,13 @@ def _occluded(maps, face, row, col, origins, u, depth, cos, footprint, triangles
     plane, _, _ = cut_triangles(origins[:, None, :], u[:, None, :], tid, triangles, vertices)
     own = np.any(triangles[np.maximum(tid, 0)] == point_ids[:, None, None], axis=2)
     depth = depth[:, None]
-    bias = (0.1 * footprint / np.maximum(cos, 0.2) + 1e-5 * scale)[:, None]
-    slope = (footprint / np.maximum(cos, 0.2) + 1e-4 * scale)[:, None]
+    # ``nearer`` and ``depth`` are exact (float64 plane cuts): their margin is a tenth of a
+    # texel's footprint (slope-scaled) and a hundred-thousandth of the receiver's own distance,
+    # never a share of the whole scene (a 1 cm gap under a room on a 2 km plane must hold).
+    # ``seen`` comes from the GPU's float32 distances in the scene's unit frame: its margin
+    # keeps a ten-thousandth of the scene's size.
+    bias = (BIAS_FOOTPRINTS * footprint / np.maximum(cos, MIN_COS) + BIAS_OF_DEPTH * depth[:, 0])[:, None]
+    slope = (footprint / np.maximum(cos, MIN_COS) + SLOPE_OF_SCALE * scale)[:, None]
     nearer = np.where(np.isnan(plane), seen, plane)
     centre = np.all(offsets == 0, axis=1)[None, :]
     front_occ = centre & ~back & (nearer < depth - bias) & (seen < depth + slope)

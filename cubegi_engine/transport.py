@@ -57,17 +57,29 @@ class CubeCapture:
 
 
 def capture_cubes(renderer, eyes, size, near, far):
-    """Render cube maps at ``eyes`` ``(k, 3)`` with ``renderer`` and return a CubeCapture."""
+    """Render cube maps at ``eyes`` ``(k, 3)`` with ``renderer`` and return a CubeCapture.
+    ``near``: one distance, or one per eye ``(k,)``."""
     eyes = np.asarray(eyes, dtype=np.float64).reshape(-1, 3)
-    vps = np.concatenate([cubemap.cube_view_projections(e, near, far) for e in eyes])
+    nears = np.broadcast_to(np.asarray(near, dtype=np.float64), (len(eyes),))
+    vps = np.concatenate([cubemap.cube_view_projections(e, n, far) for e, n in zip(eyes, nears)])
     tid, bary, dist, back = renderer.render(vps, np.repeat(eyes, 6, axis=0), None, size)
     shape = (len(eyes), 6, size, size)
     return CubeCapture(tid.reshape(shape), bary.reshape(shape + (3,)), dist.reshape(shape), back.reshape(shape))
 
 
-def clip_planes(scale):
-    """Near and far distances for captures in a scene of size ``scale`` (its diagonal)."""
-    return 1e-4 * scale, 4.0 * scale
+# Near planes: a ten-thousandth of the scene's size, or less where the geometry that matters
+# is smaller: a hundredth of a probe's cell, a hundredth of a light's distance to the
+# nearest point. (A large ground plane under a small room must not clip the room away.)
+NEAR_OF_SCALE, NEAR_OF_LOCAL = 1e-4, 1e-2
+
+
+def clip_planes(scale, local=None):
+    """Near and far distances for captures in a scene of size ``scale`` (its diagonal);
+    ``local``: the size of what is around the eye (a cell, a distance), one or ``(k,)``."""
+    near = NEAR_OF_SCALE * scale
+    if local is not None:
+        near = np.minimum(near, NEAR_OF_LOCAL * np.maximum(np.asarray(local, dtype=np.float64), 1e-30))
+    return near, 4.0 * scale
 
 
 class Transport:
@@ -101,6 +113,10 @@ class Transport:
 
         positions = grid.positions()
         index, weight = grid.trilinear(scene.points)
+        # (s,) points with no probe of their grid at all (its probes around them all lie in a
+        # finer grid's box): a grid-placement problem the bake notes. (Points covered by
+        # another object, dark by the visibility test below, are not counted.)
+        self.no_probe = ~np.any(weight > 0, axis=1)
         if visibility:
             dist = capture.dist.reshape(p, 6, n, n)
             cover = None

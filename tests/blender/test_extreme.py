@@ -1,5 +1,7 @@
 """Extreme scale and power: the same scene at 1 mm and 10 km, lights from 1 uW to 1 GW."""
 
+import json
+
 import bpy
 import numpy as np
 import pytest
@@ -23,19 +25,23 @@ def _bake_cornell(scale=1.0, power=1.0):
     return {n: np.concatenate([read(ob.data, n) for ob in meshes]) for n in ("CubeGI_direct", "CubeGI")}
 
 
-@pytest.mark.parametrize("scale", [1e-3, 1e4])
+@pytest.mark.parametrize("scale", [1e-3, 1e3, 1e4])
 def test_scene_scale_does_not_change_the_light(empty_scene, cubegi, scale):
-    """The GPU draws in a unit frame and every bias and clip plane follows the scene's
-    size, so only float32 rounding of the scaled mesh differs. A vertex exactly on a hard
-    shadow edge may still flip (measured: 0 to 2 of 797 vertices); everything else agrees
-    to 0.1% (measured: 3e-4 at most), and the area mean to 1e-4."""
+    """The GPU draws in a unit frame, clip planes follow the scene's and the eye's
+    surroundings' size, and every decision's margin is relative (to a texel's footprint, a
+    receiver's distance, the scene's size): the same scene at 1 mm, 1 m, 1 km and 10 km
+    gives the same light to the float32 rounding of its scaled mesh. Measured: no vertex
+    differs by more than 0.09% of the mean (no shadow or visibility decision flips), the
+    direct light by 3e-4 at most (5e-6 at 1e-3 and 1e3), the area mean by 2e-5."""
     base = _bake_cornell(1.0)
     got = _bake_cornell(scale)
     for name in base:
         rel = np.abs(got[name] - base[name]).max(axis=1) / base[name].mean()
         assert np.isfinite(got[name]).all()
-        assert (rel > 1e-3).sum() <= 3, (name, np.sort(rel)[-5:])
-        assert rel.mean() < 1e-4, (name, rel.mean())
+        assert rel.max() < 1e-3, (name, np.sort(rel)[-5:])  # no decision flips anywhere
+        assert rel.mean() < 5e-5, (name, rel.mean())
+        if name == "CubeGI_direct" and scale != 1e4:
+            assert rel.max() < 1e-5, (name, rel.max())
 
 
 def test_light_is_linear_in_power_from_microwatts_to_gigawatts(empty_scene, cubegi):
@@ -46,3 +52,32 @@ def test_light_is_linear_in_power_from_microwatts_to_gigawatts(empty_scene, cube
             assert np.isfinite(got[name]).all() and (got[name] >= 0).all()
             # float32 throughout the bounces: relative rounding of 1e-6 per operation.
             np.testing.assert_allclose(got[name] / power, base[name], rtol=1e-4, atol=1e-6 * base[name].max())
+
+
+def _room_on_ground(ground=None, size=1.0):
+    """A closed 4 x 4 x 2.5 room (times ``size``) lit inside, on a ground plane of edge
+    ``2 * ground`` (none: the room alone) a hundredth of the room's size below its floor."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    v, f = scenes.box_mesh((-2 * size, -2 * size, 0), (2 * size, 2 * size, 2.5 * size), (8, 8, 5), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    scenes.add_light("POINT", (0.3 * size, 0.2 * size, 1.5 * size), 100.0 * size * size)
+    if ground:
+        v, f = scenes.grid_patch((-ground, -ground, -0.01 * size), (2 * ground, 0, 0), (0, 2 * ground, 0), 4, 4)
+        scenes.mesh_object("Ground", v, f, scenes.material("Grey", (0.5, 0.5, 0.5)))
+    assert bpy.ops.cubegi.bake(bounces=3) == {"FINISHED"}
+    read = __import__("cubegi").cubegi_addon.attributes.read
+    return {n: read(bpy.data.objects["Room"].data, n) for n in ("CubeGI_direct", "CubeGI")}
+
+
+@pytest.mark.parametrize("ground,size", [(10.0, 1.0), (1000.0, 1.0), (5e4, 0.01)])
+def test_a_small_closed_room_on_a_huge_ground_keeps_its_light(empty_scene, cubegi, ground, size):
+    """A lit room on a 20 m or 2 km ground, a 4 cm one on a 100 km ground: the fitted grid
+    puts a finer grid over the room (where most geometry is), clip planes follow each eye's
+    surroundings, shadow margins each receiver's distance: the room's light is what it is
+    alone (it was 41%, 9% and 0% of it). Measured: within 0.1%."""
+    alone = _room_on_ground(None, size)
+    together = _room_on_ground(ground, size)
+    grid = json.loads(bpy.context.scene.cubegi.last_report)["grid"]
+    assert len(grid["grids"]) == 2  # the coarse one over everything, the fine one over the room
+    for name in alone:
+        assert together[name].mean() == pytest.approx(alone[name].mean(), rel=5e-3), name

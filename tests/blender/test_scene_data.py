@@ -131,12 +131,15 @@ def test_several_probe_grids_each_point_uses_the_finest_that_contains_it(empty_s
     report = json.loads(bpy.context.scene.cubegi.last_report)
     assert [g["resolution"] for g in report["grid"]["grids"]] == [[2, 1, 1], [4, 4, 4]]
     assert report["grid"]["probes"] == 66 and "'Coarse', 'Fine'" in report["grid"]["source"]
-    # The half x > 0 differs from a bake with the coarse grid alone; the half x < 0 differs
-    # only by one scale (it interpolates the same coarse probes, which see the same direct
-    # light; the bounce's energy factor is one number per channel for the whole scene).
+    # The half x < 0 uses the coarse grid, less its probe at x = 1 (inside the fine grid's
+    # box: that region is the fine grid's): the same light as a one-probe grid over that half
+    # up to one scale (the bounce's energy factor is one number per channel for the whole
+    # scene); the half x > 0 differs.
     mesh = bpy.data.objects["Room"].data
     both = cubegi.cubegi_addon.attributes.read(mesh, "CubeGI_bounce_1")
     bpy.data.objects.remove(bpy.data.objects["Fine"])
+    bpy.data.objects.remove(bpy.data.objects["Coarse"])
+    grid_objects.new_probe_grid(col, (-2, -1, 0), (0, 1, 2), (1, 1, 1), name="Left")
     assert bpy.ops.cubegi.bake(bounces=2) == {"FINISHED"}
     coarse = cubegi.cubegi_addon.attributes.read(mesh, "CubeGI_bounce_1")
     x = np.array([vv.co.x for vv in mesh.vertices])
@@ -144,3 +147,20 @@ def test_several_probe_grids_each_point_uses_the_finest_that_contains_it(empty_s
     scale = both[left].sum() / coarse[left].sum()
     np.testing.assert_allclose(both[left], scale * coarse[left], rtol=1e-4, atol=1e-6)
     assert np.abs(both[right] - scale * coarse[right]).max() > 0.05 * coarse[right].max()
+
+
+def test_points_no_probe_lights_are_noted(empty_scene, cubegi):
+    """A coarse grid whose only probe lies inside a finer grid's box: the coarse grid's points
+    are left with no probe (that probe is the finer grid's region) and the report says so."""
+    import json
+
+    v, f = scenes.box_mesh((-2, -1, 0), (2, 1, 2), (8, 4, 4), inward=True)
+    scenes.mesh_object("Room", v, f)
+    scenes.add_light("POINT", (0.3, 0.2, 1.5), 50.0)
+    col = bpy.context.scene.collection
+    grid_objects = cubegi.cubegi_addon.grid_objects
+    grid_objects.new_probe_grid(col, (-2, -1, 0), (2, 1, 2), (1, 1, 1), name="Coarse")
+    grid_objects.new_probe_grid(col, (-0.5, -1, 0), (0.5, 1, 2), (2, 2, 2), name="Fine")
+    assert bpy.ops.cubegi.bake(bounces=1, cube_size=8) == {"FINISHED"}
+    notes = json.loads(bpy.context.scene.cubegi.last_report)["scene"]["notes"]
+    assert any("of the shading points get no probe light" in n and "Room" in n for n in notes), notes

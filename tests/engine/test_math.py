@@ -131,7 +131,10 @@ def test_grid_set_uses_the_finest_containing_grid_then_the_nearest():
     pts = np.array([[0.5, 0.5, 0.5], [1.5, 1.5, 1.5], [2.0, 2.0, 2.0], [10.5, 0.5, 0.5], [6.0, 0.5, 0.5], [9.5, 0.5, 0.5]])
     np.testing.assert_array_equal(gs.assign(pts), [0, 1, 1, 2, 0, 2])
     idx, w = gs.trilinear(pts)
-    np.testing.assert_allclose(w.sum(1), 1.0)
+    # The coarse probe at (1, 1, 1) lies in the fine grid's box: the coarse grid's points
+    # leave it out. The first point's only probe (clamped) is that one: no probe light.
+    np.testing.assert_allclose(w.sum(1), [0.0, 1.0, 1.0, 1.0, 1.0, 1.0])
+    assert w[0].sum() == 0.0 and (w[4] > 0).any() and not np.isin(idx[4][w[4] > 0], [0]).any()
     # Indices fall in each grid's own range, and match that grid's own weights.
     assert (idx[0] < 8).all() and ((idx[1] >= 8) & (idx[1] < 72)).all() and (idx[3] == 72).all()
     i1, w1 = fine.trilinear(pts[1:2])

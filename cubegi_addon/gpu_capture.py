@@ -91,6 +91,13 @@ void main() {
   out_texel = vec4(gl_FrontFacing ? id : -id, v_bary, dist);
 }
 """
+_DEPTH_FRAG = """
+void main() {
+  float dist = ortho > 0.5 ? dot(v_pos - eye, axis) : length(v_pos - eye);
+  float id = v_id + 1.0;
+  out_texel = vec2(gl_FrontFacing ? id : -id, dist);
+}
+"""
 _COLOUR_VERT = """
 void main() {
   v_colour = colour;
@@ -108,8 +115,11 @@ void main() {
 # later draw pick up the wrong vertex layout now and then (colours read from the position
 # buffer, seen on llvmpipe after other GPU work in the same process).
 @functools.cache
-def _id_shader():
-    iface = gpu.types.GPUStageInterfaceInfo("cubegi_id_iface")
+def _id_shader(with_bary=True):
+    """The id pass: ``(+-(triangle + 1), b1, b2, distance)`` per texel into RGBA32F, or with
+    ``with_bary=False`` ``(+-(triangle + 1), distance)`` into RG32F (shadow maps: half the
+    texels' bytes to write and read back)."""
+    iface = gpu.types.GPUStageInterfaceInfo("cubegi_id_iface" if with_bary else "cubegi_depth_iface")
     iface.flat("FLOAT", "v_id")
     iface.smooth("VEC2", "v_bary")
     iface.smooth("VEC3", "v_pos")
@@ -122,9 +132,9 @@ def _id_shader():
     info.vertex_in(1, "VEC2", "bary")
     info.vertex_in(2, "FLOAT", "tid")
     info.vertex_out(iface)
-    info.fragment_out(0, "VEC4", "out_texel")
+    info.fragment_out(0, "VEC4" if with_bary else "VEC2", "out_texel")
     info.vertex_source(_ID_VERT)
-    info.fragment_source(_ID_FRAG)
+    info.fragment_source(_ID_FRAG if with_bary else _DEPTH_FRAG)
     return gpu.shader.create_from_info(info)
 
 
@@ -158,14 +168,15 @@ def _column_major(matrix):
     return np.asarray(matrix, dtype=np.float64).T.ravel().tolist()
 
 
-def read_texture(texture, width, height):
-    """RGBA32F texture to a ``(height, width, 4)`` float32 array (row 0 = bottom).
+def read_texture(texture, width, height, channels=4):
+    """A float texture (RGBA32F, RG32F) to a ``(height, width, channels)`` float32 array (row
+    0 = bottom).
 
     ``np.asarray`` of a ``gpu`` buffer comes back with its strides reversed; a Fortran-order
     ravel of that view is the buffer's memory in order.
     """
     buf = texture.read()
-    return np.asarray(buf, dtype=np.float32).ravel(order="F").reshape(height, width, 4)
+    return np.asarray(buf, dtype=np.float32).ravel(order="F").reshape(height, width, channels)
 
 
 class GpuRenderer:
@@ -205,8 +216,8 @@ class GpuRenderer:
         m = np.asarray(view_proj, dtype=np.float64) @ to_world
         return m / np.abs(m).max()
 
-    def _draw_views(self, view_projs, size, draw_one):
-        """Draw every view into atlas tiles; yields ``(first_view, tiles (k, n, n, 4))``."""
+    def _draw_views(self, view_projs, size, draw_one, channels=4):
+        """Draw every view into atlas tiles; yields ``(first_view, tiles (k, n, n, channels))``."""
         per_row = max(1, ATLAS_EDGE // size)
         per_atlas = per_row * per_row
         v = len(view_projs)
@@ -215,12 +226,12 @@ class GpuRenderer:
             cols = min(count, per_row)
             rows = math.ceil(count / cols)
             width, height = cols * size, rows * size
-            colour = gpu.types.GPUTexture((width, height), format="RGBA32F")
+            colour = gpu.types.GPUTexture((width, height), format="RGBA32F" if channels == 4 else "RG32F")
             depth = gpu.types.GPUTexture((width, height), format="DEPTH_COMPONENT32F")
             # The framebuffer does not keep its attachments alive: hold both until read back.
             fb = gpu.types.GPUFrameBuffer(depth_slot=depth, color_slots=(colour,))
             with fb.bind():
-                fb.clear(color=(0.0, 0.0, 0.0, FAR_AWAY), depth=1.0)
+                fb.clear(color=(0.0, 0.0, 0.0, FAR_AWAY) if channels == 4 else (0.0, FAR_AWAY, 0.0, 0.0), depth=1.0)
                 gpu.state.depth_test_set("LESS")
                 gpu.state.depth_mask_set(True)
                 gpu.state.face_culling_set("NONE")
@@ -230,18 +241,19 @@ class GpuRenderer:
                     draw_one(first + k)
                 gpu.state.depth_test_set("NONE")
                 gpu.state.depth_mask_set(False)
-            atlas = read_texture(colour, width, height)
+            atlas = read_texture(colour, width, height, channels)
             del fb, depth, colour
-            tiles = atlas.reshape(rows, size, cols, size, 4).transpose(0, 2, 1, 3, 4).reshape(rows * cols, size, size, 4)
+            tiles = atlas.reshape(rows, size, cols, size, channels).transpose(0, 2, 1, 3, 4).reshape(rows * cols, size, size, channels)
             yield first, tiles[:count]
 
-    def render(self, view_projs, eyes, axes, size):
+    def render(self, view_projs, eyes, axes, size, with_bary=True):
         v = len(view_projs)
         tid = np.empty((v, size, size), dtype=np.int64)
-        bary = np.empty((v, size, size, 3), dtype=np.float32)
+        bary = np.zeros((v, size, size, 3), dtype=np.float32)
         dist = np.empty((v, size, size), dtype=np.float32)
         back = np.empty((v, size, size), dtype=bool)
-        shader = self.id_shader
+        shader = self.id_shader if with_bary else _id_shader(False)
+        batch = self.id_batch if with_bary else self._depth_batch()
         shader.bind()
 
         def draw_one(k):
@@ -253,18 +265,27 @@ class GpuRenderer:
             else:
                 shader.uniform_float("axis", tuple(float(x) for x in axes[k]))
                 shader.uniform_float("ortho", 1.0)
-            self.id_batch.draw(shader)
+            batch.draw(shader)
 
-        for first, tiles in self._draw_views(view_projs, size, draw_one):
+        for first, tiles in self._draw_views(view_projs, size, draw_one, 4 if with_bary else 2):
             sl = slice(first, first + len(tiles))
             code = tiles[..., 0]
             tid[sl] = np.abs(code).astype(np.int64) - 1
             back[sl] = code < 0
-            b1, b2 = tiles[..., 1], tiles[..., 2]
-            bary[sl] = np.stack([1.0 - b1 - b2, b1, b2], axis=-1)
+            if with_bary:
+                b1, b2 = tiles[..., 1], tiles[..., 2]
+                bary[sl] = np.stack([1.0 - b1 - b2, b1, b2], axis=-1)
             hit = code != 0
-            dist[sl] = np.where(hit, np.where(hit, tiles[..., 3], 0.0) * np.float32(self.unit), np.inf)
+            dist[sl] = np.where(hit, np.where(hit, tiles[..., -1], 0.0) * np.float32(self.unit), np.inf)
         return tid, bary, dist, back
+
+    def _depth_batch(self):
+        """The triangles for the depth-only shader (the same vertex layout, its own batch)."""
+        if getattr(self, "depth_batch", None) is None:
+            tid = np.repeat(np.arange(len(self.triangles), dtype=np.float32), 3)
+            # The compiler drops the barycentrics this shader does not write: no such attribute.
+            self.depth_batch = batch_for_shader(_id_shader(False), "TRIS", {"pos": self.corner_pos, "tid": tid})
+        return self.depth_batch
 
     def render_colour(self, view_projs, size, point_radiance):
         if self._colour_shader is None:

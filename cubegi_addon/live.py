@@ -78,19 +78,23 @@ def update(context, materials=False, write=True, settle=True):
     ``settle=False``: a power or colour edit is applied as a weighted sum alone, with the
     energy balance's factors as they were and the bounce layers left for the next settled
     update (the one-shot bake's numbers come back then)."""
-    t0 = time.perf_counter()
-    kept = state_of(context)
-    state, report = kept.light, Update()
-    report.seconds["prepare"] = time.perf_counter() - t0
-
+    report = Update()
+    kept = session.kept(context.scene)
+    if kept is None:
+        state_of(context)  # refuses with the reason
     t = time.perf_counter()
     lights, sky, _ = scene_data.scene_lights(context)
     report.seconds["read"] = time.perf_counter() - t
-    t = time.perf_counter()
-    drawn = _update_lights(state, lights, sky, report)
-    if materials:
-        drawn |= _update_materials(context, kept, report)
-    report.seconds["lights"] = time.perf_counter() - t
+    drawn = False
+    if kept.light is not None or materials or not _same_lights(kept.arrays, lights, sky):
+        t = time.perf_counter()
+        state = state_of(context).light  # made on the first light or material edit (its operator)
+        report.seconds["prepare"] = time.perf_counter() - t
+        t = time.perf_counter()
+        drawn = _update_lights(state, lights, sky, report)
+        if materials:
+            drawn |= _update_materials(context, kept, report)
+        report.seconds["lights"] = time.perf_counter() - t
     moved = _moved_objects(context, kept) if kept.moving else []
     if report.changed or (settle and kept.unsettled) or moved:
         if moved and not (report.changed or kept.unsettled):
@@ -105,6 +109,7 @@ def update(context, materials=False, write=True, settle=True):
         report.path = "materials" if materials and any(c.startswith("material") for c in report.changed) else (
             "lights" if drawn else "weights" if report.changed else "settle")
         instant = not settle and report.path == "weights"
+        state = state_of(context).light
         if not instant:
             t = time.perf_counter()
             state.solve()
@@ -117,6 +122,14 @@ def update(context, materials=False, write=True, settle=True):
             write_light(context, kept, bounces=not instant)
             report.seconds["write"] = time.perf_counter() - t
     return report
+
+
+def _same_lights(arrays, lights, sky):
+    """True if ``lights`` and ``sky`` are what the kept bake was made (or last updated) with."""
+    before = arrays.lights
+    if len(before) != len(lights) or not np.array_equal(np.asarray(arrays.sky), np.asarray(sky)):
+        return False
+    return all(a.name == b.name and _same_place(a, b) and np.array_equal(a.colour, b.colour) for a, b in zip(before, lights))
 
 
 def _update_lights(state, lights, sky, report):

@@ -33,15 +33,16 @@ __all__ = ["Renderer", "BakeResult", "bake_steps", "run", "check_memory", "memor
 class Renderer(Protocol):
     """What the bake needs from the GPU.
 
-    ``render(view_projs (v, 4, 4), eyes (v, 3), axes (v, 3) or None, size)`` draws the
-    scene's triangles into ``v`` square views and returns per texel the triangle index
-    (int64, -1 for nothing), barycentric weights ``(v, n, n, 3)``, distance (radial from the
-    eye, or along ``axes`` for orthographic views; inf for nothing) and a back-face flag.
+    ``render(view_projs (v, 4, 4), eyes (v, 3), axes (v, 3) or None, size, with_bary=True)``
+    draws the scene's triangles into ``v`` square views and returns per texel the triangle
+    index (int64, -1 for nothing), barycentric weights ``(v, n, n, 3)`` (zeros without
+    ``with_bary``: depth maps for shadows), distance (radial from the eye, or along ``axes``
+    for orthographic views; inf for nothing) and a back-face flag.
     ``render_colour(view_projs, size, point_radiance (s, 3))`` draws the scene coloured by
     per-point radiance (back faces black) and returns ``(v, n, n, 3)``.
     """
 
-    def render(self, view_projs, eyes, axes, size): ...
+    def render(self, view_projs, eyes, axes, size, with_bary=True): ...
 
     def render_colour(self, view_projs, size, point_radiance): ...
 

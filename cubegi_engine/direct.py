@@ -97,17 +97,17 @@ def draw_shadow(scene, renderer, settings, light, size=None) -> Shadow:
         eye = centre - axis * radius * SUN_EYE_DISTANCE
         view = cubemap.look_matrix(eye, axis, cubemap.any_perpendicular(axis))
         vp = cubemap.orthographic(radius, SUN_NEAR * radius, SUN_FAR * radius) @ view
-        tid, _, dist, back = renderer.render(vp[None], eye[None], axis[None], size or settings.sun_shadow_size)
+        tid, _, dist, back = renderer.render(vp[None], eye[None], axis[None], size or settings.sun_shadow_size, with_bary=False)
         shadow.ortho = (vp, axis, eye, tid[0], dist[0], back[0], radius)
         return shadow
     near, far = clip_planes(scene.scale, _nearest_distance(scene.points, light.position))
     if light.kind == "AREA":
         samples = light.samples if light.samples is not None and len(light.samples) else light.position[None]
         shadow.eyes = samples + light.direction * (AREA_EYE_LIFT * scene.scale)
-        shadow.cubes = capture_cubes(renderer, shadow.eyes, size or settings.area_shadow_size, near, far)
+        shadow.cubes = capture_cubes(renderer, shadow.eyes, size or settings.area_shadow_size, near, far, with_bary=False)
     else:
         shadow.eyes = light.position[None]
-        shadow.cubes = capture_cubes(renderer, shadow.eyes, size or settings.shadow_size, near, far)
+        shadow.cubes = capture_cubes(renderer, shadow.eyes, size or settings.shadow_size, near, far, with_bary=False)
     return shadow
 
 

@@ -56,13 +56,17 @@ class CubeCapture:
         return self.tid.shape[-1]
 
 
-def capture_cubes(renderer, eyes, size, near, far):
+def capture_cubes(renderer, eyes, size, near, far, with_bary=True):
     """Render cube maps at ``eyes`` ``(k, 3)`` with ``renderer`` and return a CubeCapture.
-    ``near``: one distance, or one per eye ``(k,)``."""
+    ``near``: one distance, or one per eye ``(k,)``. ``with_bary=False``: depth maps alone
+    (the barycentrics come back zero; shadow tests do not read them)."""
     eyes = np.asarray(eyes, dtype=np.float64).reshape(-1, 3)
     nears = np.broadcast_to(np.asarray(near, dtype=np.float64), (len(eyes),))
     vps = np.concatenate([cubemap.cube_view_projections(e, n, far) for e, n in zip(eyes, nears)])
-    tid, bary, dist, back = renderer.render(vps, np.repeat(eyes, 6, axis=0), None, size)
+    if with_bary:
+        tid, bary, dist, back = renderer.render(vps, np.repeat(eyes, 6, axis=0), None, size)
+    else:
+        tid, bary, dist, back = renderer.render(vps, np.repeat(eyes, 6, axis=0), None, size, with_bary=False)
     shape = (len(eyes), 6, size, size)
     return CubeCapture(tid.reshape(shape), bary.reshape(shape + (3,)), dist.reshape(shape), back.reshape(shape))
 

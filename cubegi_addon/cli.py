@@ -33,7 +33,14 @@ def _parser():
     a.add_argument("input", help="the .blend file to bake (never written)")
     a.add_argument("-o", "--output", required=True, help="where to write the baked .blend (its cache: OUT.cubegi/ beside it)")
     a.add_argument("--frames", nargs=2, type=int, metavar=("FIRST", "LAST"), help="frames to bake (default: the scene's range)")
+    a.add_argument("--cache-dir", help=argparse.SUPPRESS)  # a chunk of a distributed run writes into the shared cache
     _bake_options(a)
+    _cluster_options(a)
+    c = sub.add_parser("batch", help="bake many files on Dask (a local pool of processes, or a running scheduler)")
+    c.add_argument("inputs", nargs="+", help="the .blend files to bake (never written)")
+    c.add_argument("--out-dir", required=True, help="folder for NAME.blend and NAME.json per input, and batch.json")
+    _bake_options(c)
+    _cluster_options(c)
     d = sub.add_parser("demo", help="build, bake and render the demo Room")
     d.add_argument("--out", default="out/demo", help="folder for room.blend, room.png and report.json")
     d.add_argument("--no-render", action="store_true", help="skip the PNG")
@@ -72,6 +79,53 @@ def _bake_options(p, demo=False):
             "--dynamic", nargs="+", metavar="NAME", default=[],
             help="objects left out of the capture and lit from the probe field (they move without a new bake)",
         )
+
+
+def _cluster_options(p):
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--workers", type=int, help="bake on a local Dask pool of this many worker processes")
+    g.add_argument("--scheduler", metavar="ADDRESS", help="bake on a running Dask scheduler (tcp://host:8786)")
+
+
+def _forwarded(args):
+    """The bake options of ``args`` as command-line words, for the bakes a cluster runs."""
+    words = ["--cube-size", str(args.cube_size), "--bounces", str(args.bounces)]
+    if args.grid:
+        words += ["--grid", *map(str, args.grid)]
+    if args.tolerance is not None:
+        words += ["--tolerance", str(args.tolerance)]
+    words += [flag for flag, on in (("--no-visibility", args.no_visibility), ("--no-tail", args.no_tail),
+                                    ("--no-energy-conservation", args.no_energy_conservation)) if on]
+    if args.reference:
+        words += ["--reference", args.reference, "--reference-samples", str(args.reference_samples)]
+    if getattr(args, "lit", None):
+        words += ["--lit", args.lit]
+    if getattr(args, "dynamic", None):
+        words += ["--dynamic", *args.dynamic]
+    return words
+
+
+def cmd_batch(args):
+    _settings(args)
+    if args.workers is not None and args.workers < 1:
+        raise BakeError(f"--workers must be 1 or more, got {args.workers}")
+    inputs = [_check_input(f)[0] for f in args.inputs]
+    out_dir = os.path.abspath(args.out_dir)
+    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+        raise BakeError(f"--out-dir {args.out_dir!r} is a file; give a folder")
+    os.makedirs(out_dir, exist_ok=True)
+    for src in inputs:
+        name = os.path.splitext(os.path.basename(src))[0]
+        files.writable_target(os.path.join(out_dir, f"{name}.blend"), "output", [(s, "an input") for s in inputs])
+    from . import cluster
+
+    summary = cluster.batch(inputs, out_dir, _forwarded(args), workers=args.workers or (None if args.scheduler else 2),
+                            scheduler=args.scheduler, log=lambda m: print(f"cubegi: {m}", flush=True))
+    for line in cluster.summary_lines(summary):
+        print(f"cubegi: {line}", flush=True)
+    print(f"cubegi: wrote {os.path.join(out_dir, 'batch.json')}", flush=True)
+    if any(r["status"] == "failed" for r in summary["files"]):
+        raise BakeError(f"{sum(r['status'] == 'failed' for r in summary['files'])} of {len(summary['files'])} files failed; the rest are baked")
 
 
 def _settings(args):
@@ -200,11 +254,13 @@ def cmd_bake_animation(args):
     src, compressed, dst, report_path = _check_io(args)
     from .animation import cache_folder
 
-    folder = cache_folder(dst)
+    folder = os.path.abspath(args.cache_dir) if args.cache_dir else cache_folder(dst)
     if os.path.exists(folder) and not os.path.isdir(folder):
         raise BakeError(f"the cache folder {folder!r} is a file; move it or give another output")
     if args.frames and args.frames[1] < args.frames[0]:
         raise BakeError(f"--frames: the last frame comes before the first ({args.frames[0]} {args.frames[1]})")
+    if args.workers is not None or args.scheduler:
+        return _bake_animation_on_cluster(args, src, dst, report_path)
     bpy = _blender()
     from ..cubegi_engine.bake import run
     from .animation import bake_animation_steps
@@ -230,6 +286,23 @@ def cmd_bake_animation(args):
     per = result["seconds"] / len(result["frames"])
     print(f"cubegi: baked {len(result['frames'])} frames in {result['seconds']:.2f} s ({per * 1000:.0f} ms a frame; "
           + ", ".join(f"{n} {p}" for p, n in paths.items()) + f") into {folder}", flush=True)
+
+
+def _bake_animation_on_cluster(args, src, dst, report_path):
+    if args.workers is not None and args.workers < 1:
+        raise BakeError(f"--workers must be 1 or more, got {args.workers}")
+    if not args.frames:
+        raise BakeError("--frames FIRST LAST is needed with --workers or --scheduler")
+    from . import cluster
+
+    words = _forwarded(args)
+    result = cluster.bake_animation(src, dst, args.frames[0], args.frames[1], words, workers=args.workers,
+                                    scheduler=args.scheduler, log=lambda m: print(f"cubegi: {m}", flush=True))
+    if report_path:
+        text = json.dumps({"input": src, "output": dst, **result}, indent=2, allow_nan=False)
+        files.write_all([(report_path, lambda tmp: open(tmp, "w").write(text))])
+    print(f"cubegi: baked {len(result['frames'])} frames in {len(result['chunks'])} chunks in {result['seconds']:.2f} s "
+          f"into {result['cache']}", flush=True)
 
 
 def cmd_demo(args):
@@ -271,7 +344,8 @@ def main(argv=None):
     """Run the command line; returns the exit status (0 done, 2 refused, 3 CubeGI failed)."""
     args = _parser().parse_args(argv)
     try:
-        commands = {"bake": cmd_bake, "bake-animation": cmd_bake_animation, "demo": cmd_demo, "benchmark": cmd_benchmark}
+        commands = {"bake": cmd_bake, "bake-animation": cmd_bake_animation, "batch": cmd_batch, "demo": cmd_demo,
+                    "benchmark": cmd_benchmark}
         commands[args.command](args)
     except BakeError as exc:
         print(f"cubegi: error: {exc}", file=sys.stderr)

@@ -31,7 +31,7 @@ if [ ! -x "$VENV/bin/python" ]; then
   echo "setup: creating $VENV"
   "$PY" -m venv "$VENV"
 fi
-if ! "$VENV/bin/python" -c 'import bpy, pytest, hypothesis, matplotlib' >/dev/null 2>&1; then
+if ! "$VENV/bin/python" -c 'import bpy, pytest, hypothesis, matplotlib, dask, distributed' >/dev/null 2>&1; then
   echo "setup: installing Python packages into $VENV"
   "$VENV/bin/python" -m pip install -q --disable-pip-version-check -r "$ROOT/requirements-dev.txt"
 fi

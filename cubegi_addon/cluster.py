@@ -1,0 +1,234 @@
+"""Bakes past one machine: many files, or one animation's frame range in chunks, on Dask
+distributed (a LocalCluster by default, any running scheduler by address; through
+``dask-jobqueue``, the Slurm or PBS clusters studios already run).
+
+Each bake runs in a process of its own, started by a Dask worker: ``python -m cubegi_engine
+bake ...`` (or ``bake-animation --frames A B``). bpy holds one scene per process, so one
+process per bake keeps bakes apart; a crash (a segfault, a GPU context that fails to start)
+ends only that process: the file is reported as failed and the others go on. A worker that
+dies itself (killed, out of memory) is replaced by Dask and its task retried. Every output
+is written whole by the bake itself (temporary name, renamed), so an interrupted job leaves
+finished outputs whole and no half-written file; a second run skips what is done and valid.
+
+Run from the source tree (the command line): imports no bpy; needs ``dask`` and
+``distributed``. A task is ``subprocess.run`` of a command line, so a worker imports
+nothing of CubeGI: it needs this source tree at the same path, its Python (the venv with
+bpy) and EGL for the GPU module (see the README, "Baking on a cluster").
+"""
+
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+from ..cubegi_engine.errors import BakeError
+from . import files
+
+# The source tree every worker runs ``python -m cubegi_engine`` from.
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+# Seconds one bake may take in its process before it is stopped and reported as failed.
+BAKE_TIMEOUT = 3600
+# A chunk of an animation starts with a full bake (about 0.45 s on the demo Room here) and
+# then updates a frame at a time (23-71 ms): below this many frames a chunk's full bake
+# outweighs its updates, so a chunk has at least this many frames (measured with
+# benchmarks/bench_animation.py: a full bake costs 6x to 19x a frame's update).
+MIN_FRAMES_PER_CHUNK = 8
+# Tasks of a worker that died are retried this many times.
+RETRIES = 2
+# Seconds between the progress lines a job prints.
+PROGRESS_SECONDS = 5.0
+
+
+def _client(workers=None, scheduler=None):
+    """A Dask client: to ``scheduler`` if given, else to a LocalCluster of ``workers``
+    processes of one thread each (each bake is a process of its own anyway)."""
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise BakeError("baking on a cluster needs dask and distributed: pip install dask distributed") from None
+    if scheduler:
+        return Client(scheduler), None
+    cluster = LocalCluster(n_workers=int(workers or 2), threads_per_worker=1, processes=True, dashboard_address=None)
+    return Client(cluster), cluster
+
+
+def _submit(client, args, timeout=BAKE_TIMEOUT):
+    """One bake as a task: ``subprocess.run`` of ``python -m cubegi_engine *args`` in the
+    source tree (only the standard library crosses to the worker)."""
+    command = [sys.executable, "-m", "cubegi_engine", *args]
+    return client.submit(subprocess.run, command, cwd=ROOT, capture_output=True, text=True, timeout=timeout,
+                         retries=RETRIES, pure=False)
+
+
+def _outcome(future):
+    """``(status, error)`` of a finished task: its process's exit, or the task's failure."""
+    if future.status != "finished":
+        exc = future.exception()
+        if isinstance(exc, subprocess.TimeoutExpired):
+            return "failed", f"stopped after {exc.timeout} s"
+        return "failed", f"its worker failed {RETRIES + 1} times ({type(exc).__name__}: {exc})"
+    r = future.result()
+    if r.returncode == 0:
+        return "done", None
+    errors = [ln for ln in r.stderr.splitlines() if ln.startswith("cubegi: error:")]
+    if errors:
+        return "failed", errors[-1].removeprefix("cubegi: error: ")
+    return "failed", f"the bake's process ended with status {r.returncode} (a crash; the other bakes went on)"
+
+
+def _wait(futures, log):
+    """Wait for every task, logging how many are done now and then."""
+    from distributed import wait
+
+    t0 = time.perf_counter()
+    while True:
+        done = sum(f.done() for f in futures)
+        if done == len(futures):
+            break
+        log(f"{done}/{len(futures)} done after {time.perf_counter() - t0:.0f} s")
+        try:
+            wait(futures, timeout=PROGRESS_SECONDS)
+        except TimeoutError:
+            pass
+    return time.perf_counter() - t0
+
+
+def _paths(src, out_dir):
+    name = os.path.splitext(os.path.basename(src))[0]
+    return os.path.join(out_dir, f"{name}.blend"), os.path.join(out_dir, f"{name}.json")
+
+
+def _record(src, out_dir, status, error=None):
+    """A file's line of the summary; ``seconds`` is its bake's own time (from its report)."""
+    out, report = _paths(src, out_dir)
+    ok = status in ("done", "skipped")
+    rec = {"file": src, "status": status, "seconds": None, "output": out if ok else None, "report": report if ok else None,
+           "probes": None, "estimated_remaining_error": None, "error": error}
+    if ok:
+        with open(report) as fh:
+            data = json.load(fh)
+        rec["seconds"] = round(data["total_seconds"], 3)
+        rec["probes"] = data["grid"]["probes"]
+        rec["estimated_remaining_error"] = data["estimated_remaining_error"]
+    return rec
+
+
+def _done_before(src, out_dir):
+    """True if ``src``'s output and report exist, name it, and are newer than it (resume)."""
+    out, report = _paths(src, out_dir)
+    try:
+        with open(report) as fh:
+            data = json.load(fh)
+        return (data.get("input") == os.path.realpath(src) and os.path.isfile(out)
+                and os.path.getmtime(report) >= os.path.getmtime(src) and os.path.getmtime(out) >= os.path.getmtime(src))
+    except (OSError, ValueError, KeyError):
+        return False
+
+
+def batch(inputs, out_dir, options, workers=None, scheduler=None, log=print):
+    """Bake every file of ``inputs`` into ``out_dir`` (``name.blend``, ``name.json``); returns
+    the summary and writes it to ``out_dir/batch.json``."""
+    os.makedirs(out_dir, exist_ok=True)
+    names = [os.path.splitext(os.path.basename(f))[0] for f in inputs]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise BakeError(f"two inputs would write the same output name: {', '.join(twice)}; rename one")
+    t0 = time.perf_counter()
+    records, todo = {}, []
+    for src in map(os.path.realpath, inputs):
+        if _done_before(src, out_dir):
+            records[src] = _record(src, out_dir, "skipped")
+        else:
+            todo.append(src)
+    if todo:
+        client, cluster = _client(workers, scheduler)
+        try:
+            if cluster is None and getattr(client, "dashboard_link", None):
+                log(f"batch: the Dask dashboard: {client.dashboard_link}")
+            futures = [_submit(client, ["bake", src, "-o", _paths(src, out_dir)[0], "--report", _paths(src, out_dir)[1], *options])
+                       for src in todo]
+            _wait(futures, lambda m: log(f"batch: {m}"))
+            for src, fut in zip(todo, futures):
+                records[src] = _record(src, out_dir, *_outcome(fut))
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    summary = {"files": [records[os.path.realpath(f)] for f in inputs], "seconds": round(time.perf_counter() - t0, 3),
+               "workers": None if scheduler else int(workers or 2), "scheduler": scheduler}
+    text = json.dumps(summary, indent=2, allow_nan=False)
+    files.write_all([(os.path.join(out_dir, "batch.json"), lambda tmp: open(tmp, "w").write(text))])
+    return summary
+
+
+def summary_lines(summary):
+    """The batch's table: file, status, seconds, probes, estimated missing light."""
+    rows = [("file", "status", "seconds", "probes", "missing")]
+    for rec in summary["files"]:
+        err = rec["estimated_remaining_error"]
+        rows.append((os.path.basename(rec["file"]), rec["status"], f"{rec['seconds']:.2f}" if rec["seconds"] is not None else "-",
+                     str(rec["probes"] or "-"), f"{100 * err:.2g}%" if err is not None else "-"))
+    width = [max(len(r[k]) for r in rows) for k in range(5)]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(r, width)).rstrip() for r in rows]
+    lines += [f"{os.path.basename(r['file'])}: {r['error']}" for r in summary["files"] if r["error"]]
+    return lines
+
+
+def chunks(first, last, workers):
+    """The frame range cut into chunks ``[(a, b)]``: one per worker, but none shorter than
+    MIN_FRAMES_PER_CHUNK frames (see it)."""
+    frames = last - first + 1
+    count = max(1, min(int(workers), frames // MIN_FRAMES_PER_CHUNK))
+    size = math.ceil(frames / count)
+    return [(a, min(a + size - 1, last)) for a in range(first, last + 1, size)]
+
+
+def bake_animation(src, out, first, last, options, workers=None, scheduler=None, log=print):
+    """Bake frames ``first..last`` of ``src`` in chunks on Dask: the cache ``OUT.cubegi/``
+    and ``OUT.blend`` as one machine writes them (the first chunk writes the .blend). Returns
+    ``{"frames": [...], "chunks": [...], "seconds": ...}``. A chunk whose frames are all in
+    the cache already (a second run) is not baked again."""
+    from .animation import cache_folder, frame_path
+
+    cache = cache_folder(out)
+    os.makedirs(cache, exist_ok=True)
+    parts = chunks(first, last, workers or 2)
+    todo = [(a, b) for a, b in parts
+            if not all(os.path.isfile(frame_path(cache, f)) for f in range(a, b + 1)) or (a == first and not os.path.isfile(out))]
+    t0 = time.perf_counter()
+    scratch = tempfile.mkdtemp(prefix=".cubegi-chunks-", dir=os.path.dirname(out))
+    results = []
+    try:
+        if todo:
+            client, cluster = _client(workers, scheduler)
+            try:
+                futures, reports = [], []
+                for k, (a, b) in enumerate(todo):
+                    blend = out if a == first else os.path.join(scratch, f"chunk_{k}.blend")
+                    reports.append(os.path.join(scratch, f"chunk_{k}.json"))
+                    futures.append(_submit(client, ["bake-animation", src, "-o", blend, "--frames", str(a), str(b),
+                                                    "--cache-dir", cache, "--report", reports[-1], *options]))
+                _wait(futures, lambda m: log(f"bake-animation: {m}"))
+                for (a, b), fut, report in zip(todo, futures, reports):
+                    status, error = _outcome(fut)
+                    frames = []
+                    if status == "done":
+                        with open(report) as fh:
+                            frames = json.load(fh)["frames"]
+                    results.append({"first": a, "last": b, "status": status, "error": error, "frames": frames})
+            finally:
+                client.close()
+                if cluster is not None:
+                    cluster.close()
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    failed = [r for r in results if r["status"] != "done"]
+    if failed:
+        raise BakeError(f"frames {failed[0]['first']}-{failed[0]['last']} failed: {failed[0]['error']}")
+    frames = sorted((f for r in results for f in r["frames"]), key=lambda f: f["frame"])
+    return {"frames": frames, "chunks": [{k: r[k] for k in ("first", "last", "status")} for r in results],
+            "seconds": round(time.perf_counter() - t0, 3), "cache": cache}

@@ -1,0 +1,151 @@
+"""Baking past one machine on Dask distributed (a LocalCluster of 2 workers here): a batch of
+files gives what one-machine bakes give, a failing file does not stop the others, a killed
+worker's task is retried, a second run resumes, and an animation split into chunks gives the
+one-machine cache."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import bpy
+import numpy as np
+import pytest
+
+import scenes
+
+pytest.importorskip("distributed")
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+FAST = ["--grid", "3", "3", "2", "--cube-size", "8", "--bounces", "2"]
+# Bakes on workers run the same code on the same machine: the same numbers. 1e-6 of the peak
+# allows for another machine's float32 summation order.
+SAME_TOL = 1e-6
+# Chunks start with a full bake where one machine updates: equal to the tail solve's tolerance.
+SOLVE_TOL = 2e-5
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "cubegi_engine", *map(str, args)], cwd=ROOT, capture_output=True, text=True, timeout=300)
+
+
+@pytest.fixture
+def three_files(empty_scene, cubegi, tmp_path):
+    """Three small scenes and a corrupt file."""
+    paths = []
+    for k, build in enumerate((scenes.cornell, scenes.thin_wall, lambda: scenes.closed_box(albedo=0.6, cells=4))):
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        build()
+        if k == 2:
+            scenes.add_light("POINT", (0.2, 0.1, 0.3), 20.0)
+        paths.append(tmp_path / f"scene{k}.blend")
+        bpy.ops.wm.save_as_mainfile(filepath=str(paths[-1]))
+    broken = tmp_path / "broken.blend"
+    broken.write_bytes(paths[0].read_bytes()[:3000])
+    return paths, broken
+
+
+def _attributes(path):
+    bpy.ops.wm.open_mainfile(filepath=str(path))
+    read = __import__("cubegi").cubegi_addon.attributes.read
+    return {(ob.name, n): read(ob.data, n) for ob in bpy.data.objects if ob.type == "MESH"
+            for n in ("CubeGI_direct", "CubeGI", "CubeGI_total")}
+
+
+def _same(a, b, tol):
+    assert a.keys() == b.keys()
+    peak = max(v.max() for v in b.values())
+    for key in b:
+        np.testing.assert_allclose(a[key], b[key], rtol=0, atol=tol * peak, err_msg=str(key))
+
+
+def test_a_batch_equals_one_machine_bakes_and_a_bad_file_stops_nothing(three_files, tmp_path):
+    paths, broken = three_files
+    out = tmp_path / "out"
+    r = _cli("batch", *paths, broken, "--out-dir", out, "--workers", "2", *FAST)
+    assert r.returncode == 2, r.stderr  # one file failed: reported, the rest baked
+    summary = json.loads((out / "batch.json").read_text())
+    status = {os.path.basename(f["file"]): f["status"] for f in summary["files"]}
+    assert status == {"scene0.blend": "done", "scene1.blend": "done", "scene2.blend": "done", "broken.blend": "failed"}
+    failed = next(f for f in summary["files"] if f["status"] == "failed")
+    assert "cannot read the input" in failed["error"] and "broken.blend: cannot read the input" in r.stdout
+    assert all(f["probes"] == 18 and f["seconds"] > 0 for f in summary["files"] if f["status"] == "done")
+    for k, path in enumerate(paths):
+        alone = tmp_path / f"alone{k}.blend"
+        assert _cli("bake", path, "-o", alone, *FAST).returncode == 0
+        _same(_attributes(out / f"scene{k}.blend"), _attributes(alone), SAME_TOL)
+    # A second run resumes: done files are skipped, a changed input is baked again.
+    time.sleep(1.1)
+    os.utime(paths[1])
+    r = _cli("batch", *paths, "--out-dir", out, "--workers", "2", *FAST)
+    assert r.returncode == 0, r.stderr
+    status = {os.path.basename(f["file"]): f["status"] for f in json.loads((out / "batch.json").read_text())["files"]}
+    assert status == {"scene0.blend": "skipped", "scene1.blend": "done", "scene2.blend": "skipped"}
+    assert not [n for n in os.listdir(out) if n.startswith(".cubegi-") or n.endswith(".blend1")]  # nothing half-written
+
+
+def test_a_killed_workers_bake_is_retried_and_gives_the_same_light(three_files, tmp_path, cubegi, monkeypatch):
+    from distributed import Client, LocalCluster
+
+    from cubegi.cubegi_addon import cluster as cluster_mod
+    paths, _ = three_files
+    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
+    client = Client(cluster)
+    monkeypatch.setattr(cluster_mod, "_client", lambda workers=None, scheduler=None: (client, cluster))
+    killed = []
+
+    def kill_a_busy_worker():
+        deadline = time.time() + 60
+        while time.time() < deadline and not killed:
+            busy = [w for w, tasks in client.processing().items() if tasks]
+            if busy:
+                pids = client.run(os.getpid, workers=busy[:1])
+                for pid in pids.values():
+                    os.kill(pid, signal.SIGKILL)
+                    killed.append(pid)
+            time.sleep(0.05)
+
+    killer = threading.Thread(target=kill_a_busy_worker)
+    killer.start()
+    options = ["--grid", "3", "3", "2", "--cube-size", "8", "--bounces", "2"]
+    summary = cluster_mod.batch([str(p) for p in paths], str(tmp_path / "out"), options, workers=2, log=lambda m: None)
+    killer.join()
+    assert killed, "no worker was busy to kill"
+    assert [f["status"] for f in summary["files"]] == ["done", "done", "done"]
+    for k, path in enumerate(paths):
+        alone = tmp_path / f"alone{k}.blend"
+        assert _cli("bake", path, "-o", alone, *options).returncode == 0
+        _same(_attributes(tmp_path / "out" / f"scene{k}.blend"), _attributes(alone), SAME_TOL)
+
+
+def test_an_animation_in_chunks_gives_the_one_machine_cache(empty_scene, cubegi, tmp_path):
+    v, f = scenes.box_mesh((-2, -2, 0), (2, 2, 2.5), (6, 6, 4), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    lamp = scenes.add_light("POINT", (1.2, -1.2, 2.0), 150.0)
+    lamp.keyframe_insert("location", frame=1)
+    lamp.location = (-1.2, 1.2, 1.6)
+    lamp.keyframe_insert("location", frame=16)
+    src = tmp_path / "anim.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(src))
+    one, many = tmp_path / "one" / "out.blend", tmp_path / "many" / "out.blend"
+    one.parent.mkdir()
+    many.parent.mkdir()
+    assert _cli("bake-animation", src, "-o", one, "--frames", "1", "16", *FAST).returncode == 0
+    report = tmp_path / "many.json"
+    r = _cli("bake-animation", src, "-o", many, "--frames", "1", "16", "--workers", "2", "--report", report, *FAST)
+    assert r.returncode == 0, r.stderr
+    rep = json.loads(report.read_text())
+    assert [(c["first"], c["last"]) for c in rep["chunks"]] == [(1, 8), (9, 16)]
+    assert [f["frame"] for f in rep["frames"]] == list(range(1, 17))
+    assert [f["path"] for f in rep["frames"]][:2] == ["full", "lights"] and rep["frames"][8]["path"] == "full"
+    assert sorted(os.listdir(many.parent / "out.cubegi")) == sorted(os.listdir(one.parent / "out.cubegi"))
+    for frame in range(1, 17):
+        name = f"frame_{frame:04d}.npz"
+        with np.load(one.parent / "out.cubegi" / name) as a, np.load(many.parent / "out.cubegi" / name) as b:
+            _same({k: b[k] for k in b.files}, {k: a[k] for k in a.files}, SOLVE_TOL)
+    assert not [n for n in os.listdir(many.parent) if n.startswith(".cubegi-")]
+    bpy.ops.wm.open_mainfile(filepath=str(many))
+    assert bpy.context.scene.cubegi.animation_cache == "//out.cubegi"

@@ -56,6 +56,22 @@ def _client(workers=None, scheduler=None):
     return Client(cluster), cluster
 
 
+def _close(client, cluster):
+    """Close the client (and the local cluster); the progress bar's feed ends with a logged
+    CancelledError that means nothing: it is kept off the terminal."""
+    import logging
+
+    log = logging.getLogger("distributed")
+    level = log.level
+    log.setLevel(logging.CRITICAL)
+    try:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    finally:
+        log.setLevel(level)
+
+
 def _submit(client, args, timeout=BAKE_TIMEOUT):
     """One bake as a task: ``subprocess.run`` of ``python -m cubegi_engine *args`` in the
     source tree (only the standard library crosses to the worker)."""
@@ -81,10 +97,14 @@ def _outcome(future):
 
 
 def _wait(futures, log):
-    """Wait for every task, logging how many are done now and then."""
-    from distributed import wait
+    """Wait for every task: a progress bar on a terminal, else a line now and then."""
+    from distributed import progress, wait
 
     t0 = time.perf_counter()
+    if sys.stdout.isatty():
+        progress(futures)
+        print(flush=True)
+        return time.perf_counter() - t0
     while True:
         done = sum(f.done() for f in futures)
         if done == len(futures):
@@ -155,9 +175,7 @@ def batch(inputs, out_dir, options, workers=None, scheduler=None, log=print):
             for src, fut in zip(todo, futures):
                 records[src] = _record(src, out_dir, *_outcome(fut))
         finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+            _close(client, cluster)
     summary = {"files": [records[os.path.realpath(f)] for f in inputs], "seconds": round(time.perf_counter() - t0, 3),
                "workers": None if scheduler else int(workers or 2), "scheduler": scheduler}
     text = json.dumps(summary, indent=2, allow_nan=False)
@@ -221,9 +239,7 @@ def bake_animation(src, out, first, last, options, workers=None, scheduler=None,
                             frames = json.load(fh)["frames"]
                     results.append({"first": a, "last": b, "status": status, "error": error, "frames": frames})
             finally:
-                client.close()
-                if cluster is not None:
-                    cluster.close()
+                _close(client, cluster)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     failed = [r for r in results if r["status"] != "done"]

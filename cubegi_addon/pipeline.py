@@ -248,6 +248,7 @@ def _report(settings, lit, grid, grid_source, collected, result, timings, refere
         tail=solution.tail_report, timings=timings, attributes=names,
         warnings=[w for w in (solution.tail_report.warning,) if w], reference=reference_report,
         capture_reused=result.capture_reused, probes_recaptured=result.probes_recaptured,
+        left_out=list(result.direct_parts.left_out),
     )
 
 

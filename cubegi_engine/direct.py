@@ -26,6 +26,10 @@ EMISSION, SKY = "emission", "sky"
 SUN_BOX_MARGIN = 1.01
 SUN_EYE_DISTANCE = 2.0
 SUN_NEAR, SUN_FAR = 1e-3, 4.0
+# A light whose strongest light at any point (before shadows) is at most this share of the
+# brightest light's is left out (no shadow map drawn) and named in the report: a spot
+# turned away, a light under the floor, a candle beside the sun.
+LIGHT_LEFT_OUT = 1e-4
 # Area light shadow eyes sit this share of the scene's size off the light's plane, so the
 # light's own geometry (if any) and surfaces it rests on do not shadow it.
 AREA_EYE_LIFT = 1e-4
@@ -48,6 +52,7 @@ class DirectLight:
     emission_seen: float | None = None
     light_seconds: float = 0.0
     probe_seconds: float = 0.0
+    left_out: list = field(default_factory=list)  # lights skipped, each with why
 
     def total(self, scene) -> np.ndarray:
         """Every source summed, dark points zeroed: ``(s, 3)``."""
@@ -172,8 +177,14 @@ def direct_light(scene, renderer, settings, transport, landing=None, shadows=Non
     import time
 
     t = time.perf_counter()
-    parts = {}
+    parts, left_out = {}, []
+    reach = [float(lights_mod.unshadowed(light, scene.points, scene.normals).max(initial=0.0)) for light in scene.lights]
+    brightest = max(reach, default=0.0)
     for k, light in enumerate(scene.lights):
+        if reach[k] <= LIGHT_LEFT_OUT * brightest:  # no shadow map drawn for it
+            why = "reaches no surface" if reach[k] <= 0.0 else f"below {LIGHT_LEFT_OUT:g} of the brightest light everywhere"
+            left_out.append(f"light {light.name or k}: {why}")
+            continue
         key = light_key(light)
         parts[key if key not in parts else f"{key}#{k}"] = light_direct(scene, renderer, settings, light, shadows)
     light_seconds = time.perf_counter() - t
@@ -195,4 +206,4 @@ def direct_light(scene, renderer, settings, transport, landing=None, shadows=Non
         sky_coeffs = transport.sky_coefficients(scene.sky)
         coeffs = coeffs + sky_coeffs
         parts[SKY] = transport.interpolate(sky_coeffs)
-    return DirectLight(parts, coeffs, factor, seen, light_seconds, time.perf_counter() - t)
+    return DirectLight(parts, coeffs, factor, seen, light_seconds, time.perf_counter() - t, left_out)

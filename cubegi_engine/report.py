@@ -36,6 +36,7 @@ class BakeReport:
     reference: dict | None = None
     capture_reused: bool = False
     probes_recaptured: int | None = None
+    left_out: list = field(default_factory=list)  # what the bake left out, each with why
     input: str | None = None
     output: str | None = None
     version: str = __version__
@@ -69,6 +70,7 @@ class BakeReport:
             "estimated_remaining_error": self.estimated_remaining_error,
             "capture_reused": self.capture_reused,
             "probes_recaptured": self.probes_recaptured,
+            "left_out": self.left_out,
             "timings": self.timings,
             "total_seconds": self.total_seconds,
             "reference": self.reference,
@@ -96,7 +98,7 @@ class BakeReport:
             bounces=[BounceRecord(**b) for b in d["bounces"]], indirect_mean_light=d["indirect"]["mean_light"],
             tail=TailReport.from_dict(d["tail"]), timings=timings, attributes=d.get("attributes", []),
             warnings=d.get("warnings", []), reference=d.get("reference"), capture_reused=d.get("capture_reused", False),
-            probes_recaptured=d.get("probes_recaptured"),
+            probes_recaptured=d.get("probes_recaptured"), left_out=d.get("left_out", []),
             input=d.get("input"), output=d.get("output"), version=d.get("cubegi_version", __version__),
         )
 
@@ -131,6 +133,7 @@ class BakeReport:
                 lines.append(
                     f"  {part:8s} rel. RMSE {100 * e['rel_rmse']:6.2f}%  bias {100 * e['rel_bias']:+6.2f}%  p95 {100 * e['p95_rel']:6.2f}%"
                 )
+        lines += [f"left out: {x}" for x in self.left_out]
         lines += [f"warning: {w}" for w in self.warnings]
         lines += [f"note: {n}" for n in self.notes]
         return lines

@@ -431,3 +431,21 @@ def test_a_linked_world_colour_is_averaged_or_noted(empty_scene, cubegi):
     collected = read(bpy.context)
     np.testing.assert_allclose(collected.arrays.sky, 0.5, rtol=1e-6)
     assert any("environment image 'env' is averaged" in n for n in collected.notes), collected.notes
+
+
+def test_lights_that_reach_nothing_visible_are_left_out_and_named(empty_scene, cubegi):
+    v, f = scenes.box_mesh((-2, -2, 0), (2, 2, 2.5), (4, 4, 3), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    scenes.add_light("POINT", (0.3, 0.2, 1.5), 100.0)
+    assert bpy.ops.cubegi.bake(grid=(2, 2, 2), bounces=1, cube_size=8) == {"FINISHED"}
+    alone = cubegi.cubegi_addon.attributes.read(bpy.data.objects["Room"].data, "CubeGI_total")
+    away = scenes.add_light("SPOT", (0.0, 0.0, 2.6), 500.0, spot_size=0.3)  # above the ceiling, pointing up
+    away.rotation_euler = (3.14159, 0.0, 0.0)
+    faint = scenes.add_light("POINT", (-1.0, 1.0, 1.0), 1e-6)  # a millionth of a watt beside 100 W
+    away.name, faint.name = "Away", "Faint"
+    assert bpy.ops.cubegi.bake(grid=(2, 2, 2), bounces=1, cube_size=8) == {"FINISHED"}
+    report = json.loads(bpy.context.scene.cubegi.last_report)
+    assert report["left_out"] == ["light Away: reaches no surface", "light Faint: below 0.0001 of the brightest light everywhere"]
+    text = "\n".join(cubegi.cubegi_engine.report.BakeReport.from_dict(report).summary_lines())
+    assert "left out: light Away: reaches no surface" in text
+    np.testing.assert_allclose(cubegi.cubegi_addon.attributes.read(bpy.data.objects["Room"].data, "CubeGI_total"), alone, rtol=1e-5)

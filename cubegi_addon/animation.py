@@ -120,7 +120,7 @@ def _frame(context, settings, resolution, lit, first):
     kept = session.kept(context.scene)
     if not first and kept is not None and not _static_changed(context, kept):
         try:
-            report = live.update(context, materials=_animated_materials())
+            report = live.update(context, materials=_animated_materials(), bounce_layers=False)
             return report.path, {"changed": report.changed}
         except BakeError:  # the static geometry changed: a full bake
             pass

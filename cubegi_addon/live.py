@@ -71,13 +71,15 @@ def state_of(context):
     return kept
 
 
-def update(context, materials=False, write=True, settle=True):
+def update(context, materials=False, write=True, settle=True, bounce_layers=True):
     """Bring the baked light up to date with the scene's lights, world (and with
     ``materials``, the materials' colours and emission). Returns an :class:`Update`.
 
     ``settle=False``: a power or colour edit is applied as a weighted sum alone, with the
     energy balance's factors as they were and the bounce layers left for the next settled
-    update (the one-shot bake's numbers come back then)."""
+    update (the one-shot bake's numbers come back then). ``bounce_layers=False``: the
+    per-bounce layers are not written (an animation's frames cache direct and indirect light
+    only)."""
     report = Update()
     kept = session.kept(context.scene)
     if kept is None:
@@ -119,7 +121,7 @@ def update(context, materials=False, write=True, settle=True):
         kept.arrays.sky = np.asarray(sky, dtype=np.float64)
         if write:
             t = time.perf_counter()
-            write_light(context, kept, bounces=not instant)
+            write_light(context, kept, bounces=bounce_layers and not instant, field=not instant)
             report.seconds["write"] = time.perf_counter() - t
     return report
 
@@ -194,9 +196,10 @@ def _moved_objects(context, kept):
     return moved
 
 
-def write_light(context, kept, bounces=True):
-    """Write the kept SceneLight's light to the meshes (in place) and the probe field
-    (``bounces``: the per-bounce layers and the probe field too)."""
+def write_light(context, kept, bounces=True, field=True):
+    """Write the kept SceneLight's light to the meshes (in place): the direct, indirect,
+    total and lit layers, with ``bounces`` the per-bounce ones; with ``field`` the probe
+    field, the grid objects' probe light and the dynamic objects lit from it."""
     state, arrays = kept.light, kept.arrays
     direct, indirect = state.direct(), state.indirect()
     layers = {attributes.DIRECT: direct, attributes.INDIRECT: indirect, attributes.TOTAL: direct + indirect}
@@ -213,7 +216,7 @@ def write_light(context, kept, bounces=True):
         for name, values in layers.items():
             attributes.put(mesh, name, attributes.vertex_values(target, values))
         mesh.update()
-    if not bounces:
+    if not field:
         return
     kept.result.field.coeffs, kept.result.field.source_coeffs = state.field_coeffs()
     objects = grid_objects.probe_grid_objects(context.scene)

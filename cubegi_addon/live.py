@@ -14,12 +14,13 @@ probe light on the grid objects and the kept probe field follow.
 """
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ..cubegi_engine import relight
 from ..cubegi_engine.direct import light_direct
+from ..cubegi_engine.emitters import emitter_direct
 from ..cubegi_engine.errors import BakeError
 from . import attributes, dynamic, grid_objects, probe_view, scene_data, session
 from .gpu_capture import GpuRenderer
@@ -67,7 +68,12 @@ def state_of(context):
             shadows = kept.result.shadows if kept.moving else None  # moving objects test against them
             return light_direct(arrays, kept.renderer, settings, light, shadows)
 
-        kept.light = relight.from_bake(kept.result, arrays, draw, settings.add_tail, settings.conserve_energy)
+        def emitters(emission):
+            if kept.renderer is None:
+                kept.renderer = GpuRenderer(arrays.points, arrays.triangles)
+            return emitter_direct(replace(arrays, emission=emission), kept.renderer, settings.area_shadow_size)
+
+        kept.light = relight.from_bake(kept.result, arrays, draw, settings.add_tail, settings.conserve_energy, emitters)
     return kept
 
 

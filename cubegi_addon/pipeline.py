@@ -24,9 +24,6 @@ from .gpu_capture import GpuRenderer
 
 # An object seen from behind over more than this share of what the probes see of it is noted.
 SEEN_FROM_BEHIND_NOTE = 0.1
-# Emitters whose light the probes pass on at less than this share of what they send are
-# noted (too small for the cube maps' texels, so their light is mostly lost).
-EMITTERS_SEEN_NOTE = 0.5
 LIT_CHOICES = (None, "ALL", "INDIRECT")
 
 
@@ -196,12 +193,16 @@ def _note_capture(collected, result, grid):
             f"them all lie in a finer grid's box), on {', '.join(names)}; add a probe grid over them if they should "
             "get indirect light"
         )
-    seen = result.direct_parts.emission_seen
-    if seen is not None and seen < EMITTERS_SEEN_NOTE:
+    no_probe = result.capture.transport.no_probe
+    if collected.arrays.dark is not None:
+        no_probe = no_probe & ~collected.arrays.dark
+    if no_probe.mean() > NO_PROBE_NOTE:
+        owners = collected.arrays.point_object[no_probe]
+        names = [collected.arrays.object_names[k] for k in np.unique(owners)][:5]
         collected.notes.append(
-            f"emissive surfaces: the probes pass on {100 * seen:.2g}% of the light they send to other surfaces "
-            "(emitters smaller than a texel of the cube maps are missed); use a light, larger emitters or a larger "
-            "cube-map size"
+            f"{100 * no_probe.mean():.1f}% of the shading points get no probe light (the probes of their grid around "
+            f"them all lie in a finer grid's box), on {', '.join(names)}; add a probe grid over them if they should "
+            "get indirect light"
         )
     if not result.probe_valid.any():
         collected.notes.append(

@@ -1,8 +1,9 @@
 """Direct light, kept per source: each light, the emissive surfaces and the sky.
 
-Pure numpy; must not import bpy. Lights are computed per point with shadows from depth
-maps drawn by the injected renderer. Emissive surfaces and the sky reach the points
-through the probes (the capture's tables), as in the paper; Cycles counts both as direct.
+Pure numpy; must not import bpy. Lights and emissive triangles (as two-sided area lights,
+:mod:`cubegi_engine.emitters`) are computed per point with shadows from depth maps drawn by
+the injected renderer. The sky reaches the points through the probes (the capture's
+tables), as in the paper; Cycles counts both as direct.
 
 Keeping each source's share apart is what lets a later edit of one light's power or colour
 be a weighted sum, and a moved light be recomputed alone.
@@ -13,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import cubemap, lights as lights_mod
-from .solve import conserve_energy
+from .emitters import emitter_direct
 from .transport import capture_cubes, clip_planes
 
 __all__ = ["DirectLight", "Shadow", "draw_shadow", "visibility", "light_direct", "direct_light", "EMISSION", "SKY"]
@@ -41,15 +42,13 @@ class DirectLight:
     light in scene order, ``"emission"``, ``"sky"``) to its ``(s, 3)`` light.
 
     source_coeffs: ``(p, 9, 3)`` float32 SH radiance the probes see of the emitters and the
-    sky (the start of the probe field); emitter_energy_factor: ``(3,)``.
+    sky (the start of the probe field); emitter_energy_factor: ``(3,)`` (ones: emitters'
+    light is exact; kept in the report's layout).
     """
 
     parts: dict
     source_coeffs: np.ndarray
     emitter_energy_factor: np.ndarray = field(default_factory=lambda: np.ones(3))
-    # The share of the power the emitters send towards surfaces that the probes passed on
-    # before the balance (1 when the probes see every emitter whole; None without emitters).
-    emission_seen: float | None = None
     light_seconds: float = 0.0
     probe_seconds: float = 0.0
     left_out: list = field(default_factory=list)  # lights skipped, each with why
@@ -191,19 +190,12 @@ def direct_light(scene, renderer, settings, transport, landing=None, shadows=Non
     t = time.perf_counter()
     coeffs = np.zeros((transport.probe_count, 9, 3), dtype=np.float32)
     factor = np.ones(3)
-    seen = None
     if np.any(scene.emission > 0):
-        coeffs = transport.project(transport.texel_radiance(scene.emission))
-        from_emitters = scene.zero_dark_points_inplace(transport.interpolate(coeffs).astype(np.float64))
-        areas = scene.point_areas()
-        sent = float((areas[:, None] * scene.emission * (landing if landing is not None else 1.0)).sum())
-        seen = float((areas[:, None] * from_emitters).sum()) / sent if sent > 0 else None
-        if landing is not None:
-            from_emitters, factor = conserve_energy(from_emitters, scene.emission, landing, scene.point_areas())
-            coeffs = coeffs * factor.astype(np.float32)  # the probes see the emitters as balanced
-        parts[EMISSION] = from_emitters
+        coeffs = transport.project(transport.texel_radiance(scene.emission))  # what the probes see (the field)
+        # Straight to every point, exact, from both faces (as Cycles): see cubegi_engine.emitters.
+        parts[EMISSION] = scene.zero_dark_points_inplace(emitter_direct(scene, renderer, settings.area_shadow_size))
     if np.any(scene.sky > 0):
         sky_coeffs = transport.sky_coefficients(scene.sky)
         coeffs = coeffs + sky_coeffs
         parts[SKY] = transport.interpolate(sky_coeffs)
-    return DirectLight(parts, coeffs, factor, seen, light_seconds, time.perf_counter() - t, left_out)
+    return DirectLight(parts, coeffs, factor, light_seconds, time.perf_counter() - t, left_out)

@@ -215,12 +215,12 @@ class SceneLight:
     ``add_tail``).
     """
 
-    def __init__(self, scene, transport, light_direct, op: BounceOperator, count, add_tail=True):
+    def __init__(self, scene, transport, light_direct, op: BounceOperator, count, add_tail=True, emitter_light=None):
         self.scene, self.transport, self.light_direct, self.op = scene, transport, light_direct, op
+        self.emitter_light = emitter_light
         self.count, self.add_tail = int(count), bool(add_tail)
         self.sources = {}
         self.factors = np.ones((self.count, 3))
-        self.emitter_factor = np.ones(3)
         self.solve_seconds = 0.0
 
     def _add(self, key, direct, own, weight, light=None, emitter=False):
@@ -245,15 +245,17 @@ class SceneLight:
         own = self.transport.sky_coefficients(np.ones(3)).reshape(-1, 3).astype(np.float64)
         return self._add(SKY, self._seen(own), own, radiance)
 
-    def set_emission(self, emission):
-        """Every emitter of the scene, sending ``emission (s, 3)``: one source (as in the
-        one-shot bake, whose deringing sees their light together). An emitter's strength
-        edit sets this again (a projection and an interpolation: milliseconds)."""
+    def set_emission(self, emission, direct=None):
+        """Every emitter of the scene, sending ``emission (s, 3)``: one source. ``direct``:
+        their direct light (drawn with ``emitter_light(emission)`` when not given: the exact
+        form factors and the emitters' shadow maps)."""
         if not np.any(emission > 0):
             self.remove(EMISSION)
             return None
         own = self.op.project(emission)
-        src = self._add(EMISSION, self._seen(own), own, np.ones(3), emitter=True)
+        if direct is None:
+            direct = self.emitter_light(emission)
+        src = self._add(EMISSION, direct, own, np.ones(3), emitter=True)
         src.emission_at_points = np.asarray(emission, dtype=np.float64)
         return src
 
@@ -282,25 +284,13 @@ class SceneLight:
         """Balance the scene's whole light as the one-shot bake does, and bounce every source
         with those factors (see the module docstring)."""
         t = time.perf_counter()
-        self._balance_emitters()
         direct = self.direct()
         self.factors = self.op.factors(direct, self.count)
         inverse = self.op.inverse(self.factors[-1]) if self.add_tail and self.count else None
         for src in self.sources.values():
-            scale = self.emitter_factor if src.emitter else 1.0
-            src.bounces, src.tail = self.op.bounces(src.first * scale, self.factors, inverse, self.add_tail)
+            src.bounces, src.tail = self.op.bounces(src.first, self.factors, inverse, self.add_tail)
             src.indirect = self.scene.zero_dark_points_inplace(self.op.light(src.bounces.sum(axis=0) + src.tail))
         self.solve_seconds = time.perf_counter() - t
-
-    def _balance_emitters(self):
-        emitters = [s for s in self.sources.values() if s.emitter]
-        self.emitter_factor = np.ones(3)
-        if not emitters or self.op.landing is None:
-            return
-        seen = sum(s.direct * s.weight for s in emitters)  # as the bake interpolates it
-        emission = sum(s.emission_at_points * s.weight for s in emitters)
-        target = (self.op.areas[:, None] * emission * self.op.landing).sum(axis=0)
-        self.emitter_factor = _balance(target, self.op.areas @ seen)
 
     # --- the scene's light now ---------------------------------------------------------------
     def _sum(self, term):
@@ -311,10 +301,10 @@ class SceneLight:
         return out
 
     def direct(self):
-        """``(s, 3)`` every source's direct light, weighted (emitters balanced)."""
+        """``(s, 3)`` every source's direct light, weighted."""
         if not self.sources:
             return np.zeros((len(self.scene.points), 3))
-        return self._sum(lambda s: s.direct * (self.emitter_factor if s.emitter else 1.0))
+        return self._sum(lambda s: s.direct)
 
     def indirect(self):
         if not self.sources:
@@ -330,7 +320,7 @@ class SceneLight:
     def field_coeffs(self):
         """``(coeffs, source_coeffs)``, each ``(p, 9, 3)`` float32: what the probes see (the sky,
         emitters and every bounce), and the part that is the sky and emitters."""
-        own = self._sum(lambda s: s.own * (self.emitter_factor if s.emitter else 1.0))
+        own = self._sum(lambda s: s.own)
         total = own + self._sum(lambda s: s.bounces.sum(axis=0) + s.tail)
         return tuple(np.asarray(a, dtype=np.float32).reshape(-1, 9, 3) for a in (total, own))
 
@@ -339,19 +329,20 @@ def light_key(light, index=0):
     return f"light:{light.name}" if light.name else f"light:#{index}"
 
 
-def from_bake(result, scene, light_direct, add_tail=True, conserve_energy=True):
-    """A solved :class:`SceneLight` of a finished bake: its capture, and its lights' direct
-    light (no drawing). ``light_direct``: for lights that change later."""
+def from_bake(result, scene, light_direct, add_tail=True, conserve_energy=True, emitter_light=None):
+    """A solved :class:`SceneLight` of a finished bake: its capture, and its lights' and
+    emitters' direct light (no drawing). ``light_direct``, ``emitter_light``: for lights
+    and emission that change later."""
     transport = result.capture.transport
     albedo = np.where(scene.dark[:, None], 0.0, scene.albedo) if scene.dark is not None else scene.albedo
     landing = transport.landing_share() if conserve_energy else None
     op = BounceOperator(transport, albedo, landing, scene.point_areas())
-    state = SceneLight(scene, transport, light_direct, op, len(result.solution.bounces), add_tail)
+    state = SceneLight(scene, transport, light_direct, op, len(result.solution.bounces), add_tail, emitter_light)
     parts = result.direct_parts.parts
     for k, light in enumerate(scene.lights):
         state.set_light(light_key(light, k), light, parts.get(f"light:{light.name}"))
     if np.any(scene.sky > 0):
         state.set_sky(scene.sky)
-    state.set_emission(scene.emission)
+    state.set_emission(scene.emission, parts.get(EMISSION))
     state.solve()
     return state

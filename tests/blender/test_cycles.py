@@ -118,3 +118,26 @@ def test_a_closed_room_at_albedo_0_95_is_within_3_percent_of_cycles(empty_scene,
     # much; later bounces (smoother light) were within 0.4% and are corrected by that much.
     factors = [r["energy_factor"] for r in report["bounces"]]
     assert all(0.85 < f < 1.15 for f in factors[0]) and all(0.99 < f < 1.01 for fs in factors[1:] for f in fs), factors
+
+
+def test_an_emissive_panel_lights_both_ways_as_cycles_does(empty_scene, cubegi):
+    """A one-sided emissive quad hanging 0.4 m below a white ceiling, facing down: Cycles
+    emits from both faces, so the ceiling above it is lit. Emissive triangles are two-sided
+    area lights here (exact form factors, shadow maps from points on both faces). Measured at
+    128 samples: direct rel. RMSE 2.0%, bias -0.1% (through the probes it was 260%, -50%);
+    indirect 21.9%, bias +15% (was 46%, -43%): the probes see the panel's upper face as a
+    back face, which passes on no light."""
+    v, f = scenes.box_mesh((-2, -2, 0), (2, 2, 2.5), (8, 8, 5), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    pv, pf = scenes.grid_patch((-0.4, -0.4, 2.1), (0.8, 0, 0), (0, 0.8, 0), 2, 2)
+    scenes.mesh_object("Panel", pv, np.asarray(pf)[:, ::-1], scenes.material("Lamp", (0, 0, 0), emission=(1, 1, 1), strength=6.0))
+    scenes.set_world((0.0, 0.0, 0.0))
+    obs = [bpy.data.objects["Room"]]
+    err = _bake_both(cubegi, obs, ("DIRECT", "INDIRECT"), samples=128)
+    print(err)
+    assert err["DIRECT"]["rel_rmse"] < 0.05 and abs(err["DIRECT"]["rel_bias"]) < 0.02, err
+    assert err["INDIRECT"]["rel_rmse"] < 0.3 and abs(err["INDIRECT"]["rel_bias"]) < 0.25, err
+    ceiling = cubegi.cubegi_addon.attributes.read(bpy.data.objects["Room"].data, "CubeGI_direct")
+    co = np.array([vv.co for vv in bpy.data.objects["Room"].data.vertices])
+    above = (co[:, 2] > 2.49) & (np.abs(co[:, 0]) < 0.5) & (np.abs(co[:, 1]) < 0.5)
+    assert ceiling[above].mean() > 0.2  # the panel's back lights the ceiling (Cycles: about 0.3)

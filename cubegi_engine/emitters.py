@@ -1,0 +1,141 @@
+"""Emissive surfaces as area lights: their direct light per point, exact, from both faces.
+
+Pure numpy; must not import bpy.
+
+Cycles counts the light that reaches a point straight from an emissive surface as direct
+light, and an emissive face emits from both sides. Each emissive triangle of radiance L
+gives a point the diffuse light ``L F`` with F the exact form factor of the triangle seen
+from the point (Lambert's polygon formula, clipped to the point's hemisphere,
+:func:`cubegi_engine.lights.polygon_form_factor`), from whichever side the point is on.
+Shadows come from cube depth maps drawn at sample points on the emitters (an emissive
+object's area split in ``SAMPLES`` equal shares), lifted off each side; a point is tested
+against the samples on its side of each sample's face, weighted as an area light's are.
+
+Cost: one form factor per emissive triangle and point (emissive triangles are merged per
+object and material-free: thousands of tiny emissive triangles cost thousands of passes over
+the points; see the README's accuracy section), and ``SAMPLES`` cube maps per emissive
+object at the area-shadow size.
+"""
+
+import numpy as np
+
+from . import lights as lights_mod
+from .transport import capture_cubes, clip_planes
+
+__all__ = ["emissive_triangles", "emitter_direct", "SAMPLES"]
+
+# Shadow sample points per emissive object.
+SAMPLES = 8
+# Sample eyes sit this share of the scene's size off the emitter, on each side.
+EYE_LIFT = 1e-4
+
+
+def emissive_triangles(scene):
+    """``(triangle indices (e,), radiance (e, 3))``: triangles whose three corners emit, with
+    the mean of their corners' emission."""
+    corner = scene.emission[scene.triangles]  # (t, 3, 3)
+    emits = np.all(np.any(corner > 0, axis=2), axis=1)
+    return np.nonzero(emits)[0], corner[emits].mean(axis=1)
+
+
+# Receivers are moved this share of the scene's size off their surface and into their own
+# faces before the form factors, as Cycles moves a ray's origin a little into the face. A
+# point on a box's edge lies in the plane of the face across the edge, which Lambert's
+# formula then sees edge-on (no light); moved into its face it sees that face's light, and
+# a coplanar emitter beside it (a panel set into a ceiling) falls below its hemisphere.
+RECEIVER_NUDGE = 1e-5
+
+
+def _two_sided_ff(points, normals, tri):
+    return np.maximum(lights_mod.polygon_form_factor(points, normals, tri),
+                      lights_mod.polygon_form_factor(points, normals, tri[::-1]))
+
+
+def _into_faces(scene, step):
+    """Every point moved ``step`` along its normal and ``step`` towards the centroids of its
+    own triangles (into its faces)."""
+    tri = scene.triangles
+    centroids = scene.points[tri].mean(axis=1)  # (t, 3)
+    count = np.bincount(tri.ravel(), minlength=len(scene.points)).astype(np.float64)
+    mean = np.stack([np.bincount(tri.ravel(), np.repeat(centroids[:, c], 3), minlength=len(scene.points)) for c in range(3)], axis=1)
+    inward = mean / np.maximum(count, 1.0)[:, None] - scene.points
+    inward -= np.einsum("sc,sc->s", inward, scene.normals)[:, None] * scene.normals  # along the surface
+    inward /= np.maximum(np.linalg.norm(inward, axis=1, keepdims=True), 1e-300)
+    return scene.points + step * (scene.normals + inward)
+
+
+def emitter_direct(scene, renderer, shadow_size, shadows=True):
+    """Diffuse light ``(s, 3)`` straight from every emissive triangle of ``scene``."""
+    ids, radiance = emissive_triangles(scene)
+    s = len(scene.points)
+    out = np.zeros((s, 3))
+    if not len(ids):
+        return out
+    verts = scene.points[scene.triangles[ids]]  # (e, 3, 3)
+    lifted = _into_faces(scene, RECEIVER_NUDGE * scene.scale)
+    for k in range(len(ids)):
+        out += _two_sided_ff(lifted, scene.normals, verts[k])[:, None] * radiance[k]
+    if shadows:
+        owner = scene.point_object[scene.triangles[ids, 0]] if scene.point_object is not None else np.zeros(len(ids), dtype=np.int64)
+        vis = np.zeros(s)
+        weight = np.zeros(s)
+        lit = np.any(out > 0, axis=1)
+        for obj in np.unique(owner):
+            mine = owner == obj
+            v, w = _visibility(scene, renderer, shadow_size, verts[mine], radiance[mine], lit)
+            vis += v
+            weight += w
+        share = np.where(weight > 0, vis / np.maximum(weight, 1e-300), 1.0)
+        out *= share[:, None]
+    return out
+
+
+def _samples(verts, radiance, count):
+    """Up to ``count`` sample points on triangles ``verts (e, 3, 3)``, spread by emitted
+    power (area x radiance); with each its unit normal."""
+    cross = np.cross(verts[:, 1] - verts[:, 0], verts[:, 2] - verts[:, 0])
+    area = 0.5 * np.linalg.norm(cross, axis=1)
+    power = area * radiance.sum(axis=1)
+    if power.sum() <= 0:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    centroids = verts.mean(axis=1)
+    normals = cross / np.maximum(np.linalg.norm(cross, axis=1, keepdims=True), 1e-30)
+    if len(verts) <= count:
+        return centroids, normals
+    # Equal shares of the power along the cumulative sum: the triangles at each quantile.
+    cum = np.cumsum(power) / power.sum()
+    picks = np.searchsorted(cum, (np.arange(count) + 0.5) / count)
+    return centroids[picks], normals[picks]
+
+
+def _visibility(scene, renderer, size, verts, radiance, lit):
+    """``(visible weight, weight)``, each ``(s,)``, of one emissive object's samples."""
+    centres, normals = _samples(verts, radiance, SAMPLES)
+    s = len(scene.points)
+    num, den = np.zeros(s), np.zeros(s)
+    if not len(centres):
+        return num, den
+    lift = EYE_LIFT * scene.scale
+    eyes = np.concatenate([centres + lift * normals, centres - lift * normals])
+    sides = np.concatenate([normals, -normals])
+    near, far = clip_planes(scene.scale)
+    cap = capture_cubes(renderer, eyes, size, near, far, with_bary=False)
+    pts, nrm = scene.points[lit], scene.normals[lit]
+    ids = np.arange(s)[lit]
+    for k, (eye, side) in enumerate(zip(eyes, sides)):
+        rel = eye - pts
+        d2 = np.einsum("sc,sc->s", rel, rel)
+        dist = np.sqrt(np.maximum(d2, 1e-300))
+        cos_r = np.maximum(0.0, np.einsum("sc,sc->s", nrm, rel)) / dist
+        cos_l = np.maximum(0.0, -(rel @ side)) / dist  # the receiver is on this eye's side
+        w = cos_r * cos_l / np.maximum(d2, 1e-300)
+        use = w > 0
+        if not use.any():
+            continue
+        v = lights_mod.shadow_visibility(
+            pts[use], nrm[use], eye, cap.tid[k], cap.dist[k], cap.backface[k], scene.triangles, scene.points, ids[use],
+            scene.scale, reach=0,
+        )
+        num[ids[use]] += w[use] * v
+        den[ids[use]] += w[use]
+    return num, den

@@ -82,7 +82,16 @@ class SceneArrays:
         return np.bincount(self.triangles.ravel(), np.repeat(area / 3.0, 3), minlength=len(self.points))
 
     def fingerprint(self) -> GeometryFingerprint:
-        """The geometry's fingerprint (see :class:`GeometryFingerprint`)."""
+        """The geometry's fingerprint (see :class:`GeometryFingerprint`), made once per
+        snapshot (the geometry of a snapshot does not change after it is collected)."""
+        cached = self.__dict__.get("_fingerprint")
+        if cached is not None and cached[0] == (id(self.points), id(self.normals), id(self.triangles)):
+            return cached[1]
+        made = self._fingerprint()
+        self.__dict__["_fingerprint"] = ((id(self.points), id(self.normals), id(self.triangles)), made)
+        return made
+
+    def _fingerprint(self) -> GeometryFingerprint:
         owner = self.point_object if self.point_object is not None else np.zeros(len(self.points), dtype=np.int64)
         count = int(owner.max()) + 1 if len(owner) else 0
         names = list(self.object_names) or [f"object {k}" for k in range(count)]

@@ -193,17 +193,6 @@ def _note_capture(collected, result, grid):
             f"them all lie in a finer grid's box), on {', '.join(names)}; add a probe grid over them if they should "
             "get indirect light"
         )
-    no_probe = result.capture.transport.no_probe
-    if collected.arrays.dark is not None:
-        no_probe = no_probe & ~collected.arrays.dark
-    if no_probe.mean() > NO_PROBE_NOTE:
-        owners = collected.arrays.point_object[no_probe]
-        names = [collected.arrays.object_names[k] for k in np.unique(owners)][:5]
-        collected.notes.append(
-            f"{100 * no_probe.mean():.1f}% of the shading points get no probe light (the probes of their grid around "
-            f"them all lie in a finer grid's box), on {', '.join(names)}; add a probe grid over them if they should "
-            "get indirect light"
-        )
     if not result.probe_valid.any():
         collected.notes.append(
             f"all {grid.count} probes see back faces over more than a quarter of their view (inside geometry, or "

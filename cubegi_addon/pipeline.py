@@ -118,7 +118,7 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
     )
     attributes.check_clashes(
         [(bpy.data.objects[t.object_name], bpy.data.meshes[t.mesh_name]) for _, t in collected.moving],
-        attributes.bake_names(0, lit)[:3] + ([attributes.LIT] if lit else []),
+        attributes.bake_names(0, lit),  # dynamic objects get no bounce layers
     )
     grid, grid_source, outside = grid_objects.resolve_grid(context.scene, arrays, resolution)
     if outside > 0:

@@ -199,11 +199,9 @@ class Source:
     own: np.ndarray
     weight: np.ndarray
     light: object = None
-    emitter: bool = False
     bounces: np.ndarray = None
     tail: np.ndarray = None
     indirect: np.ndarray = None
-    emission_at_points: np.ndarray = None  # (s, 3) for an emitter: what it sends
 
 
 class SceneLight:
@@ -223,10 +221,10 @@ class SceneLight:
         self.factors = np.ones((self.count, 3))
         self.solve_seconds = 0.0
 
-    def _add(self, key, direct, own, weight, light=None, emitter=False):
+    def _add(self, key, direct, own, weight, light=None):
         direct = self.scene.zero_dark_points_inplace(np.asarray(direct, dtype=np.float64).copy())
         first = self.op.project(self.op.albedo * direct)
-        self.sources[key] = Source(key, direct, first, own, np.asarray(weight, dtype=np.float64), light, emitter)
+        self.sources[key] = Source(key, direct, first, own, np.asarray(weight, dtype=np.float64), light)
         return self.sources[key]
 
     # --- edits -------------------------------------------------------------------------------
@@ -255,9 +253,7 @@ class SceneLight:
         own = self.op.project(emission)
         if direct is None:
             direct = self.emitter_light(emission)
-        src = self._add(EMISSION, direct, own, np.ones(3), emitter=True)
-        src.emission_at_points = np.asarray(emission, dtype=np.float64)
-        return src
+        return self._add(EMISSION, direct, own, np.ones(3))
 
     def _seen(self, own):
         """The diffuse light of what probes see directly (sky, emitters), as the bake

@@ -11,7 +11,6 @@ Cycles bake of the face corners does); a vertex's value is the mean over its cor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
-import bpy
 import numpy as np
 
 from ..cubegi_engine.lights import Light, area_polygon, area_samples

@@ -4,7 +4,7 @@ Pure Python and numpy; must not import bpy. These are the engine's own types; JS
 only at the edges (:meth:`cubegi_engine.report.BakeReport.to_json`).
 """
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from enum import Enum
 
 import numpy as np

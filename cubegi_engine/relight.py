@@ -26,7 +26,7 @@ factors as they were; :meth:`SceneLight.solve` brings them up to date (milliseco
 """
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 

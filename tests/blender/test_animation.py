@@ -9,7 +9,6 @@ import sys
 
 import bpy
 import numpy as np
-import pytest
 
 import scenes
 

@@ -5,7 +5,6 @@ import importlib
 
 import bpy
 import numpy as np
-import pytest
 
 from cubegi.cubegi_engine import cubemap, transport
 from cubegi.cubegi_engine.grid import ProbeGrid

@@ -103,7 +103,6 @@ def test_cli_reference_writes_its_attributes_and_errors(saved_scene, tmp_path, c
     assert abs(ref["errors"]["direct"]["rel_bias"]) < 0.1 and ref["errors"]["direct"]["rel_rmse"] < 0.25
 
     bpy.ops.wm.open_mainfile(filepath=str(out))
-    attributes = cubegi.cubegi_addon.attributes
     for ob_name, count in counts.items():
         mesh = bpy.data.objects[ob_name].data
         for name in ("CubeGI_ref_direct", "CubeGI_ref_indirect"):

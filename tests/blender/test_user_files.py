@@ -8,7 +8,6 @@ import subprocess
 import sys
 
 import bpy
-import numpy as np
 import pytest
 
 import scenes

@@ -63,18 +63,22 @@ def state_of(context):
         arrays, settings = kept.arrays, kept.settings
 
         def draw(light):
-            if kept.renderer is None:
-                kept.renderer = GpuRenderer(arrays.points, arrays.triangles)
             shadows = kept.result.shadows if kept.moving else None  # moving objects test against them
-            return light_direct(arrays, kept.renderer, settings, light, shadows)
+            return light_direct(arrays, _renderer(kept), settings, light, shadows)
 
         def emitters(emission):
-            if kept.renderer is None:
-                kept.renderer = GpuRenderer(arrays.points, arrays.triangles)
-            return emitter_direct(replace(arrays, emission=emission), kept.renderer, settings.area_shadow_size)
+            return emitter_direct(replace(arrays, emission=emission), _renderer(kept), settings.area_shadow_size)
 
         kept.light = relight.from_bake(kept.result, arrays, draw, settings.add_tail, settings.conserve_energy, emitters)
     return kept
+
+
+def _renderer(kept):
+    """The kept bake's renderer for shadow maps, made on first use (GPU batches of the
+    static scene, freed with the kept bake)."""
+    if kept.renderer is None:
+        kept.renderer = GpuRenderer(kept.arrays.points, kept.arrays.triangles)
+    return kept.renderer
 
 
 def update(context, materials=False, write=True, settle=True, bounce_layers=True):
@@ -113,9 +117,9 @@ def update(context, materials=False, write=True, settle=True, bounce_layers=True
                 dynamic.write_moving(context, kept)
             report.seconds["dynamic"] = time.perf_counter() - t
             return report
-        report.changed += [f"{name} moved" for name in moved]
         report.path = "materials" if materials and any(c.startswith("material") for c in report.changed) else (
             "lights" if drawn else "weights" if report.changed else "settle")
+        report.changed += [f"{name} moved" for name in moved]
         instant = not settle and report.path == "weights"
         state = state_of(context).light
         if not instant:

@@ -4,7 +4,7 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, IntVectorProperty, PointerProperty, StringProperty
 
 from ..cubegi_engine.settings import MAX_BOUNCES, MAX_CUBE_SIZE, MIN_CUBE_SIZE, BakeSettings
-from . import display, live
+from . import display, live, session
 
 LIT_ITEMS = (
     ("NONE", "None", "Write no lit colour"),
@@ -67,8 +67,9 @@ class CubeGIObjectSettings(bpy.types.PropertyGroup):
     is_probe_grid: BoolProperty(name="Probe Grid", description="This Empty's cube is a CubeGI probe grid", default=False)
     dynamic: BoolProperty(
         name="Dynamic", description="Left out of the capture and lit from the kept probe field: moving or deforming it "
-        "updates its light at once, without a new bake (it does not shadow or light the rest of the scene)",
-        default=False,
+        "updates its light at once, without a new bake (it does not shadow or light the rest of the scene). "
+        "Turning it on or off needs a new bake",
+        default=False, update=lambda settings, context: session.forget(context.scene),
     )
     resolution: IntVectorProperty(
         name="Resolution", description="Probes along X, Y and Z", size=3, default=(4, 4, 2), min=1, max=256

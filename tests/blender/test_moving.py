@@ -54,6 +54,11 @@ def test_a_dynamic_object_is_not_captured_and_moves_without_a_bake(red_room):
     # The static scene is untouched: a dynamic object casts no light or shadow on it.
     np.testing.assert_array_equal(red_room.cubegi_addon.attributes.read(bpy.data.objects["Floor"].data, "CubeGI_total"), floor)
     assert live.update(bpy.context).path == "none"
+    # Turning Dynamic off changes what is captured: the kept bake is dropped, Update refuses.
+    bpy.data.objects["Suzanne"].cubegi.dynamic = False
+    assert red_room.cubegi_addon.session.kept(bpy.context.scene) is None
+    with pytest.raises(RuntimeError, match="Bake first"):
+        bpy.ops.cubegi.update_light()
 
 
 def test_a_dynamic_object_changes_colour_as_cycles_says(red_room):

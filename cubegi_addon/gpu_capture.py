@@ -248,7 +248,7 @@ class GpuRenderer:
 
     def render(self, view_projs, eyes, axes, size, with_bary=True):
         v = len(view_projs)
-        tid = np.empty((v, size, size), dtype=np.int64)
+        tid = np.empty((v, size, size), dtype=np.int32)
         bary = np.zeros((v, size, size, 3), dtype=np.float32)
         dist = np.empty((v, size, size), dtype=np.float32)
         back = np.empty((v, size, size), dtype=bool)
@@ -270,13 +270,16 @@ class GpuRenderer:
         for first, tiles in self._draw_views(view_projs, size, draw_one, 4 if with_bary else 2):
             sl = slice(first, first + len(tiles))
             code = tiles[..., 0]
-            tid[sl] = np.abs(code).astype(np.int64) - 1
-            back[sl] = code < 0
+            np.less(code, 0.0, out=back[sl])
+            tid[sl] = np.abs(code)  # exact small integers in float32
+            tid[sl] -= 1
             if with_bary:
                 b1, b2 = tiles[..., 1], tiles[..., 2]
                 bary[sl] = np.stack([1.0 - b1 - b2, b1, b2], axis=-1)
-            hit = code != 0
-            dist[sl] = np.where(hit, np.where(hit, tiles[..., -1], 0.0) * np.float32(self.unit), np.inf)
+            d = dist[sl]
+            with np.errstate(over="ignore"):
+                np.multiply(tiles[..., -1], np.float32(self.unit), out=d)
+            d[tid[sl] < 0] = np.inf  # nothing drawn: the clear value, not a distance
         return tid, bary, dist, back
 
     def _depth_batch(self):

@@ -35,7 +35,7 @@ class Renderer(Protocol):
 
     ``render(view_projs (v, 4, 4), eyes (v, 3), axes (v, 3) or None, size, with_bary=True)``
     draws the scene's triangles into ``v`` square views and returns per texel the triangle
-    index (int64, -1 for nothing), barycentric weights ``(v, n, n, 3)`` (zeros without
+    index (int32, -1 for nothing), barycentric weights ``(v, n, n, 3)`` (zeros without
     ``with_bary``: depth maps for shadows), distance (radial from the eye, or along ``axes``
     for orthographic views; inf for nothing) and a back-face flag.
     ``render_colour(view_projs, size, point_radiance (s, 3))`` draws the scene coloured by

@@ -35,9 +35,10 @@ class ProbeField:
         """``(index (s, 8), weight (s, 8))``: trilinear weights over the valid probes; with
         ``normals``, probes behind a point's surface (inside the object it belongs to) are
         left out too. A point with no probe left keeps its plain trilinear weights."""
-        index, plain = self.grid.trilinear(np.asarray(points, dtype=np.float64))
-        valid = self.valid[index]
-        weight = plain * valid
+        points = np.asarray(points, dtype=np.float64)
+        index, plain = self.grid.trilinear(points)
+        weight = plain * self.valid[index]
+        total = weight.sum(axis=1)
         if normals is not None:
             # probe . n > point . n: the probe is in front of the point's tangent plane
             normals = np.asarray(normals, dtype=np.float64)
@@ -46,13 +47,17 @@ class ProbeField:
                 probe_n = _pick(normals @ positions.T, index)
             else:
                 probe_n = np.einsum("skc,sc->sk", positions[index], normals)
-            front = probe_n > np.einsum("sc,sc->s", np.asarray(points, dtype=np.float64), normals)[:, None]
-            facing = weight * front
-            has = facing.sum(axis=1, keepdims=True) > 1e-9
-            weight = np.where(has, facing, weight)
-        total = weight.sum(axis=1, keepdims=True)
-        weight = np.where(total > 1e-9, weight, plain)
-        return index, weight / np.maximum(weight.sum(axis=1, keepdims=True), 1e-30)
+            facing = weight * (probe_n > np.einsum("sc,sc->s", points, normals)[:, None])
+            facing_total = facing.sum(axis=1)
+            has = facing_total > 1e-9
+            weight = np.where(has[:, None], facing, weight)
+            total = np.where(has, facing_total, total)
+        none = total <= 1e-9
+        if none.any():
+            weight[none] = plain[none]
+            total[none] = plain[none].sum(axis=1)
+        weight /= np.maximum(total, 1e-30)[:, None]
+        return index, weight
 
     def light_at(self, points: np.ndarray, normals: np.ndarray, part: str = "all", one_sided: bool = False) -> np.ndarray:
         """Diffuse light ``(s, 3)`` (E / pi) at ``points (s, 3)`` facing ``normals (s, 3)``.
@@ -62,22 +67,27 @@ class ProbeField:
         capture never saw: a probe inside it would light it from inside). No visibility
         test: the field is smooth by construction, so light can leak through walls thinner
         than a cell, as in every probe volume without depth data."""
-        coeffs = self._coeffs(part)
+        return self.light_parts(points, normals, (part,), one_sided)[0]
+
+    def light_parts(self, points, normals, parts=("direct", "indirect"), one_sided=False) -> list:
+        """:meth:`light_at` for several ``parts`` at once (the weights, the basis and the
+        product are shared): a list of ``(s, 3)``."""
+        coeffs = np.concatenate([self._coeffs(part) for part in parts], axis=2)  # (p, 9, 3k)
         normals = np.asarray(normals, dtype=np.float64)
         index, weight = self.weights(points, normals if one_sided else None)
         basis = sh.diffuse_basis(normals).astype(np.float32)  # (s, 9)
         weight = weight.astype(np.float32)
-        p = len(coeffs)
+        p, c = len(coeffs), coeffs.shape[2]
         if p <= ALL_PROBES_LIMIT:
             # Every probe's light for every point's normal in one BLAS product, then the 8
             # each point uses: fastest while probes are few.
-            each = (basis @ coeffs.transpose(1, 0, 2).reshape(9, p * 3)).reshape(len(basis), p, 3)
-            per_probe = _pick(each, index)  # (s, 8, 3)
-            out = np.einsum("sk,skc->sc", weight, per_probe)
+            each = (basis @ coeffs.transpose(1, 0, 2).reshape(9, p * c)).reshape(len(basis), p, c)
+            out = np.einsum("sk,skc->sc", weight, _pick(each, index))
         else:
             pw = (weight[:, :, None] * basis[:, None, :]).reshape(len(basis), 72)
-            out = np.einsum("sk,skc->sc", pw, coeffs[index].reshape(len(basis), 72, 3), optimize=True)
-        return np.maximum(out, 0.0).astype(np.float64)
+            out = np.einsum("sk,skc->sc", pw, coeffs[index].reshape(len(basis), 72, c), optimize=True)
+        out = np.maximum(out, 0.0, out=out).astype(np.float64)
+        return [np.ascontiguousarray(out[:, 3 * k : 3 * k + 3]) for k in range(len(parts))]
 
     def _positions(self):
         cached = getattr(self, "_probe_positions", None)
@@ -87,16 +97,18 @@ class ProbeField:
         return cached[1]
 
     def _coeffs(self, part):
-        key = (part, id(self.coeffs), id(self.source_coeffs))
+        """The deringed float32 coefficients of ``part``, kept per part until the field's
+        arrays are replaced."""
+        key = (id(self.coeffs), id(self.source_coeffs))
         cached = getattr(self, "_deringed", None)
-        if cached is not None and cached[0] == key:
-            return cached[1]
-        source = self.source_coeffs if self.source_coeffs is not None else np.zeros_like(self.coeffs)
-        raw = {"all": self.coeffs, "direct": source, "indirect": self.coeffs - source}[part]
-        deringed, _ = sh.dering(np.asarray(raw, dtype=np.float64))
-        deringed = deringed.astype(np.float32)
-        self._deringed = (key, deringed)
-        return deringed
+        if cached is None or cached[0] != key:
+            cached = self._deringed = (key, {})
+        if part not in cached[1]:
+            source = self.source_coeffs if self.source_coeffs is not None else np.zeros_like(self.coeffs)
+            raw = {"all": self.coeffs, "direct": source, "indirect": self.coeffs - source}[part]
+            deringed, _ = sh.dering(np.asarray(raw, dtype=np.float64))
+            cached[1][part] = deringed.astype(np.float32)
+        return cached[1][part]
 
     @property
     def nbytes(self) -> int:
@@ -105,7 +117,8 @@ class ProbeField:
 
 def _pick(per_point, index):
     """``per_point[i, index[i, k]]`` for every point i and k: ``(s, 8, ...)`` (flat indexing,
-    faster than take_along_axis)."""
+    ``np.take`` along the first axis: three times faster than fancy indexing)."""
     s, p = per_point.shape[:2]
     flat = per_point.reshape((s * p,) + per_point.shape[2:])
-    return flat[(np.arange(s)[:, None] * p + index).ravel()].reshape(index.shape + per_point.shape[2:])
+    rows = (np.arange(s)[:, None] * p + index).ravel()
+    return np.take(flat, rows, axis=0).reshape(index.shape + per_point.shape[2:])

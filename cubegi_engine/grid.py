@@ -69,20 +69,25 @@ class ProbeGrid:
         """
         p = np.asarray(points, dtype=np.float64)
         res = np.asarray(self.resolution)
-        t = (p - np.asarray(self.lo)) / self.cell_size - 0.5
-        t = np.clip(t, 0.0, res - 1.0)
-        i0 = np.minimum(np.floor(t).astype(np.int64), np.maximum(res - 2, 0))
+        # Per axis, contiguous rows (3, s); corner k = bx + 2 by + 4 bz, built as (8, s).
+        t = ((p - np.asarray(self.lo)) / self.cell_size - 0.5).T.copy()
+        np.clip(t, 0.0, (res - 1.0)[:, None], out=t)
+        i0 = np.minimum(t.astype(np.int64), np.maximum(res - 2, 0)[:, None])
         f = t - i0
-        i1 = np.minimum(i0 + 1, res - 1)
-        idx = np.empty((len(p), 8), dtype=np.int64)
-        w = np.empty((len(p), 8), dtype=np.float64)
-        for corner in range(8):
-            bits = [(corner >> a) & 1 for a in range(3)]
-            ia = [i1[:, a] if bits[a] else i0[:, a] for a in range(3)]
-            wa = [f[:, a] if bits[a] else 1.0 - f[:, a] for a in range(3)]
-            idx[:, corner] = ia[0] + res[0] * (ia[1] + res[1] * ia[2])
-            w[:, corner] = wa[0] * wa[1] * wa[2]
-        return idx, w
+        g = 1.0 - f
+        i1 = np.minimum(i0 + 1, (res - 1)[:, None])
+        r0, r01 = int(res[0]), int(res[0] * res[1])
+        wxy = (g[0] * g[1], f[0] * g[1], g[0] * f[1], f[0] * f[1])
+        ixy = (i0[0] + r0 * i0[1], i1[0] + r0 * i0[1], i0[0] + r0 * i1[1], i1[0] + r0 * i1[1])
+        z0, z1 = r01 * i0[2], r01 * i1[2]
+        w = np.empty((8, len(p)), dtype=np.float64)
+        idx = np.empty((8, len(p)), dtype=np.int64)
+        for k in range(4):
+            np.multiply(wxy[k], g[2], out=w[k])
+            np.multiply(wxy[k], f[2], out=w[k + 4])
+            np.add(ixy[k], z0, out=idx[k])
+            np.add(ixy[k], z1, out=idx[k + 4])
+        return np.ascontiguousarray(idx.T), np.ascontiguousarray(w.T)
 
 
 class GridSet:

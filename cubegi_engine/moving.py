@@ -53,6 +53,5 @@ def light_moving(obj, lights, shadows, field, renderer, settings):
             vis *= visibility(own, pts, nrm, np.arange(s)[lit])
             value[lit] *= vis[:, None]
         direct += value
-    direct += field.light_at(obj.points, obj.normals, part="direct", one_sided=True)
-    indirect = field.light_at(obj.points, obj.normals, part="indirect", one_sided=True)
-    return direct, indirect
+    seen, indirect = field.light_parts(obj.points, obj.normals, ("direct", "indirect"), one_sided=True)
+    return direct + seen, indirect

@@ -45,8 +45,11 @@ MAX_OPERATOR_ELEMENTS = 50_000_000
 # M = K A I is built (3 x 9p x 9p) when that costs at most this many multiply-adds (about a
 # second on two cores); past it, M is applied as K (A (I x)) without being formed.
 MAX_M_FLOPS = 2e10
-# The tail is an explicit inverse of (1 - g M) up to this size, GMRES beyond.
+# The tail is an explicit inverse of (1 - g M) up to this size, GMRES beyond. A kept inverse
+# serves a nearby g by iterative refinement to this residual (a share of the right-hand
+# side), within this many steps (else it is made again).
 MAX_INVERSE_SIZE = 1500
+REFINE_TOL, REFINE_STEPS = 1e-10, 8
 
 
 def _gather_project_matrix(transport, s):
@@ -107,6 +110,7 @@ class BounceOperator:
         self.albedo = np.asarray(albedo, dtype=np.float64)
         n, s = self.K.shape
         self.M = None
+        self._inverses = [None, None, None]  # per channel: (factor, (1 - factor M)^-1)
         if 3.0 * n * n * s <= MAX_M_FLOPS:
             self.M = np.stack([(self.K * self.albedo[:, c].astype(np.float32)) @ self.I for c in range(3)]).astype(np.float64)
         if self.landing is not None:  # (3, 9p): power sent on that lands, per coefficient vector
@@ -152,11 +156,36 @@ class BounceOperator:
         return g
 
     def inverse(self, factor):
-        """``(1 - factor M)^-1`` per channel ``(3, 9p, 9p)``, or None where GMRES is used."""
+        """A solver of ``(1 - factor M) x = c`` per channel (``c``, ``x``: ``(9p, 3)`` or
+        ``(9p, 3, k)``), or None where GMRES is used.
+
+        The inverse is kept: a later factor (the energy balance moves a little with every
+        edit) is served by iterative refinement on it, ``x += A0^-1 (c - A x)``, to a residual
+        of REFINE_TOL of ``c``: a few ``(9p)^2`` products instead of a ``(9p)^3`` inverse. Where
+        that does not converge within REFINE_STEPS, the inverse is made again at the new
+        factor."""
         n = self.size
         if self.M is None or n > MAX_INVERSE_SIZE:
             return None
-        return np.stack([np.linalg.inv(np.eye(n) - factor[c] * self.M[c]) for c in range(3)])
+        factor = np.asarray(factor, dtype=np.float64)
+        return lambda c: np.stack([self._tail_solve(ch, float(factor[ch]), c[:, ch]) for ch in range(3)], axis=1)
+
+    def _tail_solve(self, ch, f, c):
+        kept = self._inverses[ch]
+        if kept is not None and kept[0] == f:
+            return kept[1] @ c
+        if kept is not None:
+            _, inv = kept
+            x = inv @ c
+            scale = np.linalg.norm(c)
+            for _ in range(REFINE_STEPS):
+                r = c - (x - f * (self.M[ch] @ x))
+                if np.linalg.norm(r) <= REFINE_TOL * scale:
+                    return x
+                x = x + inv @ r
+        inv = np.linalg.inv(np.eye(self.size) - f * self.M[ch])
+        self._inverses[ch] = (f, inv)
+        return inv @ c
 
     def bounces(self, c1, g, inverse=None, tail=True, tol=1e-5):
         """Balanced coefficients of bounces 1..N ``(N, 9p, 3)`` and of the tail after them
@@ -171,7 +200,7 @@ class BounceOperator:
         if tail and len(g):
             f = g[-1]
             if inverse is not None:
-                rest = np.stack([f[ch] * (inverse[ch] @ c[:, ch]) for ch in range(3)], axis=1)
+                rest = inverse(c) * f
             elif np.any(c):
                 def step(x):
                     y = x.reshape(c.shape)

@@ -41,7 +41,7 @@ INSIDE_BACKFACE_SHARE = 0.25
 class CubeCapture:
     """What every texel of a set of cube maps sees; arrays are ``(k, 6, n, n, ...)``.
 
-    tid: int64 triangle index (-1 where the texel sees sky); bary: float32 ``(..., 3)``
+    tid: int32 triangle index (-1 where the texel sees sky); bary: float32 ``(..., 3)``
     barycentric weights of the hit point; dist: float32 distance to it (inf for sky);
     backface: bool, the texel sees a triangle from behind.
     """

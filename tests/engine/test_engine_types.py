@@ -131,3 +131,73 @@ def test_a_probe_behind_a_points_surface_does_not_light_it():
     # No probe in front: the plain weights stand (never a zero weight sum).
     back = field.light_at(np.array([[1.7, 0.5, 0.5]]), out, one_sided=True)
     assert np.isfinite(back).all() and back[0, 0] > 0
+
+
+def test_the_field_gives_several_parts_in_one_pass_as_it_gives_each():
+    """``light_parts`` shares the weights and the product between parts; each part equals
+    ``light_at`` of that part alone (plain and one-sided weights, inside and outside the
+    grid)."""
+    rng = np.random.default_rng(3)
+    grid = ProbeGrid((0, 0, 0), (3, 2, 2), (3, 2, 2))
+    coeffs = rng.uniform(0.0, 1.0, (12, 9, 3)).astype(np.float32)
+    coeffs[:, 0] += 2.0  # mostly positive light
+    source = (0.3 * coeffs).astype(np.float32)
+    valid = np.ones(12, dtype=bool)
+    valid[4] = False
+    field = ProbeField(grid, coeffs, valid, source)
+    pts = rng.uniform(-0.5, 3.5, (400, 3))
+    nrm = rng.normal(size=(400, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    for one_sided in (False, True):
+        parts = field.light_parts(pts, nrm, ("direct", "indirect", "all"), one_sided=one_sided)
+        for part, got in zip(("direct", "indirect", "all"), parts):
+            alone = field.light_at(pts, nrm, part=part, one_sided=one_sided)
+            np.testing.assert_allclose(got, alone, rtol=FIELD_TOL, atol=1e-6)  # float32 sums in another order
+            assert got.flags["C_CONTIGUOUS"] and got.shape == (400, 3)
+        # direct + indirect is all (up to the deringing of each, none rings here)
+        np.testing.assert_allclose(parts[0] + parts[1], parts[2], rtol=1e-4, atol=1e-5)
+
+
+def _operator(p=4, s=30, seed=0):
+    """A BounceOperator of a small random capture (p probes, s points)."""
+    from types import SimpleNamespace
+
+    from cubegi.cubegi_engine.relight import BounceOperator
+
+    rng = np.random.default_rng(seed)
+    t = 24  # texels per probe
+    transport = SimpleNamespace(
+        probe_count=p,
+        corners=rng.integers(0, s, (p, t, 3)),
+        bary=rng.dirichlet(np.ones(3), (p, t)).astype(np.float32),
+        sh_weights=rng.uniform(0.0, 0.05, (t, 9)).astype(np.float32),
+        index=np.stack([rng.permutation(p)[np.arange(8) % p] for _ in range(s)]),
+        point_weights=rng.uniform(0.0, 0.05, (s, 8, 9)).astype(np.float32),
+    )
+    return BounceOperator(transport, np.full((s, 3), 0.7))
+
+
+def test_the_tail_solve_keeps_its_inverse_and_refines_it_for_a_nearby_factor():
+    """Every tail solve equals a direct solve of (1 - f M) x = c; a nearby factor is served
+    from the kept inverse (refined), a far one makes a new inverse, and a material edit
+    drops the kept ones."""
+    op = _operator()
+    n = op.size
+    radius = max(np.max(np.abs(np.linalg.eigvals(op.M[ch]))) for ch in range(3))
+    op.M = op.M * (0.6 / radius)  # a spectral radius of 0.6 at f = 1
+    c = np.random.default_rng(1).normal(size=(n, 3))
+
+    def exact(f):
+        return np.stack([np.linalg.solve(np.eye(n) - f[ch] * op.M[ch], c[:, ch]) for ch in range(3)], axis=1)
+
+    f1 = np.array([1.0, 0.9, 1.1])
+    np.testing.assert_allclose(op.inverse(f1)(c), exact(f1), rtol=1e-9, atol=1e-12)
+    kept = [entry[1] for entry in op._inverses]
+    f2 = f1 * 1.03
+    np.testing.assert_allclose(op.inverse(f2)(c), exact(f2), rtol=1e-8, atol=1e-10)
+    assert all(entry[1] is inv for entry, inv in zip(op._inverses, kept))  # refined, not remade
+    f3 = np.array([1.6, 1.6, 1.6])  # far: refinement does not converge in its steps
+    np.testing.assert_allclose(op.inverse(f3)(c), exact(f3), rtol=1e-8, atol=1e-10)
+    assert all(entry[0] == 1.6 for entry in op._inverses)
+    op.set_albedo(np.full((len(op.albedo), 3), 0.5))
+    assert op._inverses == [None, None, None]

@@ -64,6 +64,11 @@ def _bake_options(p, demo=False):
     )
     p.add_argument("--no-tail", action="store_true", help="do not add the estimated light after the last bounce to CubeGI")
     p.add_argument(
+        "--capture-triangles", type=int, default=d.capture_triangles, metavar="N",
+        help=f"the probes draw a simplified copy of the scene with at most about N triangles (0: the full scene; default "
+        f"{d.capture_triangles:,}); direct light, shadows and the baked vertices use every triangle",
+    )
+    p.add_argument(
         "--no-energy-conservation", action="store_true",
         help="leave each bounce's total as interpolated (for comparison; see the README)",
     )
@@ -89,7 +94,7 @@ def _cluster_options(p):
 
 def _forwarded(args):
     """The bake options of ``args`` as command-line words, for the bakes a cluster runs."""
-    words = ["--cube-size", str(args.cube_size), "--bounces", str(args.bounces)]
+    words = ["--cube-size", str(args.cube_size), "--bounces", str(args.bounces), "--capture-triangles", str(args.capture_triangles)]
     if args.grid:
         words += ["--grid", *map(str, args.grid)]
     if args.tolerance is not None:
@@ -137,6 +142,7 @@ def _settings(args):
     settings = BakeSettings(
         cube_size=args.cube_size, bounces=args.bounces, visibility=not args.no_visibility,
         tolerance=args.tolerance, add_tail=not args.no_tail, conserve_energy=not args.no_energy_conservation,
+        capture_triangles=args.capture_triangles or None,
     )
     try:
         settings.validate()

@@ -208,6 +208,10 @@ class GpuRenderer:
         self.id_batch = batch_for_shader(self.id_shader, "TRIS", {"pos": self.corner_pos, "bary": bary, "tid": tid})
         self._colour_shader = None
 
+    def with_geometry(self, points, triangles):
+        """A renderer of other triangles (the probes' simplified copy of the scene)."""
+        return GpuRenderer(points, triangles)
+
     def _local(self, view_proj):
         """A world view-projection as one for unit-frame positions, scaled to entries <= 1
         (a uniform scale of a projective matrix does not change what it draws)."""

@@ -22,9 +22,11 @@ def _settings_from(op, scene):
         return getattr(op, name) if set_here else getattr(s, name)
 
     tolerance = pick("tolerance")
+    budget = pick("capture_triangles")
     return BakeSettings(
         cube_size=pick("cube_size"), bounces=pick("bounces"), visibility=pick("visibility"),
-        tolerance=tolerance if tolerance > 0 else None, add_tail=pick("add_tail"), **prefs.capture_settings(),
+        tolerance=tolerance if tolerance > 0 else None, add_tail=pick("add_tail"),
+        capture_triangles=budget if budget > 0 else None, **prefs.capture_settings(),
     )
 
 
@@ -169,6 +171,10 @@ class CUBEGI_OT_bake(_ModalJob, bpy.types.Operator):
     )
     add_tail: BoolProperty(
         name="Add Tail", description="Add the estimated light after the last bounce to CubeGI", default=BakeSettings.add_tail
+    )
+    capture_triangles: IntProperty(
+        name="Capture Triangles", description="Triangles the probes draw at most, simplified (0: the full scene; default: "
+        "the scene's setting)", default=BakeSettings.capture_triangles, min=0,
     )
     reference_samples: IntProperty(
         name="Cycles Reference Samples", description="Also bake a Cycles reference with this many samples (0: none)", default=0, min=0

@@ -52,6 +52,7 @@ class VIEW3D_PT_cubegi(_SidebarTab, bpy.types.Panel):
         col = layout.column(heading="Capture")
         col.prop(settings, "cube_size")
         col.prop(settings, "visibility")
+        col.prop(settings, "capture_triangles")
         col = layout.column(heading="Bounces")
         col.prop(settings, "bounces")
         col.prop(settings, "tolerance")

@@ -238,8 +238,28 @@ def _report(settings, lit, grid, grid_source, collected, result, timings, refere
         tail=solution.tail_report, timings=timings, attributes=names,
         warnings=[w for w in (solution.tail_report.warning,) if w], reference=reference_report,
         capture_reused=result.capture_reused, probes_recaptured=result.probes_recaptured,
-        left_out=list(result.direct_parts.left_out),
+        left_out=list(result.direct_parts.left_out) + _left_out_of_capture(result.capture),
+        capture_geometry=_capture_geometry(result.capture.proxy),
     )
+
+
+def _capture_geometry(proxy):
+    if proxy is None:
+        return None
+    return {"triangles": len(proxy.triangles), "of": proxy.source_triangles, "clusters": proxy.count,
+            "max_offset": proxy.max_offset()}
+
+
+def _left_out_of_capture(capture):
+    proxy = capture.proxy
+    if proxy is None:
+        return []
+    saved = 1.0 - len(proxy.triangles) / max(proxy.source_triangles, 1)
+    return [
+        f"capture geometry: the probes drew {len(proxy.triangles):,} of {proxy.source_triangles:,} triangles "
+        f"({100 * saved:.0f}% fewer; surfaces within {proxy.max_offset():.3g} of where they are, radiance averaged "
+        f"over clusters that size); direct light and shadows use every triangle"
+    ]
 
 
 def _reference_report(targets, ours, theirs, samples, ref_seconds, cubegi_seconds):

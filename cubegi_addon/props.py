@@ -38,6 +38,12 @@ class CubeGISceneSettings(bpy.types.PropertyGroup):
     add_tail: BoolProperty(
         name="Add Tail", description="Add the estimated light after the last bounce to CubeGI (the total)", default=BakeSettings.add_tail
     )
+    capture_triangles: IntProperty(
+        name="Capture Triangles",
+        description="The probes draw a simplified copy of the scene with at most about this many triangles (0: the full "
+        "scene). Direct light, shadows and the baked vertices always use every triangle",
+        default=BakeSettings.capture_triangles, min=0, soft_max=1_000_000,
+    )
     lit: EnumProperty(
         name="Lit Colour", description="Also write CubeGI_lit, the lit colour that glTF export carries as COLOR_0",
         items=LIT_ITEMS, default="NONE",

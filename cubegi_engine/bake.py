@@ -23,6 +23,7 @@ from .capture import ProbeCapture
 from .direct import DirectLight, direct_light
 from .errors import BakeError
 from .field import ProbeField
+from .proxy import simplify
 from .records import Progress, Stage
 from .settings import BakeSettings
 from .solve import LightSolution, area_weighted_mean, solve_steps
@@ -40,11 +41,15 @@ class Renderer(Protocol):
     for orthographic views; inf for nothing) and a back-face flag.
     ``render_colour(view_projs, size, point_radiance (s, 3))`` draws the scene coloured by
     per-point radiance (back faces black) and returns ``(v, n, n, 3)``.
+    ``with_geometry(points, triangles)``: a renderer of other triangles (a simplified copy
+    of the scene for the probes).
     """
 
     def render(self, view_projs, eyes, axes, size, with_bary=True): ...
 
     def render_colour(self, view_projs, size, point_radiance): ...
+
+    def with_geometry(self, points, triangles): ...
 
 
 @dataclass
@@ -130,10 +135,11 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
     timings = {}
     total = 3 + settings.bounces
 
-    reused = capture is not None and capture.valid_for(scene, grid, settings.cube_size, settings.visibility)
+    budget = settings.capture_triangles
+    reused = capture is not None and capture.valid_for(scene, grid, settings.cube_size, settings.visibility, budget)
     patched = None
     if not reused and capture is not None:
-        patched = capture.patched(scene, grid, renderer, settings.cube_size, settings.visibility)
+        patched = capture.patched(scene, grid, renderer, settings.cube_size, settings.visibility, budget)
     if reused:
         yield Progress(Stage.CAPTURE, 0, total, f"reusing the capture of {grid.count} probes (the geometry is unchanged)")
         timings["capture"] = timings["tables"] = 0.0
@@ -143,8 +149,13 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
         timings["capture"], timings["tables"] = capture.capture_seconds, capture.tables_seconds
     else:
         check_memory(grid.count, settings.cube_size, len(scene.points))
-        yield Progress(Stage.CAPTURE, 0, total, f"capturing {grid.count} probes at {settings.cube_size}x{settings.cube_size}")
-        capture = ProbeCapture.take(scene, grid, renderer, settings.cube_size, settings.visibility)
+        t = time.perf_counter()
+        proxy = simplify(scene, budget)
+        drawer = renderer if proxy is None else renderer.with_geometry(proxy.points, proxy.triangles)
+        timings["simplify"] = time.perf_counter() - t
+        drawn = f" ({len(proxy.triangles):,} of {len(scene.triangles):,} triangles)" if proxy is not None else ""
+        yield Progress(Stage.CAPTURE, 0, total, f"capturing {grid.count} probes at {settings.cube_size}x{settings.cube_size}{drawn}")
+        capture = ProbeCapture.take(scene, grid, drawer, settings.cube_size, settings.visibility, proxy, budget)
         timings["capture"], timings["tables"] = capture.capture_seconds, capture.tables_seconds
     transport = capture.transport
 

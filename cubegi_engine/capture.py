@@ -31,35 +31,42 @@ class ProbeCapture:
     transport: Transport
     capture_seconds: float = 0.0
     tables_seconds: float = 0.0
+    proxy: object = None  # the CaptureProxy drawn instead of the scene's triangles, if any
+    budget: int | None = None  # the capture-triangle budget it was taken with
 
     @classmethod
-    def take(cls, scene, grid, renderer, cube_size: int, visibility: bool = True) -> "ProbeCapture":
-        """Draw every probe's cube map of ``scene`` and build the tables."""
+    def take(cls, scene, grid, renderer, cube_size: int, visibility: bool = True, proxy=None, budget=None) -> "ProbeCapture":
+        """Draw every probe's cube map of ``scene`` and build the tables. With ``proxy``
+        (a :class:`~cubegi_engine.proxy.CaptureProxy`), ``renderer`` draws the proxy's
+        triangles and the tables gather through its clusters; ``budget``: the setting it
+        was made for."""
         positions = grid.positions()
         near, far = clip_planes(scene.scale, grid.point_cell_edge(positions))
         t = time.perf_counter()
         cubes = capture_cubes(renderer, positions, cube_size, near, far)
         t_capture = time.perf_counter() - t
         t = time.perf_counter()
-        transport = Transport(scene, grid, cubes, visibility=visibility)
-        return cls(grid, int(cube_size), bool(visibility), scene.fingerprint(), cubes, transport, t_capture, time.perf_counter() - t)
+        transport = Transport(scene, grid, cubes, visibility=visibility, proxy=proxy)
+        return cls(grid, int(cube_size), bool(visibility), scene.fingerprint(), cubes, transport, t_capture,
+                   time.perf_counter() - t, proxy, budget)
 
-    def valid_for(self, scene, grid, cube_size: int, visibility: bool) -> bool:
+    def valid_for(self, scene, grid, cube_size: int, visibility: bool, budget=None) -> bool:
         """True if this capture applies to ``scene`` baked on ``grid`` at these settings."""
         return (
-            self.cube_size == int(cube_size) and self.visibility == bool(visibility)
+            self.cube_size == int(cube_size) and self.visibility == bool(visibility) and self.budget == budget
             and _same_grid(self.grid, grid) and not self.fingerprint.changed(scene.fingerprint())
         )
 
-    def patched(self, scene, grid, renderer, cube_size: int, visibility: bool = True):
+    def patched(self, scene, grid, renderer, cube_size: int, visibility: bool = True, budget=None):
         """This capture brought up to date for ``scene`` whose geometry moved but kept its
         layout (the same objects, point counts and triangles): only the probes that saw a
         moved object, or may see it where it is now, are drawn again; the tables are built
         anew. Returns ``(ProbeCapture, probes drawn)``, or None where it cannot be patched
-        (another grid or setting, or a changed layout: take a new capture)."""
+        (another grid or setting, a changed layout, or a simplified capture, whose clusters
+        move with the geometry: take a new capture)."""
         fingerprint = scene.fingerprint()
         if (self.cube_size != int(cube_size) or self.visibility != bool(visibility) or not _same_grid(self.grid, grid)
-                or not fingerprint.same_layout(self.fingerprint)):
+                or self.budget != budget or self.proxy is not None or not fingerprint.same_layout(self.fingerprint)):
             return None
         moved = fingerprint.changed(self.fingerprint)
         names = [name for name, _ in fingerprint.objects]
@@ -78,7 +85,8 @@ class ProbeCapture:
         t_capture = time.perf_counter() - t
         t = time.perf_counter()
         transport = Transport(scene, grid, cubes, visibility=visibility)
-        patched = ProbeCapture(grid, int(cube_size), bool(visibility), fingerprint, cubes, transport, t_capture, time.perf_counter() - t)
+        patched = ProbeCapture(grid, int(cube_size), bool(visibility), fingerprint, cubes, transport, t_capture,
+                               time.perf_counter() - t, None, budget)
         return patched, int(redraw.sum())
 
     def _may_see(self, scene, objects) -> np.ndarray:

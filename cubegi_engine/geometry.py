@@ -1,8 +1,9 @@
-"""Rays against the triangles a cube-map texel saw. Pure numpy; must not import bpy."""
+"""Rays against the triangles a cube-map texel saw, and points near triangles. Pure numpy;
+must not import bpy."""
 
 import numpy as np
 
-__all__ = ["cut_triangles"]
+__all__ = ["cut_triangles", "near_any_triangle"]
 
 
 def cut_triangles(origins, u, tid, triangles, vertices):
@@ -27,3 +28,47 @@ def cut_triangles(origins, u, tid, triangles, vertices):
         l2 = np.einsum("...c,...c->...", np.cross(a - c, x - c), nrm) / np.where(ok, area2, 1.0)
     inside = ok & (l1 >= 0) & (l2 >= 0) & (l1 + l2 <= 1)
     return np.where(ok, t, np.nan), inside, nrm
+
+
+def near_any_triangle(centres, radius, a, b, c, tiles=8):
+    """``(m,)`` bool: whether each of ``centres (m, 3)`` may lie within ``radius`` of any of
+    the triangles ``a, b, c`` (each ``(k, 3)``). Conservative: the point is within ``radius``
+    of the triangle's plane and its box and, projected onto it, within ``radius`` of the
+    inside of every edge (near a sharp corner this takes in more than the true distance would). The
+    centres are tested tile by tile (about ``tiles`` along the longest side, no smaller than
+    eight radii) against the triangles whose boxes reach the tile."""
+    m = len(centres)
+    out = np.zeros(m, dtype=bool)
+    if not m or not len(a):
+        return out
+    n = np.cross(b - a, c - a)
+    length = np.linalg.norm(n, axis=1)
+    keep = length > 0
+    a, b, c, n = a[keep], b[keep], c[keep], n[keep] / length[keep, None]
+    edges = [(a, b), (b, c), (c, a)]
+    inward = []  # inward unit directions of the three edges, in the plane
+    for p, q in edges:
+        d = np.cross(n, q - p)
+        inward.append(d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300))
+    box_lo = np.minimum(np.minimum(a, b), c) - radius
+    box_hi = np.maximum(np.maximum(a, b), c) + radius
+    lo = centres.min(axis=0)
+    edge = max(float(np.max(centres.max(axis=0) - lo)) / tiles, 8.0 * radius, 1e-300)
+    tile = np.floor((centres - lo) / edge).astype(np.int64)
+    ids, which = np.unique(tile, axis=0, return_inverse=True)
+    which = which.ravel()
+    order = np.argsort(which, kind="stable")
+    bounds = np.searchsorted(which[order], np.arange(len(ids) + 1))
+    for t in range(len(ids)):
+        cells = order[bounds[t] : bounds[t + 1]]
+        t_lo = lo + ids[t] * edge
+        sel = np.flatnonzero(np.all(box_lo <= t_lo + edge, axis=1) & np.all(box_hi >= t_lo, axis=1))
+        if not len(sel):
+            continue
+        pts = centres[cells]
+        near = np.all((pts[:, None, :] >= box_lo[None, sel]) & (pts[:, None, :] <= box_hi[None, sel]), axis=2)
+        near &= np.abs(np.einsum("mkc,kc->mk", pts[:, None, :] - a[None, sel], n[sel])) <= radius
+        for (p, _), d in zip(edges, inward):
+            near &= np.einsum("mkc,kc->mk", pts[:, None, :] - p[None, sel], d[sel]) >= -radius
+        out[cells] = near.any(axis=1)
+    return out

@@ -183,7 +183,8 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     where the probe sees sky); probe_valid: ``(p,)`` bool; points, normals: ``(s, 3)``;
     index, weight: ``(s, 8)`` from :meth:`ProbeGrid.trilinear`. Returns new weights ``(s, 8)``.
 
-    ``cover`` = ``(probe_tid (p, 6, n, n), triangles (t, 3), point_object (s,), points)`` adds a
+    ``cover`` = ``(probe_tid (p, 6, n, n), triangles (t, 3), triangle_object (t,), vertices,
+    point_object (s,))`` (the triangles the probes drew, over ``vertices``) adds a
     test the depth map's tolerance is too coarse for: a triangle of another object (or of
     the same object, facing away from the point: the far side of a thin wall) that the
     probe's texel sees towards the point, whose plane the exact ray from the probe crosses
@@ -226,7 +227,7 @@ def _covered(cover, eyes, points, normals, index, face, row, col, n, cell):
     may see a neighbour of the triangle the ray really crosses; a cut near but outside the
     other object must not count, or the floor around a rug would go dark.)
     """
-    probe_tid, triangles, point_object, vertices = cover
+    probe_tid, triangles, tri_object, vertices, point_object = cover
     q = points[:, None, :] + 1e-3 * cell[..., None] * normals[:, None, :]
     ray = q - eyes
     d = np.linalg.norm(ray, axis=-1)
@@ -234,7 +235,6 @@ def _covered(cover, eyes, points, normals, index, face, row, col, n, cell):
     eps = 1e-4 * cell
     p0 = vertices[triangles[:, 0]]
     tri_normals = np.cross(vertices[triangles[:, 1]] - p0, vertices[triangles[:, 2]] - p0)
-    tri_object = point_object[triangles[:, 0]]
     covered = np.zeros(index.shape, dtype=bool)
     for dr in (-1, 0, 1):
         for dc in (-1, 0, 1):

@@ -53,7 +53,14 @@ REFINE_TOL, REFINE_STEPS = 1e-10, 8
 
 
 def _gather_project_matrix(transport, s):
-    """``K (9p, s)``: SH coefficients of the probes from per-point radiance (one channel)."""
+    """``K (9p, s)``: SH coefficients of the probes from per-point radiance (one channel).
+    A simplified capture gathers from clusters: the matrix over them, expanded to points."""
+    if transport.proxy is not None:
+        return transport.proxy.expand_columns(_gather_matrix(transport, transport.proxy.count))
+    return _gather_matrix(transport, s)
+
+
+def _gather_matrix(transport, s):
     p = transport.probe_count
     corners = transport.corners.reshape(p, -1, 3).astype(np.int64)  # (p, t, 3)
     bary = transport.bary.reshape(p, -1, 3).astype(np.float64)

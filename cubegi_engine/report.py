@@ -37,6 +37,8 @@ class BakeReport:
     capture_reused: bool = False
     probes_recaptured: int | None = None
     left_out: list = field(default_factory=list)  # what the bake left out, each with why
+    # The probes' simplified geometry: {"triangles", "of", "clusters", "max_offset"}, or None.
+    capture_geometry: dict | None = None
     input: str | None = None
     output: str | None = None
     version: str = __version__
@@ -71,6 +73,7 @@ class BakeReport:
             "capture_reused": self.capture_reused,
             "probes_recaptured": self.probes_recaptured,
             "left_out": self.left_out,
+            "capture_geometry": self.capture_geometry,
             "timings": self.timings,
             "total_seconds": self.total_seconds,
             "reference": self.reference,
@@ -99,6 +102,7 @@ class BakeReport:
             tail=TailReport.from_dict(d["tail"]), timings=timings, attributes=d.get("attributes", []),
             warnings=d.get("warnings", []), reference=d.get("reference"), capture_reused=d.get("capture_reused", False),
             probes_recaptured=d.get("probes_recaptured"), left_out=d.get("left_out", []),
+            capture_geometry=d.get("capture_geometry"),
             input=d.get("input"), output=d.get("output"), version=d.get("cubegi_version", __version__),
         )
 

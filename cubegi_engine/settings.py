@@ -12,6 +12,7 @@ from .errors import BakeError
 __all__ = ["BakeSettings", "MIN_CUBE_SIZE", "MAX_CUBE_SIZE", "MAX_BOUNCES"]
 
 MIN_CUBE_SIZE, MAX_CUBE_SIZE = 4, 512
+MIN_CAPTURE_TRIANGLES = 1000
 # A bounce cap far past any scene's need: a closed room of albedo 0.95 converges to 1e-4 in
 # about 123 bounces, and the tail solve adds the rest in one go. More only writes
 # attributes of zero light.
@@ -38,6 +39,10 @@ class BakeSettings:
     # Scale each bounce (and the light from emitters) so that the power the surfaces receive
     # equals the power they send that lands on surfaces (see :func:`solve.conserve_energy`).
     conserve_energy: bool = True
+    # The probes draw a simplified copy of the scene with at most about this many triangles
+    # (:mod:`cubegi_engine.proxy`; None: always the full scene). Direct light, shadows and the
+    # shading points always use the full scene.
+    capture_triangles: int | None = 100_000
 
     def validate(self) -> "BakeSettings":
         """Raise a :class:`BakeError` naming the first setting out of range; else self."""
@@ -50,6 +55,11 @@ class BakeSettings:
         for name in ("shadow_size", "sun_shadow_size", "area_shadow_size"):
             if not 1 <= int(getattr(self, name)) <= 16384:
                 raise BakeError(f"{name.replace('_', ' ')} must be between 1 and 16384, got {getattr(self, name)}", name)
+        if self.capture_triangles is not None and int(self.capture_triangles) < MIN_CAPTURE_TRIANGLES:
+            raise BakeError(
+                f"capture triangles must be at least {MIN_CAPTURE_TRIANGLES} (or none: the full scene), got {self.capture_triangles}",
+                "capture_triangles",
+            )
         return self
 
     def as_dict(self, **extra) -> dict:
@@ -57,5 +67,5 @@ class BakeSettings:
         return {
             "cube_size": self.cube_size, "bounces": self.bounces, "visibility": self.visibility,
             "shadow_size": self.shadow_size, "tolerance": self.tolerance, "add_tail": self.add_tail,
-            "conserve_energy": self.conserve_energy, **extra,
+            "conserve_energy": self.conserve_energy, "capture_triangles": self.capture_triangles, **extra,
         }

@@ -92,8 +92,12 @@ class Transport:
     After construction every bounce is a few gathers and matrix products (float32).
     """
 
-    def __init__(self, scene, grid, capture, visibility=True):
+    def __init__(self, scene, grid, capture, visibility=True, proxy=None):
+        """``proxy``: the :class:`~cubegi_engine.proxy.CaptureProxy` the capture drew (its
+        triangles are what the texels see), or None for the scene's own triangles."""
         n = capture.size
+        self.proxy = proxy
+        triangles = scene.triangles if proxy is None else proxy.triangles
         p = grid.count
         self.probe_count = p
         dirs = cubemap.texel_directions(n).reshape(-1, 3)
@@ -103,7 +107,7 @@ class Transport:
         tid = capture.tid.reshape(p, -1)
         back = capture.backface.reshape(p, -1)
         hit = (tid >= 0) & ~back
-        self.corners = scene.triangles[np.maximum(tid, 0)].astype(np.int32)  # (p, 6n^2, 3)
+        self.corners = triangles[np.maximum(tid, 0)].astype(np.int32)  # (p, 6n^2, 3): points or clusters
         self.bary = (capture.bary.reshape(p, -1, 3) * hit[..., None]).astype(np.float32)
         sky = (tid < 0).astype(np.float32)
         self.sky_projection = sky @ self.sh_weights  # (p, 9): SH of a unit sky seen by each probe
@@ -112,8 +116,9 @@ class Transport:
         self.seen_from_behind = None
         self.triangle_object = None
         if scene.point_object is not None:
-            self.triangle_object = scene.point_object[scene.triangles[:, 0]]
-            self.seen_from_behind = _seen_from_behind(scene, tid, back, solid, self.probe_valid)
+            self.triangle_object = scene.point_object[scene.triangles[:, 0]] if proxy is None else proxy.triangle_object
+            count = int(scene.point_object.max()) + 1
+            self.seen_from_behind = _seen_from_behind(self.triangle_object, count, tid, back, solid, self.probe_valid)
 
         positions = grid.positions()
         index, weight = grid.trilinear(scene.points)
@@ -125,7 +130,8 @@ class Transport:
             dist = capture.dist.reshape(p, 6, n, n)
             cover = None
             if scene.point_object is not None:
-                cover = (capture.tid.reshape(p, 6, n, n), scene.triangles, scene.point_object, scene.points)
+                vertices = scene.points if proxy is None else proxy.points
+                cover = (capture.tid.reshape(p, 6, n, n), triangles, self.triangle_object, vertices, scene.point_object)
             weight = visibility_weights(
                 grid, positions, dist, self.probe_valid, scene.points, scene.normals, index, weight, cover
             )
@@ -140,7 +146,8 @@ class Transport:
 
     def arrays(self):
         """The tables' arrays (for memory accounting)."""
-        return [self.sh_weights, self.corners, self.bary, self.sky_projection, self.probe_valid, self.index, self.point_weights]
+        proxy = [] if self.proxy is None else [self.proxy.points, self.proxy.triangles, self.proxy.cluster, self.proxy.share]
+        return [self.sh_weights, self.corners, self.bary, self.sky_projection, self.probe_valid, self.index, self.point_weights, *proxy]
 
     def landing_share(self):
         """Per point, the cosine-weighted share of its view that is surface, not sky:
@@ -154,7 +161,7 @@ class Transport:
 
     def texel_radiance(self, radiance):
         """Radiance seen by every texel ``(p, 6n^2, 3)`` from point radiance ``(s, 3)``."""
-        r = np.asarray(radiance, dtype=np.float32)
+        r = np.asarray(radiance, dtype=np.float32) if self.proxy is None else self.proxy.radiance(radiance)
         return np.einsum("ptc,ptcr->ptr", self.bary, r[self.corners], optimize=True)
 
     def project(self, texel_radiance, sky=None):
@@ -179,14 +186,14 @@ class Transport:
         return np.maximum(out, 0.0) if clamp else out
 
 
-def _seen_from_behind(scene, tid, back, solid, probe_valid):
-    """Per object (``scene.point_object`` index): the share of the solid angle in which the
-    valid probes see it that shows its back faces, ``(objects,)``. A large share means flipped
-    normals, or a one-sided surface seen from its back: such faces get and pass on no light."""
-    count = int(scene.point_object.max()) + 1
+def _seen_from_behind(triangle_object, count, tid, back, solid, probe_valid):
+    """Per object (``scene.point_object`` index, ``count`` of them): the share of the solid
+    angle in which the valid probes see it that shows its back faces, ``(objects,)``. A large
+    share means flipped normals, or a one-sided surface seen from its back: such faces get
+    and pass on no light."""
     use = probe_valid if probe_valid.any() else np.ones_like(probe_valid)  # none valid: all
     seen = (tid >= 0) & use[:, None]
-    obj = scene.point_object[scene.triangles[np.maximum(tid, 0), 0]]
+    obj = triangle_object[np.maximum(tid, 0)]
     w = solid[None, :] * seen
     total = np.bincount(obj.ravel(), w.ravel(), minlength=count)
     behind = np.bincount(obj.ravel(), (w * back).ravel(), minlength=count)

@@ -173,6 +173,7 @@ def _operator(p=4, s=30, seed=0):
         sh_weights=rng.uniform(0.0, 0.05, (t, 9)).astype(np.float32),
         index=np.stack([rng.permutation(p)[np.arange(8) % p] for _ in range(s)]),
         point_weights=rng.uniform(0.0, 0.05, (s, 8, 9)).astype(np.float32),
+        proxy=None,
     )
     return BounceOperator(transport, np.full((s, 3), 0.7))
 

@@ -1,0 +1,151 @@
+"""The probes' simplified copy of the scene (pure numpy): the budget, the bound on how far
+surfaces move, thin parts kept apart, nothing turned over, radiance averaged by area."""
+
+import numpy as np
+import pytest
+
+from cubegi.cubegi_engine.proxy import KEEP_WHOLE, simplify
+from cubegi.cubegi_engine.scene import SceneArrays
+
+
+def _plane(origin, u, v, n, flip=False):
+    """A grid of (n+1)^2 points and 2 n^2 triangles over origin + a u + b v."""
+    a, b = np.meshgrid(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1), indexing="ij")
+    pts = np.asarray(origin) + a.reshape(-1, 1) * np.asarray(u) + b.reshape(-1, 1) * np.asarray(v)
+    k = np.arange(n + 1)
+    i, j = np.meshgrid(k[:-1], k[:-1], indexing="ij")
+    c = (i * (n + 1) + j).ravel()
+    tris = np.concatenate([np.stack([c, c + n + 1, c + n + 2], 1), np.stack([c, c + n + 2, c + 1], 1)])
+    if flip:
+        tris = tris[:, ::-1]
+    normal = np.cross(u, v)
+    normal = normal / np.linalg.norm(normal) * (-1 if flip else 1)
+    return pts, tris, np.tile(normal, (len(pts), 1))
+
+
+def _scene(parts):
+    """SceneArrays of [(object index, (points, triangles, normals)), ...]."""
+    pts, tris, nrm, owner, off = [], [], [], [], 0
+    for obj, (p, t, n) in parts:
+        pts.append(p)
+        tris.append(t + off)
+        nrm.append(n)
+        owner.append(np.full(len(p), obj))
+        off += len(p)
+    count = max(o for o, _ in parts) + 1
+    s = off
+    return SceneArrays(np.concatenate(pts), np.concatenate(nrm), np.full((s, 3), 0.5), np.zeros((s, 3)), np.concatenate(tris),
+                       point_object=np.concatenate(owner), object_names=[f"o{k}" for k in range(count)])
+
+
+def _thin_wall_and_floor(n=60):
+    """Object 0: a 2 m wall of two faces 1 cm apart facing away from each other, finely
+    tessellated; object 1: a floor of two triangles (kept whole)."""
+    front = _plane((0.0, 0.0, 0.0), (0, 2.0, 0), (0, 0, 2.0), n)  # normal +X
+    back = _plane((-0.01, 0.0, 0.0), (0, 2.0, 0), (0, 0, 2.0), n, flip=True)  # normal -X
+    floor = _plane((-2.0, 0.0, 0.0), (4.0, 0, 0), (0, 2.0, 0), 1)
+    return _scene([(0, front), (0, back), (1, floor)])
+
+
+def _normals(v, t):
+    x = v[t]
+    return np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0])
+
+
+def test_no_proxy_at_or_below_the_budget():
+    scene = _thin_wall_and_floor(n=10)
+    assert simplify(scene, len(scene.triangles)) is None
+    assert simplify(scene, None) is None
+
+
+@pytest.mark.parametrize("budget", [4000, 8000])
+def test_the_budget_and_the_bound_hold_and_the_wall_keeps_two_faces(budget):
+    scene = _thin_wall_and_floor()
+    proxy = simplify(scene, budget)
+    assert proxy is not None and len(proxy.triangles) <= 1.1 * budget < len(scene.triangles)
+    # Every point lies within the stated bound of its cluster's centre.
+    offset = np.linalg.norm(scene.points - proxy.points[proxy.cluster], axis=1)
+    assert offset.max() <= proxy.max_offset() + 1e-12
+    # The floor (two triangles) is kept whole: its points are their own clusters.
+    floor = scene.point_object == 1
+    assert len(np.unique(proxy.cluster[floor])) == floor.sum() and proxy.cell[1] == 0
+    assert (proxy.triangle_object == 1).sum() == 2
+    # The wall's two faces stay apart: no cluster mixes them, and every proxy triangle of
+    # each face still faces that face's way (nothing turned over, no slab collapsed).
+    wall = proxy.triangle_object == 0
+    front = scene.normals[:, 0] > 0.5
+    assert not np.intersect1d(proxy.cluster[front & ~floor], proxy.cluster[~front & ~floor]).size
+    nx = _normals(proxy.points, proxy.triangles[wall])[:, 0]
+    side = proxy.points[proxy.triangles[wall]][:, :, 0].mean(axis=1) > -0.005
+    assert np.all(nx[side] > 0) and np.all(nx[~side] < 0) and side.any() and (~side).any()
+
+
+def test_each_object_keeps_the_same_share_of_its_triangles():
+    big = _plane((0, 0, 0), (4.0, 0, 0), (0, 4.0, 0), 80)  # 12,800 triangles
+    small = _plane((0, 0, 1.0), (1.0, 0, 0), (0, 1.0, 0), 20)  # 800 triangles
+    scene = _scene([(0, big), (1, small)])
+    proxy = simplify(scene, 2000)
+    share = [(proxy.triangle_object == k).sum() / (scene.point_object[scene.triangles[:, 0]] == k).sum() for k in (0, 1)]
+    assert 0.5 < share[0] / share[1] < 2.0, share
+    assert KEEP_WHOLE < 800  # the small one was simplified too
+
+
+def test_radiance_is_the_area_weighted_mean_and_the_matrix_agrees():
+    scene = _thin_wall_and_floor(n=40)
+    proxy = simplify(scene, 800)
+    rng = np.random.default_rng(0)
+    # A constant radiance stays that constant on every cluster.
+    np.testing.assert_allclose(proxy.radiance(np.full((len(scene.points), 3), 0.7)), 0.7, rtol=1e-6)
+    r = rng.uniform(0, 1, (len(scene.points), 3))
+    per_cluster = proxy.radiance(r)
+    areas = scene.point_areas()
+    k = proxy.cluster[0]
+    members = proxy.cluster == k
+    np.testing.assert_allclose(per_cluster[k], (areas[members, None] * r[members]).sum(0) / areas[members].sum(), rtol=1e-5)
+    # A matrix over clusters, expanded to points, gives the same product.
+    m = rng.normal(size=(5, proxy.count))
+    np.testing.assert_allclose(proxy.expand_columns(m) @ r, m @ per_cluster.astype(np.float64), rtol=1e-5, atol=1e-6)
+
+
+def test_a_dense_floor_under_a_thin_wall_is_not_averaged_across_it():
+    """A dense floor runs under a 2 cm wall (another object): no floor cluster takes in
+    points from both sides of the wall (light from a lit room would reach a dark one), and
+    the wall's faces still reach down to the floor."""
+    front = _plane((0.0, 0.0, 0.0), (0, 2.0, 0), (0, 0, 2.0), 40)
+    back = _plane((-0.02, 0.0, 0.0), (0, 2.0, 0), (0, 0, 2.0), 40, flip=True)
+    floor = _plane((-2.0, 0.0, 0.0), (4.0, 0, 0), (0, 2.0, 0), 80)  # 12,800 triangles
+    scene = _scene([(0, front), (0, back), (1, floor)])
+    proxy = simplify(scene, 3000)
+    assert proxy is not None and proxy.cell[1] > 0.05  # cells far wider than the wall
+    on_floor = scene.point_object == 1
+    left = on_floor & (scene.points[:, 0] < -0.02)
+    right = on_floor & (scene.points[:, 0] > 0.0)
+    assert not np.intersect1d(proxy.cluster[left], proxy.cluster[right]).size
+    wall = proxy.points[proxy.triangles[proxy.triangle_object == 0]].reshape(-1, 3)
+    assert wall[:, 2].min() == pytest.approx(0.0, abs=1e-12)
+
+
+def test_near_any_triangle_is_conservative():
+    from cubegi.cubegi_engine.geometry import near_any_triangle
+
+    rng = np.random.default_rng(5)
+    # Equilateral triangles (edge 1), turned at random: the test is conservative, and near a
+    # sharp corner it takes in more than the true distance, so the bound below is for
+    # well-shaped ones.
+    q, _ = np.linalg.qr(rng.normal(size=(20, 3, 3)))
+    shape = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, np.sqrt(0.75), 0.0]])
+    corners = rng.uniform(-1, 1, (20, 1, 3)) + np.einsum("tij,kj->tki", q, shape)
+    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
+    pts = rng.uniform(-1.5, 1.5, (1500, 3))
+    r = 0.15
+    got = near_any_triangle(pts, r, a, b, c, tiles=5)
+    # Distances by dense sampling of each triangle (an upper bound on the true distance).
+    u, v = np.meshgrid(np.linspace(0, 1, 41), np.linspace(0, 1, 41))
+    inside = (u + v) <= 1
+    w = np.stack([1 - u[inside] - v[inside], u[inside], v[inside]], axis=1)  # (q, 3)
+    samples = (w[None, :, 0, None] * a[:, None] + w[None, :, 1, None] * b[:, None] + w[None, :, 2, None] * c[:, None]).reshape(-1, 3)
+    d = np.min(np.linalg.norm(pts[:, None, :] - samples[None, :, :], axis=2), axis=1)
+    step = 1.0 / 40  # sampling spacing on edges of length 1
+    assert got[d <= r - step].all()  # everything truly near is found
+    assert not got[d > 3 * r + step].any()  # nothing far is
+    assert got.any() and not got.all()

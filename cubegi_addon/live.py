@@ -231,7 +231,7 @@ def write_light(context, kept, bounces=True, field=True):
     kept.result.field.coeffs, kept.result.field.source_coeffs = state.field_coeffs()
     objects = grid_objects.probe_grid_objects(context.scene)
     if objects:
-        grid_objects.store_probe_light(objects, kept.result.field)
+        grid_objects.store_probe_light(objects, kept.result.field.whole())
         probe_view.forget_drawing()
     dynamic.write_moving(context, kept)
 

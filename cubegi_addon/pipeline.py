@@ -132,7 +132,7 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
     t_setup = time.perf_counter() - t
     earlier = session.kept(context.scene)
     steps = engine_bake_steps(arrays, grid, renderer, settings, capture=earlier.result.capture if earlier else None,
-                              keep_shadows=bool(collected.moving))
+                              keep_shadows=bool(collected.moving), whole_field=bool(collected.moving))
     if preview is not None:
         preview.start(collected.targets)
         steps = _previewed(steps, preview)
@@ -162,7 +162,7 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
     write_all(collected.targets + [t for t, _ in moving], layers_per_target + [layers for _, layers in moving])
     objects = grid_objects.probe_grid_objects(context.scene)
     if objects:
-        grid_objects.store_probe_light(objects, result.field)
+        grid_objects.store_probe_light(objects, result.field.whole())
         probe_view.forget_drawing()
     session.keep(context.scene, session.Kept(
         arrays, collected.targets, result, settings, lit, placements=session.placements(arrays.object_names), moving=collected.moving,
@@ -229,7 +229,8 @@ def _report(settings, lit, grid, grid_source, collected, result, timings, refere
         rec.attribute = attributes.bounce_name(rec.bounce)
     return BakeReport(
         settings=settings.as_dict(lit=lit or "NONE"),
-        grid={**grid_objects.grid_report(grid), "probes_inside_geometry": int((~result.probe_valid).sum()), "source": grid_source},
+        grid={**grid_objects.grid_report(grid), "probes_inside_geometry": int((~result.probe_valid).sum()),
+              "probes_captured": int(result.capture.grid.count), "source": grid_source},
         points=len(arrays.points), triangles=len(arrays.triangles), lights=len(arrays.lights), sky=arrays.sky.tolist(),
         meshes_baked=[t.object_name for t in collected.targets], notes=collected.notes,
         direct_seconds=timings["direct"], direct_mean_light=area_weighted_mean(result.direct, areas).tolist(),
@@ -238,7 +239,7 @@ def _report(settings, lit, grid, grid_source, collected, result, timings, refere
         tail=solution.tail_report, timings=timings, attributes=names,
         warnings=[w for w in (solution.tail_report.warning,) if w], reference=reference_report,
         capture_reused=result.capture_reused, probes_recaptured=result.probes_recaptured,
-        left_out=list(result.direct_parts.left_out) + _left_out_of_capture(result.capture),
+        left_out=list(result.direct_parts.left_out) + _left_out_of_capture(result.capture, grid),
         capture_geometry=_capture_geometry(result.capture.proxy),
     )
 
@@ -250,16 +251,24 @@ def _capture_geometry(proxy):
             "max_offset": proxy.max_offset()}
 
 
-def _left_out_of_capture(capture):
+def _left_out_of_capture(capture, grid):
+    out = []
+    captured = capture.grid.count
+    if captured < grid.count:
+        out.append(
+            f"probes: {grid.count - captured} of {grid.count} light no vertex (none lies within a cell of them) and were "
+            f"not captured ({100 * (1 - captured / grid.count):.0f}% of the capture saved); a dynamic object in the scene "
+            "keeps them all"
+        )
     proxy = capture.proxy
-    if proxy is None:
-        return []
-    saved = 1.0 - len(proxy.triangles) / max(proxy.source_triangles, 1)
-    return [
-        f"capture geometry: the probes drew {len(proxy.triangles):,} of {proxy.source_triangles:,} triangles "
-        f"({100 * saved:.0f}% fewer; surfaces within {proxy.max_offset():.3g} of where they are, radiance averaged "
-        f"over clusters that size); direct light and shadows use every triangle"
-    ]
+    if proxy is not None:
+        saved = 1.0 - len(proxy.triangles) / max(proxy.source_triangles, 1)
+        out.append(
+            f"capture geometry: the probes drew {len(proxy.triangles):,} of {proxy.source_triangles:,} triangles "
+            f"({100 * saved:.0f}% fewer; surfaces within {proxy.max_offset():.3g} of where they are, radiance averaged "
+            f"over clusters that size); direct light and shadows use every triangle"
+        )
+    return out
 
 
 def _reference_report(targets, ours, theirs, samples, ref_seconds, cubegi_seconds):

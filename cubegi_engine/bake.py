@@ -23,6 +23,7 @@ from .capture import ProbeCapture
 from .direct import DirectLight, direct_light
 from .errors import BakeError
 from .field import ProbeField
+from .grid import ProbeSubset, probes_used
 from .proxy import simplify
 from .records import Progress, Stage
 from .settings import BakeSettings
@@ -123,14 +124,22 @@ def check_memory(probes, cube_size, points, limit=None) -> int:
 
 
 def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capture: ProbeCapture | None = None,
-               keep_shadows: bool = False):
+               keep_shadows: bool = False, whole_field: bool = False):
     """Bake ``scene`` on ``grid``; a generator of :class:`Progress`, returning a BakeResult.
 
     ``capture``: a capture kept from an earlier bake; used if it is still valid for this
     scene, grid and settings (else a new one is taken). ``keep_shadows``: keep every
     light's depth maps of the scene in the result (moving objects are tested against them).
+    Probes that give no point a trilinear weight light nothing and are not captured (the
+    result's grid is then a :class:`~cubegi_engine.grid.ProbeSubset`); ``whole_field``
+    captures every probe, for a probe field that must light points anywhere in the grid
+    (dynamic objects).
     """
     settings = (settings or BakeSettings()).validate()
+    if not whole_field:
+        used = probes_used(grid, scene.points)
+        if not used.all():
+            grid = ProbeSubset(grid, used)
     t_start = time.perf_counter()
     timings = {}
     total = 3 + settings.bounces

@@ -110,6 +110,15 @@ class ProbeField:
             cached[1][part] = deringed.astype(np.float32)
         return cached[1][part]
 
+    def whole(self) -> "ProbeField":
+        """This field on its whole grid: a field of a probe subset (a bake that left out the
+        probes no point uses) with the left-out probes as invalid and dark."""
+        grid = self.grid
+        if not hasattr(grid, "expand"):
+            return self
+        source = None if self.source_coeffs is None else grid.expand(self.source_coeffs)
+        return ProbeField(grid.grid, grid.expand(self.coeffs), grid.expand(self.valid, False), source)
+
     @property
     def nbytes(self) -> int:
         return int(self.coeffs.nbytes + self.valid.nbytes)

@@ -15,7 +15,7 @@ import numpy as np
 from . import cubemap
 from .geometry import cut_triangles
 
-__all__ = ["ProbeGrid", "GridSet", "fit_bounds", "visibility_weights"]
+__all__ = ["ProbeGrid", "GridSet", "ProbeSubset", "fit_bounds", "visibility_weights", "probes_used"]
 
 
 @dataclass(frozen=True)
@@ -152,6 +152,49 @@ class GridSet:
     def point_cell_edge(self, points):
         edges = np.array([float(np.min(g.cell_size)) for g in self.grids])
         return edges[self.assign(points)]
+
+
+class ProbeSubset:
+    """The probes of ``grid`` (a ProbeGrid or GridSet) that ``keep`` ``(grid.count,)`` bool
+    names, numbered in their order: what a bake captures when the rest light no point.
+    A left-out probe takes no weight (a point whose probes are all left out gets none)."""
+
+    def __init__(self, grid, keep):
+        self.grid = grid
+        self.keep = np.flatnonzero(np.asarray(keep, dtype=bool))
+        self.count = len(self.keep)
+        self._number = np.full(grid.count, -1, dtype=np.int64)
+        self._number[self.keep] = np.arange(self.count)
+
+    @property
+    def left_out(self) -> int:
+        return int(self.grid.count - self.count)
+
+    def positions(self):
+        return self.grid.positions()[self.keep]
+
+    def trilinear(self, points):
+        index, weight = self.grid.trilinear(points)
+        mine = self._number[index]
+        return np.maximum(mine, 0), np.where(mine >= 0, weight, 0.0)
+
+    def point_cell_edge(self, points):
+        return self.grid.point_cell_edge(points)
+
+    def expand(self, values, fill=0):
+        """Per-probe ``values`` of this subset as the whole grid's (``fill`` for the rest)."""
+        values = np.asarray(values)
+        out = np.full((self.grid.count,) + values.shape[1:], fill, dtype=values.dtype)
+        out[self.keep] = values
+        return out
+
+
+def probes_used(grid, points) -> np.ndarray:
+    """``(grid.count,)`` bool: the probes that give any of ``points`` a trilinear weight."""
+    index, weight = grid.trilinear(points)
+    used = np.zeros(grid.count, dtype=bool)
+    used[index[weight > 0]] = True
+    return used
 
 
 def fit_bounds(lo, hi, spacing=None, max_probes=4096):

@@ -30,13 +30,15 @@ def cut_triangles(origins, u, tid, triangles, vertices):
     return np.where(ok, t, np.nan), inside, nrm
 
 
-def near_any_triangle(centres, radius, a, b, c, tiles=8):
+def near_any_triangle(centres, radius, a, b, c, tiles=8, centre_normals=None, across=None):
     """``(m,)`` bool: whether each of ``centres (m, 3)`` may lie within ``radius`` of any of
     the triangles ``a, b, c`` (each ``(k, 3)``). Conservative: the point is within ``radius``
     of the triangle's plane and its box and, projected onto it, within ``radius`` of the
     inside of every edge (near a sharp corner this takes in more than the true distance would). The
     centres are tested tile by tile (about ``tiles`` along the longest side, no smaller than
-    eight radii) against the triangles whose boxes reach the tile."""
+    eight radii) against the triangles whose boxes reach the tile. With ``centre_normals``
+    ``(m, 3)`` and ``across``, a triangle counts for a centre only where the cosine between
+    their normals is below ``across`` in magnitude (it runs across the centre's surface)."""
     m = len(centres)
     out = np.zeros(m, dtype=bool)
     if not m or not len(a):
@@ -68,6 +70,8 @@ def near_any_triangle(centres, radius, a, b, c, tiles=8):
         pts = centres[cells]
         near = np.all((pts[:, None, :] >= box_lo[None, sel]) & (pts[:, None, :] <= box_hi[None, sel]), axis=2)
         near &= np.abs(np.einsum("mkc,kc->mk", pts[:, None, :] - a[None, sel], n[sel])) <= radius
+        if centre_normals is not None:
+            near &= np.abs(centre_normals[cells] @ n[sel].T) < across
         for (p, _), d in zip(edges, inward):
             near &= np.einsum("mkc,kc->mk", pts[:, None, :] - p[None, sel], d[sel]) >= -radius
         out[cells] = near.any(axis=1)

@@ -95,11 +95,9 @@ def simplify(scene, budget) -> CaptureProxy | None:
     owner = scene.point_object if scene.point_object is not None else np.zeros(s, dtype=np.int64)
     owner = np.asarray(owner, dtype=np.int64)
     objects = int(owner.max()) + 1 if s else 0
-    tri_owner = owner[tris[:, 0]]
-    tri_count = np.bincount(tri_owner, minlength=objects)
-    corners = points[tris]
-    tri_area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
-    area = np.bincount(tri_owner, tri_area, minlength=objects)
+    prep = _Prepared(points, np.asarray(scene.normals, dtype=np.float64), tris, owner, objects)
+    tri_count = np.bincount(prep.tri_owner, minlength=objects)
+    area = np.bincount(prep.tri_owner, prep.tri_area, minlength=objects)
     simplified = tri_count > KEEP_WHOLE
     kept_whole = int(tri_count[~simplified].sum())
     if kept_whole >= budget or not simplified.any():
@@ -107,11 +105,10 @@ def simplify(scene, budget) -> CaptureProxy | None:
     # A surface of area A tessellated into clusters of edge h has about 2 A / h^2 triangles.
     ratio = (budget - kept_whole) / max(int(tri_count[simplified].sum()), 1)
     cell = np.where(simplified, np.sqrt(2.0 * area / np.maximum(tri_count * ratio, 1.0)), 0.0)
-    point_areas = scene.point_areas() if hasattr(scene, "point_areas") else np.ones(s)
-    normals = np.asarray(scene.normals, dtype=np.float64)
+    prep.areas = scene.point_areas() if hasattr(scene, "point_areas") else np.ones(s)
     best = None
     for _ in range(ROUNDS):
-        proxy = _cluster(points, normals, tris, owner, cell, point_areas, len(tris))
+        proxy = _cluster(prep, cell)
         if best is None or len(proxy.triangles) < len(best.triangles):
             best = proxy
         got = len(proxy.triangles) - kept_whole
@@ -123,18 +120,49 @@ def simplify(scene, budget) -> CaptureProxy | None:
     return best
 
 
-def _cluster(points, normals, tris, owner, cell, point_areas, source_triangles):
+class _Prepared:
+    """What every clustering round of one scene reads: the points sorted along X, each
+    object's points, the triangles' boxes, sizes and normals."""
+
+    def __init__(self, points, normals, tris, owner, objects):
+        self.points, self.normals, self.tris, self.owner = points, normals, tris, owner
+        self.rel = points - points.min(axis=0)  # cells are counted from the scene's lowest corner
+        self.by_x = np.argsort(points[:, 0], kind="stable")
+        self.xs = points[self.by_x, 0]
+        self.members = np.split(np.argsort(owner, kind="stable"), np.cumsum(np.bincount(owner, minlength=objects))[:-1])
+        self.tri_owner = owner[tris[:, 0]]
+        corners = points[tris]
+        self.tri_lo, self.tri_hi = corners.min(axis=1), corners.max(axis=1)
+        self.tri_extent = np.max(self.tri_hi - self.tri_lo, axis=1)
+        n = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        length = np.linalg.norm(n, axis=1)
+        self.tri_area = 0.5 * length
+        self.tri_normal = n / np.maximum(length, 1e-300)[:, None]
+        self.areas = None
+
+
+def _unique_rows(rows):
+    """``np.unique(rows, axis=0, return_inverse=True)[1]`` for non-negative int rows, through
+    one int64 key where the rows' ranges allow it (far faster)."""
+    span = rows.max(axis=0) + 1 if len(rows) else np.ones(rows.shape[1], dtype=np.int64)
+    if np.prod(span.astype(np.float64)) < 2.0**62:
+        key = np.ravel_multi_index(rows.T, span)
+        return np.unique(key, return_inverse=True)[1].ravel()
+    return np.unique(rows, axis=0, return_inverse=True)[1].ravel()
+
+
+def _cluster(prep, cell):
+    points, normals, tris, owner, rel, point_areas = prep.points, prep.normals, prep.tris, prep.owner, prep.rel, prep.areas
     s = len(points)
     h = cell[owner]
     whole = h <= 0
-    rel = points - points.min(axis=0)  # cells counted from the scene's lowest corner
     ijk = np.where(whole[:, None], 0, np.floor(rel / np.where(whole, 1.0, h)[:, None])).astype(np.int64)
-    whole = whole | _contact(points, owner, tris, cell, ijk, rel)
+    whole = whole | _contact(prep, cell, ijk)
     h = np.where(whole, 0.0, h)
+    # Points kept as they are are their own clusters (a row of their own each).
+    rows = np.concatenate([owner[:, None], np.where(whole[:, None], 0, ijk), np.where(whole, np.arange(s), 0)[:, None]], axis=1)
     ijk[whole] = 0
-    ijk[whole, 0] = -1 - np.arange(s)[whole]  # points kept as they are: their own clusters
-    _, cells = np.unique(np.concatenate([owner[:, None], ijk], axis=1), axis=0, return_inverse=True)
-    cells = cells.ravel()
+    cells = _unique_rows(rows)
     # Within a cell, the points facing away from the normal of its largest point are a
     # cluster of their own: a thin wall's (or a rug's) two faces stay apart, while a floor and
     # a wall meeting in the cell are joined (no slit between them for a probe to see through).
@@ -156,59 +184,65 @@ def _cluster(points, normals, tris, owner, cell, point_areas, source_triangles):
     ok = (mapped[:, 0] != mapped[:, 1]) & (mapped[:, 1] != mapped[:, 2]) & (mapped[:, 0] != mapped[:, 2])
     # A triangle that turned over when its corners moved to their clusters' centres would
     # face the other way (a floor seen as a ceiling): dropped.
-    before = _normals(points, tris[ok])
     after = _normals(centres, mapped[ok])
-    ok[ok] = np.einsum("tc,tc->t", before, after) > 0
+    ok[ok] = np.einsum("tc,tc->t", prep.tri_normal[ok], after) > 0
     mapped = mapped[ok]
     # Drop duplicates with the same corners in the same turn (rotated so the smallest leads).
     first = np.argmin(mapped, axis=1)
     rolled = np.stack([mapped[np.arange(len(mapped)), (first + k) % 3] for k in range(3)], axis=1)
-    _, keep = np.unique(rolled, axis=0, return_index=True)
+    _, keep = np.unique(_unique_rows(rolled), return_index=True)
     keep.sort()
     triangles = mapped[keep]
     cluster_object = np.zeros(c, dtype=np.int64)
     cluster_object[cluster] = owner
     triangle_object = cluster_object[triangles[:, 0]]
-    return CaptureProxy(centres, triangles, cluster, share, triangle_object, cell.copy(), int(source_triangles))
+    return CaptureProxy(centres, triangles, cluster, share, triangle_object, cell.copy(), len(tris))
 
 
-def _contact(points, owner, tris, cell, ijk, rel):
+# Another object's surface within this of parallel to a cell's (|cos|) lies along it (a rug on
+# a floor), not across it: the cell is clustered all the same.
+PARALLEL = 0.9
+
+
+def _contact(prep, cell, ijk):
     """``(s,)`` bool: points of simplified objects whose cell (in their object's lattice)
-    also holds another object's surface: a wall's foot on a floor, a rug on it, a floor
+    also holds another object's surface running across it: a wall's foot on a floor, a floor
     under a wall. They are kept as they are, so that no cluster averages light from both
     sides of another surface (a floor running under a wall between a lit and a dark room)
-    and nothing lifts off what it stands on."""
-    s = len(points)
-    out = np.zeros(s, dtype=bool)
-    by_x = np.argsort(points[:, 0], kind="stable")
-    xs = points[by_x, 0]
-    tri_owner = owner[tris[:, 0]]
-    corners = points[tris]
-    extent = np.max(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2), axis=1)
-    members = np.split(np.argsort(owner, kind="stable"), np.cumsum(np.bincount(owner, minlength=len(cell)))[:-1])
+    and nothing lifts off what it stands on. A surface lying along the cell's (a rug on a
+    floor) does not count: both are clustered, each on its own."""
+    points, normals, owner, rel = prep.points, prep.normals, prep.owner, prep.rel
+    out = np.zeros(len(points), dtype=bool)
     for obj in np.flatnonzero(cell > 0):
-        mine = members[obj]
+        mine = prep.members[obj]
         h = cell[obj]
         lo, hi = points[mine].min(axis=0) - h, points[mine].max(axis=0) + h
-        # Other objects' points in this object's cells.
-        near = by_x[np.searchsorted(xs, lo[0]) : np.searchsorted(xs, hi[0], side="right")]
-        near = near[(owner[near] != obj) & np.all((points[near] >= lo) & (points[near] <= hi), axis=1)]
         base = ijk[mine].min(axis=0) - 1
         shape = ijk[mine].max(axis=0) - base + 2
         key = np.ravel_multi_index((ijk[mine] - base).T, shape)
+        cells, first = np.unique(key, return_index=True)
+        cell_normal = normals[mine[first]]
+        # Other objects' points in this object's cells, across the cell's surface.
+        near = prep.by_x[np.searchsorted(prep.xs, lo[0]) : np.searchsorted(prep.xs, hi[0], side="right")]
+        near = near[(owner[near] != obj) & np.all((points[near] >= lo) & (points[near] <= hi), axis=1)]
         theirs = np.floor(rel[near] / h).astype(np.int64) - base
         inside = np.all((theirs >= 0) & (theirs < shape), axis=1)
-        hit = np.isin(key, np.ravel_multi_index(theirs[inside].T, shape))
+        near, theirs = near[inside], np.ravel_multi_index(theirs[inside].T, shape)
+        at = np.searchsorted(cells, theirs)
+        found = at < len(cells)
+        found[found] = cells[at[found]] == theirs[found]
+        across = np.abs(np.einsum("sc,sc->s", normals[near[found]], cell_normal[at[found]])) < PARALLEL
+        touched = np.zeros(len(cells), dtype=bool)
+        touched[at[found][across]] = True
         # Other objects' triangles larger than a cell, whose vertices may lie far outside.
-        big = (tri_owner != obj) & (extent > h)
-        big &= np.all(corners.min(axis=1) <= hi, axis=1) & np.all(corners.max(axis=1) >= lo, axis=1)
+        big = (prep.tri_owner != obj) & (prep.tri_extent > h)
+        big &= np.all(prep.tri_lo <= hi, axis=1) & np.all(prep.tri_hi >= lo, axis=1)
         if big.any():
-            cells, first = np.unique(key, return_index=True)
             centres = points[mine[first]] - rel[mine[first]] + (ijk[mine[first]] + 0.5) * h
-            c = corners[big]
-            touched = near_any_triangle(centres, 0.5 * np.sqrt(3.0) * h, c[:, 0], c[:, 1], c[:, 2])
-            hit |= np.isin(key, cells[touched])
-        out[mine[hit]] = True
+            c = points[prep.tris[big]]
+            touched |= near_any_triangle(centres, 0.5 * np.sqrt(3.0) * h, c[:, 0], c[:, 1], c[:, 2],
+                                         centre_normals=cell_normal, across=PARALLEL)
+        out[mine[np.isin(key, cells[touched])]] = True
     return out
 
 

@@ -77,6 +77,10 @@ def capture_cubes(renderer, eyes, size, near, far, with_bary=True):
 NEAR_OF_SCALE, NEAR_OF_LOCAL = 1e-4, 1e-2
 
 
+# Points per chunk of :meth:`Transport.interpolate`.
+INTERPOLATE_CHUNK = 32768
+
+
 def clip_planes(scale, local=None):
     """Near and far distances for captures in a scene of size ``scale`` (its diagonal);
     ``local``: the size of what is around the eye (a cell, a distance), one or ``(k,)``."""
@@ -181,8 +185,16 @@ class Transport:
         """
         if clamp:
             coeffs, _ = sh.dering(coeffs)
-        g = coeffs[self.index].reshape(len(self.index), COEFFS_PER_POINT, 3)
-        out = np.einsum("sk,skc->sc", self.point_weights, g, optimize=True)
+        flat = np.ascontiguousarray(coeffs, dtype=np.float32).reshape(len(coeffs), -1)  # (p, 27)
+        s = len(self.index)
+        out = np.empty((s, 3), dtype=np.float32)
+        # In chunks (the gathered coefficients stay in cache, and a million points never
+        # make a (s, 72, 3) array): each point's 72 weights times its 72 x 3 coefficients,
+        # one small matrix product per point (batched).
+        for start in range(0, s, INTERPOLATE_CHUNK):
+            sl = slice(start, start + INTERPOLATE_CHUNK)
+            g = np.take(flat, self.index[sl], axis=0).reshape(-1, COEFFS_PER_POINT, 3)
+            out[sl] = np.matmul(self.point_weights[sl, None, :], g)[:, 0]
         return np.maximum(out, 0.0) if clamp else out
 
 

@@ -185,3 +185,24 @@ def test_disk_polygon_has_exact_area_and_spot_cone():
     spot = lights.Light("SPOT", np.ones(3), np.zeros(3), np.array([0, 0, -1.0]), spot_size=np.radians(60), spot_blend=0.5)
     a = lights.spot_attenuation(spot, np.array([[0, 0, -1.0], [np.sin(0.45), 0, -np.cos(0.45)], [1.0, 0, 0]]))
     assert a[0] == 1.0 and 0 < a[1] < 1 and a[2] == 0
+
+
+def test_a_probe_subset_keeps_the_weights_of_the_probes_points_use():
+    g = grid.ProbeGrid((0, 0, 0), (4, 4, 4), (4, 4, 4))
+    rng = np.random.default_rng(2)
+    pts = rng.uniform([0.6, 0.6, 0.6], [1.4, 1.4, 3.4], (200, 3))  # a column of cells
+    used = grid.probes_used(g, pts)
+    assert 0 < used.sum() < g.count
+    sub = grid.ProbeSubset(g, used)
+    assert sub.count == used.sum() and sub.left_out == g.count - used.sum()
+    np.testing.assert_array_equal(sub.positions(), g.positions()[used])
+    i0, w0 = g.trilinear(pts)
+    i1, w1 = sub.trilinear(pts)
+    np.testing.assert_array_equal(sub.keep[i1][w1 > 0], i0[w1 > 0])
+    np.testing.assert_allclose(w1, w0)  # every probe a point weighs is kept
+    # A point elsewhere has no kept probe: no weight at all.
+    _, w = sub.trilinear(np.array([[3.5, 3.5, 0.5]]))
+    assert not w.any()
+    values = np.arange(sub.count, dtype=float)
+    full = sub.expand(values, fill=-1.0)
+    assert full.shape == (g.count,) and (full[~used] == -1).all() and np.array_equal(full[used], values)

@@ -3,7 +3,16 @@ must not import bpy."""
 
 import numpy as np
 
-__all__ = ["cut_triangles", "near_any_triangle"]
+__all__ = ["cut_triangles", "near_any_triangle", "chunks", "POINT_CHUNK"]
+
+# Per-point tests that make several (s, 9, 3) float64 arrays run this many points at a time:
+# a million points then need tens of megabytes, not gigabytes, and stay in cache.
+POINT_CHUNK = 65536
+
+
+def chunks(count, size=POINT_CHUNK):
+    """Slices that cover ``range(count)`` in pieces of ``size``."""
+    return [slice(start, start + size) for start in range(0, count, size)]
 
 
 def cut_triangles(origins, u, tid, triangles, vertices):

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import cubemap
-from .geometry import cut_triangles
+from .geometry import POINT_CHUNK, chunks, cut_triangles
 
 __all__ = ["ProbeGrid", "GridSet", "ProbeSubset", "fit_bounds", "visibility_weights", "probes_used"]
 
@@ -235,6 +235,14 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     thin wall between rooms). A point that every probe misses and some other object covers
     gets no probe light, instead of falling back to its plain weights.
     """
+    if len(points) > POINT_CHUNK:
+        def part(sl):  # the cover's last entry is per point
+            return None if cover is None else (*cover[:4], cover[4][sl])
+
+        return np.concatenate([
+            visibility_weights(grid, probe_pos, probe_dist, probe_valid, points[sl], normals[sl], index[sl], weight[sl], part(sl))
+            for sl in chunks(len(points))
+        ])
     n = probe_dist.shape[-1]
     cell = grid.point_cell_edge(points)[:, None]  # (s, 1)
     q = points[:, None, :] + 0.1 * cell[..., None] * normals[:, None, :]  # (s, 1, 3)

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import cubemap
-from .geometry import cut_triangles
+from .geometry import POINT_CHUNK, chunks, cut_triangles
 
 __all__ = ["Light", "area_polygon", "area_samples", "spot_attenuation", "polygon_form_factor", "unshadowed", "shadow_visibility", "ortho_visibility"]
 
@@ -177,6 +177,12 @@ def shadow_visibility(points, normals, eye, face_tid, face_dist, face_back, tria
     The receiver is lifted off its surface by a quarter of a texel's footprint and looked up
     in the map (see :func:`_occluded`). Returns ``(s,)`` float64 in {0, 1}.
     """
+    if len(points) > POINT_CHUNK:
+        return np.concatenate([
+            shadow_visibility(points[sl], normals[sl], eye, face_tid, face_dist, face_back, triangles, vertices,
+                              point_ids[sl], scale, reach)
+            for sl in chunks(len(points))
+        ])
     n = face_dist.shape[-1]
     rel = points - eye
     d = np.linalg.norm(rel, axis=1)
@@ -253,6 +259,12 @@ def ortho_visibility(
     points, normals, view_proj, axis, eye, tid_map, dist_map, back_map, triangles, vertices, point_ids, half_width, scale
 ):
     """Like :func:`shadow_visibility` for a sun: one orthographic depth map along ``axis``."""
+    if len(points) > POINT_CHUNK:
+        return np.concatenate([
+            ortho_visibility(points[sl], normals[sl], view_proj, axis, eye, tid_map, dist_map, back_map, triangles,
+                             vertices, point_ids[sl], half_width, scale)
+            for sl in chunks(len(points))
+        ])
     n = dist_map.shape[-1]
     footprint = np.full(len(points), 2.0 * half_width / n)
     lifted = points + normals * (LIFT * footprint)[:, None]

@@ -49,6 +49,11 @@ def _parser():
     m.add_argument("--out", default="out/benchmark", help="folder for the results (and the cached Cycles references)")
     m.add_argument("--quick", action="store_true", help="a small sweep that runs in a few minutes (a smoke test)")
     m.add_argument("--scenes", nargs="+", help="only these scenes (default: all)")
+    m.add_argument(
+        "--scaling", action="store_true",
+        help="instead: bake the Room subdivided to 6K-1M vertices and with 50-2,000 probes, each in its own process, and "
+        "write scaling.json and scaling.png (time per stage, peak memory)",
+    )
     return p
 
 
@@ -339,6 +344,11 @@ def cmd_benchmark(args):
     os.makedirs(args.out, exist_ok=True)
     if not os.access(args.out, os.W_OK):
         raise BakeError(f"output folder is not writable: {args.out}")
+    if args.scaling:
+        from . import scaling
+
+        scaling.run(args.out, quick=args.quick, log=lambda m: print(f"cubegi: {m}", flush=True))
+        return 0
     _blender()
     from . import benchmark
 

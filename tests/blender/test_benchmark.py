@@ -38,3 +38,32 @@ def test_quick_benchmark_writes_results_for_both_methods(tmp_path):
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
     # The references are cached, named by their samples.
     assert sorted(os.listdir(tmp_path / "cache")) == sorted(f"{s}-cycles-16spp.npz" for s in scenes)
+
+
+def test_quick_scaling_benchmark_writes_both_sweeps(tmp_path):
+    """``benchmark --scaling --quick``: each bake in a process of its own, the JSON with both
+    sweeps (more vertices take longer; more probes capture more), the fits and the plot."""
+    r = subprocess.run(
+        [sys.executable, "-m", "cubegi_engine", "benchmark", "--scaling", "--quick", "--out", str(tmp_path)],
+        cwd=ROOT, capture_output=True, text=True, timeout=600,
+    )
+    assert r.returncode == 0, r.stderr[-3000:]
+    data = json.loads((tmp_path / "scaling.json").read_text())
+    small, large = data["vertices"]
+    assert large["vertices"] > 3 * small["vertices"] and large["seconds"] > small["seconds"]
+    few, many = data["probes"]
+    assert many["probes"] > 4 * few["probes"] and many["probes_captured"] > few["probes_captured"]
+    for rec in data["vertices"] + data["probes"]:
+        assert rec["peak_gb"] >= rec["before_gb"] > 0 and rec["timings"]["capture"] > 0
+    assert set(data["fits"]) == {"seconds_vs_vertices", "seconds_vs_probes"}
+    assert (tmp_path / "scaling.png").stat().st_size > 10_000
+
+
+def test_scaling_helpers(cubegi):
+    from cubegi.cubegi_addon import scaling
+
+    assert abs(scaling.slope([1, 10, 100], [2, 20, 200]) - 1.0) < 1e-9
+    assert abs(scaling.slope([1, 10, 100], [1, 100, 10_000]) - 2.0) < 1e-9
+    for probes in (50, 200, 1000, 2000):
+        res = scaling.resolution_for(probes)
+        assert 0.6 * probes <= res[0] * res[1] * res[2] <= 1.5 * probes

@@ -1,0 +1,194 @@
+"""The scaling benchmark: one scene baked at growing vertex counts and probe counts, with
+the time of each stage and the peak memory (``benchmark --scaling``).
+
+The scene is the demo Room with every mesh subdivided (``cuts`` new edges across each edge:
+about 6,400 x (cuts + 1)^2 vertices); the probes are a grid fitted to it. Each bake runs in
+a process of its own, so that its peak memory (the high-water mark of the resident set,
+reset after the scene is built) is its own. Writes ``scaling.json`` and ``scaling.png``.
+"""
+
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+from ..cubegi_engine import __version__
+
+# (cuts, probes) of each sweep: vertices at about 200 probes, probes at about 95K vertices,
+# and the target point (a million vertices, a thousand probes).
+VERTEX_SWEEP = ((0, 200), (1, 200), (3, 200), (6, 200), (12, 200))
+PROBE_SWEEP = ((3, 50), (3, 200), (3, 500), (3, 1000), (3, 2000))
+TARGET = ((12, 1000),)
+QUICK = {"vertices": ((0, 50), (1, 50)), "probes": ((0, 50), (0, 200)), "target": ()}
+BOUNCES = 3
+ROOM = np.array([4.0, 9.0, 2.8])  # the demo Room's box (its probes' grid is fitted to it)
+
+
+def resolution_for(probes):
+    """A grid over the Room with about ``probes`` probes (cells about cubes)."""
+    k = (probes / np.prod(ROOM)) ** (1.0 / 3.0)
+    return tuple(int(max(1, round(x))) for x in ROOM * k)
+
+
+def one(cuts, probes):
+    """Build the subdivided Room and bake it (in this process); the record."""
+    import bmesh
+    import bpy
+
+    from ..cubegi_engine.settings import BakeSettings
+    from . import demo, pipeline
+
+    demo.build_room()
+    for ob in bpy.context.scene.objects:
+        if ob.type == "MESH" and cuts:
+            bm = bmesh.new()
+            bm.from_mesh(ob.data)
+            bmesh.ops.subdivide_edges(bm, edges=bm.edges[:], cuts=cuts, use_grid_fill=True)
+            bm.to_mesh(ob.data)
+            bm.free()
+    vertices = sum(len(ob.data.vertices) for ob in bpy.context.scene.objects if ob.type == "MESH")
+    before = _resident()
+    _reset_peak()
+    t = time.perf_counter()
+    report = pipeline.bake(bpy.context, BakeSettings(bounces=BOUNCES), resolution_for(probes))
+    seconds = time.perf_counter() - t
+    drawn = report.capture_geometry
+    return {
+        "cuts": cuts, "vertices": vertices, "points": report.points, "triangles": report.triangles,
+        "probes": report.grid["probes"], "probes_captured": report.grid.get("probes_captured", report.grid["probes"]),
+        "capture_triangles": drawn["triangles"] if drawn else report.triangles, "bounces": len(report.bounces),
+        "cube_size": report.settings["cube_size"], "seconds": seconds, "timings": report.timings,
+        "peak_gb": _peak() / 2**30, "before_gb": before / 2**30, "gpu": _gpu(),
+    }
+
+
+def _status(field):
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith(field):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+def _resident():
+    return _status("VmRSS:") or 0
+
+
+def _reset_peak():
+    """Start the high-water mark afresh (Linux: clear_refs 5), so the bake's peak is its own."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+    except OSError:
+        pass
+
+
+def _peak():
+    import resource
+
+    hwm = _status("VmHWM:")
+    return hwm if hwm is not None else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+def _child(cuts, probes, timeout):
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    code = (
+        "import json, sys; sys.path.insert(0, %r)\n"
+        "from cubegi_engine.__main__ import load_extension; load_extension()\n"
+        "from cubegi.cubegi_addon import scaling\n"
+        "print('SCALING ' + json.dumps(scaling.one(%d, %d)))\n" % (root, cuts, probes)
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout)
+    for line in done.stdout.splitlines():
+        if line.startswith("SCALING "):
+            return json.loads(line[len("SCALING "):])
+    raise RuntimeError(f"the scaling bake ({cuts} cuts, {probes} probes) failed:\n{done.stderr[-2000:]}")
+
+
+def slope(xs, ys):
+    """The log-log slope of ``ys`` against ``xs`` (1: linear), fitted by least squares."""
+    x, y = np.log(np.asarray(xs, dtype=float)), np.log(np.asarray(ys, dtype=float))
+    return float(np.polyfit(x, y, 1)[0]) if len(x) > 1 else float("nan")
+
+
+def run(out_dir, quick=False, log=print, timeout=900):
+    """Both sweeps and the target point; writes ``scaling.json`` and ``scaling.png``."""
+    os.makedirs(out_dir, exist_ok=True)
+    plan = QUICK if quick else {"vertices": VERTEX_SWEEP, "probes": PROBE_SWEEP, "target": TARGET}
+    results = {}
+    for sweep, points in plan.items():
+        results[sweep] = []
+        for cuts, probes in points:
+            rec = _child(cuts, probes, timeout)
+            results[sweep].append(rec)
+            log(f"scaling: {rec['vertices']:,} vertices, {rec['probes']} probes ({rec['probes_captured']} captured, "
+                f"{rec['capture_triangles']:,} of {rec['triangles']:,} triangles drawn): {rec['seconds']:.1f} s, "
+                f"peak {rec['peak_gb']:.2f} GB")
+    fits = {}
+    if len(results["vertices"]) > 1:
+        fits["seconds_vs_vertices"] = slope([r["vertices"] for r in results["vertices"]], [r["seconds"] for r in results["vertices"]])
+    if len(results["probes"]) > 1:
+        fits["seconds_vs_probes"] = slope([r["probes"] for r in results["probes"]], [r["seconds"] for r in results["probes"]])
+    meta = {"cubegi": __version__, "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, {platform.system()}",
+            "gpu": next((r["gpu"] for recs in results.values() for r in recs), "unknown"), "bounces": BOUNCES, "mode": "quick" if quick else "full"}
+    with open(os.path.join(out_dir, "scaling.json"), "w") as f:
+        json.dump({"meta": meta, "fits": fits, **results}, f, indent=1)
+    _plot(results, fits, os.path.join(out_dir, "scaling.png"))
+    for name, value in fits.items():
+        log(f"scaling: log-log slope of {name.replace('_', ' ')}: {value:.2f} (1 = linear)")
+    return results, fits
+
+
+def _gpu():
+    try:
+        import gpu
+
+        return gpu.platform.renderer_get()
+    except Exception:  # noqa: BLE001 - not drawn yet, or no GPU module: the plot says so
+        return "unknown"
+
+
+STAGES = ("collect", "simplify", "capture", "tables", "direct", "bounces", "tail", "write")
+
+
+def _plot(results, fits, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8))
+    for ax, sweep, key, label in ((axes[0], "vertices", "vertices", "vertices"), (axes[1], "probes", "probes", "probes")):
+        recs = results.get(sweep) or []
+        if not recs:
+            continue
+        xs = np.array([r[key] for r in recs], dtype=float)
+        bottom = np.zeros(len(recs))
+        for stage in STAGES:
+            ys = np.array([r["timings"].get(stage, 0.0) for r in recs])
+            ax.fill_between(xs, bottom, bottom + ys, step=None, alpha=0.6, label=stage)
+            bottom = bottom + ys
+        ax.plot(xs, [r["seconds"] for r in recs], "k.-", label="total")
+        ax.set_xscale("log")
+        ax.set_xlabel(label)
+        ax.set_ylabel("seconds")
+        mem = ax.twinx()
+        mem.plot(xs, [r["peak_gb"] for r in recs], "r^--", label="peak memory")
+        mem.set_ylabel("peak memory (GB)", color="r")
+        fit = fits.get(f"seconds_vs_{key}")
+        fixed = "probes" if key == "vertices" else "vertices"
+        ax.set_title(f"against {label} ({fixed} near {int(recs[0][fixed]):,})\nlog-log slope of the time {fit:.2f}", fontsize=10)
+        ax.legend(loc="upper left", fontsize=7)
+    for rec in results.get("target") or []:
+        fig.suptitle(f"{rec['vertices']:,} vertices, {rec['probes']} probes, {rec['bounces']} bounces: "
+                     f"{rec['seconds']:.1f} s, peak {rec['peak_gb']:.2f} GB")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -18,6 +18,7 @@ __all__ = ["ProbeField"]
 # Up to this many probes, light_at evaluates every probe for every point (one matrix
 # product, s x 27p multiply-adds) before picking each point's 8; beyond, it gathers.
 ALL_PROBES_LIMIT = 256
+FIELD_CHUNK = 65536
 
 
 @dataclass
@@ -71,9 +72,18 @@ class ProbeField:
 
     def light_parts(self, points, normals, parts=("direct", "indirect"), one_sided=False) -> list:
         """:meth:`light_at` for several ``parts`` at once (the weights, the basis and the
-        product are shared): a list of ``(s, 3)``."""
+        product are shared): a list of ``(s, 3)``. Points go through in chunks of
+        FIELD_CHUNK (a million points never make (s, p, 3) temporaries)."""
         coeffs = np.concatenate([self._coeffs(part) for part in parts], axis=2)  # (p, 9, 3k)
+        points = np.asarray(points, dtype=np.float64)
         normals = np.asarray(normals, dtype=np.float64)
+        out = np.empty((len(points), coeffs.shape[2]), dtype=np.float64)
+        for start in range(0, len(points), FIELD_CHUNK):
+            sl = slice(start, start + FIELD_CHUNK)
+            out[sl] = self._light(coeffs, points[sl], normals[sl], one_sided)
+        return [np.ascontiguousarray(out[:, 3 * k : 3 * k + 3]) for k in range(len(parts))]
+
+    def _light(self, coeffs, points, normals, one_sided):
         index, weight = self.weights(points, normals if one_sided else None)
         basis = sh.diffuse_basis(normals).astype(np.float32)  # (s, 9)
         weight = weight.astype(np.float32)
@@ -86,8 +96,7 @@ class ProbeField:
         else:
             pw = (weight[:, :, None] * basis[:, None, :]).reshape(len(basis), 72)
             out = np.einsum("sk,skc->sc", pw, coeffs[index].reshape(len(basis), 72, c), optimize=True)
-        out = np.maximum(out, 0.0, out=out).astype(np.float64)
-        return [np.ascontiguousarray(out[:, 3 * k : 3 * k + 3]) for k in range(len(parts))]
+        return np.maximum(out, 0.0, out=out)
 
     def _positions(self):
         cached = getattr(self, "_probe_positions", None)

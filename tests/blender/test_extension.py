@@ -71,7 +71,7 @@ def test_the_built_zip_installs_bakes_and_uninstalls(tmp_path):
     assert not [n for n in names if n.split("/")[0] in {"tests", "scripts", "benchmarks", "docs", ".ci", ".git"}]
     # Run from the source tree only: the command line, the demo and the benchmark.
     for dev in ("cubegi_addon/cli.py", "cubegi_addon/cluster.py", "cubegi_addon/demo.py", "cubegi_addon/bench_scenes.py", "cubegi_addon/benchmark.py",
-                "cubegi_engine/benchmark.py", "cubegi_engine/__main__.py"):
+                "cubegi_addon/scaling.py", "cubegi_engine/benchmark.py", "cubegi_engine/__main__.py"):
         assert dev not in names, dev
     env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "user"))
     r = subprocess.run(

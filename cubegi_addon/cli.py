@@ -12,7 +12,7 @@ import json
 import os
 import sys
 
-from ..cubegi_engine.settings import BakeSettings
+from ..cubegi_engine.settings import QUALITY, BakeSettings
 from ..cubegi_engine.errors import BakeError
 from . import files
 
@@ -60,8 +60,14 @@ def _parser():
 def _bake_options(p, demo=False):
     d = BakeSettings()
     p.add_argument("--grid", nargs=3, type=int, metavar=("NX", "NY", "NZ"), help="probes along X, Y and Z")
-    p.add_argument("--cube-size", type=int, default=d.cube_size, help=f"cube-map face size in texels (default {d.cube_size})")
-    p.add_argument("--bounces", type=int, default=d.bounces, help=f"indirect bounces (default {d.bounces}, at most {d.MAX_BOUNCES})")
+    p.add_argument(
+        "--quality", choices=[q.lower() for q in QUALITY], default="balanced",
+        help="a preset for --cells, --cube-size and --bounces (each still overrides it): draft (4 cells, 16, 3 bounces), "
+        "balanced (8, 16, 5: the default), final (12, 32, 5)",
+    )
+    p.add_argument("--cells", type=int, help="cells along the longest side of a fitted grid (default: the preset's)")
+    p.add_argument("--cube-size", type=int, help=f"cube-map face size in texels (default: the preset's, {d.cube_size})")
+    p.add_argument("--bounces", type=int, help=f"indirect bounces (default: the preset's, {d.bounces}; at most {d.MAX_BOUNCES})")
     p.add_argument("--no-visibility", action="store_true", help="plain trilinear interpolation (lets light leak)")
     p.add_argument(
         "--tolerance", type=float,
@@ -99,7 +105,10 @@ def _cluster_options(p):
 
 def _forwarded(args):
     """The bake options of ``args`` as command-line words, for the bakes a cluster runs."""
-    words = ["--cube-size", str(args.cube_size), "--bounces", str(args.bounces), "--capture-triangles", str(args.capture_triangles)]
+    words = ["--quality", args.quality, "--capture-triangles", str(args.capture_triangles)]
+    for flag, value in (("--cells", args.cells), ("--cube-size", args.cube_size), ("--bounces", args.bounces)):
+        if value is not None:
+            words += [flag, str(value)]
     if args.grid:
         words += ["--grid", *map(str, args.grid)]
     if args.tolerance is not None:
@@ -144,12 +153,12 @@ def _settings(args):
         raise BakeError(f"--grid needs three integers >= 1, got {' '.join(map(str, args.grid))}")
     if args.reference and args.reference_samples < 1:
         raise BakeError(f"--reference-samples must be 1 or more, got {args.reference_samples}")
-    settings = BakeSettings(
-        cube_size=args.cube_size, bounces=args.bounces, visibility=not args.no_visibility,
-        tolerance=args.tolerance, add_tail=not args.no_tail, conserve_energy=not args.no_energy_conservation,
-        capture_triangles=args.capture_triangles or None,
-    )
+    given = {k: v for k, v in (("cells", args.cells), ("cube_size", args.cube_size), ("bounces", args.bounces)) if v is not None}
     try:
+        settings = BakeSettings.preset(
+            args.quality, visibility=not args.no_visibility, tolerance=args.tolerance, add_tail=not args.no_tail,
+            conserve_energy=not args.no_energy_conservation, capture_triangles=args.capture_triangles or None, **given,
+        )
         settings.validate()
     except BakeError as exc:
         option = f"--{exc.setting.replace('_', '-')}: " if getattr(exc, "setting", None) else ""

@@ -67,10 +67,11 @@ def probe_grid(ob, resolution=None):
     return ProbeGrid(lo, hi, resolution or tuple(ob.cubegi.resolution))
 
 
-def resolve_grid(scene, arrays, resolution=None):
+def resolve_grid(scene, arrays, resolution=None, cells=8):
     """The probe grid(s) of a bake, where they came from, and the share of points outside.
 
-    ``resolution`` (3 ints) overrides the resolution (of every grid). The bounds come from the
+    ``resolution`` (3 ints) overrides the resolution (of every grid); a fitted grid has about
+    ``cells`` cells along its longest side. The bounds come from the
     scene's probe grid objects if it has any, else from the geometry's bounding box. With
     several grid objects each point uses the finest grid whose box contains it (see
     :class:`cubegi_engine.grid.GridSet`); points outside every grid get the light of the
@@ -94,11 +95,11 @@ def resolve_grid(scene, arrays, resolution=None):
     lo, hi = _padded(*arrays.bounds(), arrays.scale)
     if resolution:
         return ProbeGrid(lo, hi, resolution), "scene bounds", 0.0
-    whole = ProbeGrid(lo, hi, fit_bounds(lo, hi, max_probes=MAX_FITTED_PROBES))
+    whole = ProbeGrid(lo, hi, fit_bounds(lo, hi, float(np.max(hi - lo)) / cells, max_probes=MAX_FITTED_PROBES))
     dense = dense_region(arrays)
     if dense is not None and np.max(dense[1] - dense[0]) < DENSE_SHARE * np.max(hi - lo):
         dlo, dhi = _padded(*dense, arrays.scale)
-        fine = ProbeGrid(dlo, dhi, fit_bounds(dlo, dhi, max_probes=MAX_FITTED_PROBES))
+        fine = ProbeGrid(dlo, dhi, fit_bounds(dlo, dhi, float(np.max(dhi - dlo)) / cells, max_probes=MAX_FITTED_PROBES))
         return GridSet([whole, fine]), "fitted to scene bounds, and finer over where most of its geometry is", 0.0
     return whole, "fitted to scene bounds", 0.0
 

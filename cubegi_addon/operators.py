@@ -6,7 +6,7 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, IntVectorProperty, StringProperty
 
 from ..cubegi_engine.errors import BakeError
-from ..cubegi_engine.settings import MAX_BOUNCES, MAX_CUBE_SIZE, MIN_CUBE_SIZE, BakeSettings
+from ..cubegi_engine.settings import MAX_BOUNCES, MAX_CELLS, MAX_CUBE_SIZE, MIN_CUBE_SIZE, QUALITY, BakeSettings
 from . import animation, attributes, display, files, grid_objects, live, materials, pipeline, prefs, probe_view, props, session
 
 # Seconds between the modal bake's steps: often enough to feel live, rarely enough that
@@ -16,15 +16,18 @@ MODAL_STEP_SECONDS = 0.05
 
 def _settings_from(op, scene):
     s = scene.cubegi
+    quality = op.quality if hasattr(op, "quality") and op.properties.is_property_set("quality") else None
+    preset = QUALITY[quality] if quality else {}
 
-    def pick(name):
-        set_here = hasattr(op, name) and op.properties.is_property_set(name)
-        return getattr(op, name) if set_here else getattr(s, name)
+    def pick(name):  # the operator's, then its preset's, then the scene's
+        if hasattr(op, name) and op.properties.is_property_set(name):
+            return getattr(op, name)
+        return preset[name] if name in preset else getattr(s, name)
 
     tolerance = pick("tolerance")
     budget = pick("capture_triangles")
     return BakeSettings(
-        cube_size=pick("cube_size"), bounces=pick("bounces"), visibility=pick("visibility"),
+        cube_size=pick("cube_size"), bounces=pick("bounces"), cells=pick("cells"), visibility=pick("visibility"),
         tolerance=tolerance if tolerance > 0 else None, add_tail=pick("add_tail"),
         capture_triangles=budget if budget > 0 else None, **prefs.capture_settings(),
     )
@@ -175,6 +178,14 @@ class CUBEGI_OT_bake(_ModalJob, bpy.types.Operator):
     capture_triangles: IntProperty(
         name="Capture Triangles", description="Triangles the probes draw at most, simplified (0: the full scene; default: "
         "the scene's setting)", default=BakeSettings.capture_triangles, min=0,
+    )
+    quality: EnumProperty(
+        name="Quality", description="A preset for the grid cells, cube-map size and bounces not given (default: the "
+        "scene's settings)", items=props.QUALITY_ITEMS, default="BALANCED",
+    )
+    cells: IntProperty(
+        name="Grid Cells", description="Cells along the longest side of a fitted grid (default: the scene's setting)",
+        default=BakeSettings.cells, soft_min=1, soft_max=MAX_CELLS,
     )
     reference_samples: IntProperty(
         name="Cycles Reference Samples", description="Also bake a Cycles reference with this many samples (0: none)", default=0, min=0

@@ -49,7 +49,9 @@ class VIEW3D_PT_cubegi(_SidebarTab, bpy.types.Panel):
         else:
             col.label(text=f"{len(grids)} probe grid objects" if grids else "Fitted to the scene (no grid object)")
         col.operator("cubegi.add_probe_grid", icon="LIGHTPROBE_VOLUME")
+        layout.row().prop(settings, "quality", expand=True)
         col = layout.column(heading="Capture")
+        col.prop(settings, "cells")
         col.prop(settings, "cube_size")
         col.prop(settings, "visibility")
         col.prop(settings, "capture_triangles")

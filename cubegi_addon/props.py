@@ -3,7 +3,7 @@
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, IntVectorProperty, PointerProperty, StringProperty
 
-from ..cubegi_engine.settings import MAX_BOUNCES, MAX_CUBE_SIZE, MIN_CUBE_SIZE, BakeSettings
+from ..cubegi_engine.settings import MAX_BOUNCES, MAX_CELLS, MAX_CUBE_SIZE, MIN_CUBE_SIZE, QUALITY, BakeSettings
 from . import display, live, session
 
 LIT_ITEMS = (
@@ -13,7 +13,28 @@ LIT_ITEMS = (
 )
 
 
+QUALITY_ITEMS = (
+    ("DRAFT", "Draft", "4 cells along the longest side, 16^2 faces, 3 bounces: the fastest look"),
+    ("BALANCED", "Balanced", "8 cells, 16^2 faces, 5 bounces: the default"),
+    ("FINAL", "Final", "12 cells, 32^2 faces, 5 bounces: the lowest error, about 5x the time"),
+)
+
+
+def _apply_quality(settings, context):
+    """Write the chosen preset's values into the settings (they stay editable)."""
+    for name, value in QUALITY[settings.quality].items():
+        setattr(settings, name, value)
+
+
 class CubeGISceneSettings(bpy.types.PropertyGroup):
+    quality: EnumProperty(
+        name="Quality", description="Set the grid cells, cube-map size and bounces to a preset (from the benchmark's "
+        "error-time front); each stays editable", items=QUALITY_ITEMS, default="BALANCED", update=_apply_quality,
+    )
+    cells: IntProperty(
+        name="Grid Cells", description="Cells along the longest side of the grid fitted to the scene (when it has no "
+        "probe grid object)", default=BakeSettings.cells, min=1, max=MAX_CELLS,
+    )
     cube_size: IntProperty(
         name="Cube-Map Size",
         description="Edge length in texels of each probe's cube-map faces",

@@ -355,3 +355,19 @@ def test_the_modal_handler_steps_on_timer_events_and_escape_cancels(box):
     assert results[-1] == {"FINISHED"} and len(results) == 8  # 7 steps, then the report
     assert "CubeGI_bounce_3" in bpy.data.meshes["Box"].attributes
     assert any("baked 1 meshes, 3 bounces" in text for _, text in messages)
+
+
+def test_quality_presets_write_the_scene_settings_and_the_operator_takes_one(empty_scene, cubegi):
+    from cubegi.cubegi_engine.settings import QUALITY
+
+    s = bpy.context.scene.cubegi
+    assert (s.quality, s.cells, s.cube_size, s.bounces) == ("BALANCED", 8, 16, 5)
+    s.quality = "FINAL"
+    assert (s.cells, s.cube_size, s.bounces) == tuple(QUALITY["FINAL"][k] for k in ("cells", "cube_size", "bounces"))
+    s.cube_size = 24  # still editable after a preset
+    assert s.cube_size == 24 and s.quality == "FINAL"
+    s.quality = "BALANCED"
+    scenes.closed_box(cells=4)
+    assert bpy.ops.cubegi.bake(quality="DRAFT", bounces=2) == {"FINISHED"}
+    rep = json.loads(s.last_report)
+    assert (rep["settings"]["cells"], rep["settings"]["cube_size"], rep["settings"]["bounces"]) == (4, 16, 2)

@@ -129,6 +129,8 @@ def test_cli_reference_writes_its_attributes_and_errors(saved_scene, tmp_path, c
         (["bake", "{src}", "-o", "{tmp}/o.blend", "--tolerance", "0"], "--tolerance"),
         (["bake", "{src}", "-o", "{tmp}/o.blend", "--tolerance", "1.5"], "--tolerance"),
         (["bake", "{src}", "-o", "{tmp}/o.blend", "--reference", "cycles", "--reference-samples", "0"], "--reference-samples"),
+        (["bake", "{src}", "-o", "{tmp}/o.blend", "--cells", "0"], "--cells"),
+        (["bake", "{src}", "-o", "{tmp}/o.blend", "--capture-triangles", "10"], "--capture-triangles"),
     ],
 )
 def test_cli_bad_input_is_one_line_and_writes_nothing(saved_scene, tmp_path, args, needle):
@@ -178,3 +180,29 @@ def test_the_readmes_headless_recipe_gives_what_the_cli_gives(saved_scene, tmp_p
     for n in counts:
         for a, values in ours[n].items():
             np.testing.assert_allclose(attributes.read(bpy.data.objects[n].data, a), values, rtol=1e-5, atol=1e-7)
+
+
+def test_cli_quality_presets_set_what_is_not_given(saved_scene, tmp_path):
+    """``--quality draft`` bakes with 4 cells along the longest side, 16^2 faces and 3
+    bounces; an explicit option still wins; the default is the balanced preset."""
+    import json
+
+    src, _ = saved_scene
+    runs = {
+        "draft": ["--quality", "draft"],
+        "draft, 2 bounces": ["--quality", "draft", "--bounces", "2"],
+        "default": [],
+    }
+    got = {}
+    for name, extra in runs.items():
+        report = tmp_path / f"{name}.json"
+        r = _cli("bake", str(src), "-o", str(tmp_path / "o.blend"), "--report", str(report), *extra)
+        assert r.returncode == 0, r.stderr
+        got[name] = json.loads(report.read_text())
+    draft = got["draft"]["settings"]
+    assert (draft["cells"], draft["cube_size"], draft["bounces"]) == (4, 16, 3)
+    assert len(got["draft"]["bounces"]) == 3 and max(got["draft"]["grid"]["resolution"]) == 4
+    assert got["draft, 2 bounces"]["settings"]["bounces"] == 2 and got["draft, 2 bounces"]["settings"]["cells"] == 4
+    balanced = got["default"]["settings"]
+    assert (balanced["cells"], balanced["cube_size"], balanced["bounces"]) == (8, 16, 5)
+    assert max(got["default"]["grid"]["resolution"]) == 8

@@ -202,3 +202,18 @@ def test_the_tail_solve_keeps_its_inverse_and_refines_it_for_a_nearby_factor():
     assert all(entry[0] == 1.6 for entry in op._inverses)
     op.set_albedo(np.full((len(op.albedo), 3), 0.5))
     assert op._inverses == [None, None, None]
+
+
+def test_quality_presets_and_their_checks():
+    from cubegi.cubegi_engine.settings import QUALITY
+
+    assert BakeSettings() == BakeSettings.preset("balanced")
+    draft = BakeSettings.preset("Draft", bounces=2)
+    assert (draft.cells, draft.cube_size, draft.bounces) == (QUALITY["DRAFT"]["cells"], QUALITY["DRAFT"]["cube_size"], 2)
+    with pytest.raises(BakeError) as err:
+        BakeSettings.preset("ultra")
+    assert err.value.setting == "quality" and "draft, balanced, final" in str(err.value)
+    for bad in (0, 65):
+        with pytest.raises(BakeError) as err:
+            BakeSettings(cells=bad).validate()
+        assert err.value.setting == "cells"

@@ -18,7 +18,7 @@ import numpy as np
 from ..cubegi_engine import __version__, benchmark as analysis, metrics
 from ..cubegi_engine.grid import fit_bounds
 from ..cubegi_engine.report import BakeReport
-from . import attributes, bench_scenes, demo, grid_objects, reference, scene_data
+from . import attributes, bench_scenes, demo, grid_objects, reference, scene_data, session
 
 SCENES = {
     "room": demo.build_room,
@@ -119,7 +119,10 @@ def run_scene(scene_name, config, cache_dir, log=print):
 
 
 def _cubegi_run(scene_name, objects, ref, areas, settings, log, **bake):
-    """One CubeGI bake with the operator's ``bake`` options, scored: its record."""
+    """One CubeGI bake with the operator's ``bake`` options, scored: its record. A one-shot
+    bake: the kept capture of the run before is dropped first (else a run on the same grid
+    would be timed without its capture)."""
+    session.forget()
     if bpy.ops.cubegi.bake(**bake) != {"FINISHED"}:
         raise RuntimeError(f"{scene_name}: the bake with {bake} did not finish")
     rep = BakeReport.from_json(bpy.context.scene.cubegi.last_report)

@@ -165,3 +165,21 @@ def test_points_no_probe_lights_are_noted(empty_scene, cubegi):
     notes = json.loads(bpy.context.scene.cubegi.last_report)["scene"]["notes"]
     said = [n for n in notes if "of the shading points get no probe light" in n]
     assert len(said) == 1 and "Room" in said[0], notes  # once
+
+
+def test_corner_groups_are_numpys_unique_rows(cubegi):
+    """Corners merge into shading points by (vertex, normal, material): the fast grouping
+    gives np.unique's rows, first indices and inverse, in its order."""
+    from cubegi.cubegi_addon.scene_data import _groups
+
+    rng = np.random.default_rng(4)
+    for n in (0, 1, 7, 5000):
+        vertex = rng.integers(0, max(n // 3, 1), n)
+        normal = np.round(np.clip(rng.normal(size=(n, 3)), -1, 1) * 1e4).astype(np.int64)
+        normal[::3] = normal[:1] if n else normal[::3]  # many shared normals, negative parts
+        material = rng.integers(0, 40, n)
+        key = np.concatenate([vertex[:, None], normal, material[:, None]], axis=1)
+        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        got_first, got_inverse = _groups(vertex, normal, material)
+        np.testing.assert_array_equal(got_first, first)
+        np.testing.assert_array_equal(got_inverse, inverse.ravel())

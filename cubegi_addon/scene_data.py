@@ -22,7 +22,9 @@ from ..cubegi_engine.scene import SceneArrays
 # (Blender's default surface).
 DEFAULT_ALBEDO = (0.8, 0.8, 0.8)
 # Shadow maps per area light: a stratified AREA_SHADOW_SIDE x AREA_SHADOW_SIDE set of points.
-AREA_SHADOW_SIDE = 4
+# Measured against Cycles on the Cornell box's area lights (direct light, rel. RMSE): 4 x 4
+# 3.3-4.5%, 8 x 8 1.6-2.2% (0.1 s more there), 12 x 12 1.2-1.7% (0.3 s more).
+AREA_SHADOW_SIDE = 8
 
 
 @dataclass

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..cubegi_engine.cubemap import sample_image
 from ..cubegi_engine.lights import Light, area_polygon, area_samples
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.scene import SceneArrays
@@ -86,20 +87,6 @@ def _image_pixels(image):
     return rgb
 
 
-def _sample_image(rgb, uv):
-    """Bilinear, repeating look-up of ``rgb (h, w, 3)`` at ``uv (k, 2)``."""
-    h, w, _ = rgb.shape
-    x = uv[:, 0] * w - 0.5
-    y = uv[:, 1] * h - 0.5
-    x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    x0, x1 = x0 % w, (x0 + 1) % w
-    y0, y1 = y0 % h, (y0 + 1) % h
-    top = rgb[y0, x0] * (1 - fx) + rgb[y0, x1] * fx
-    bottom = rgb[y1, x0] * (1 - fx) + rgb[y1, x1] * fx
-    return top * (1 - fy) + bottom * fy
-
-
 # The Add Shader that Show in Renders (materials.wire) puts between a material's own shader
 # and its output; reading a material looks through it to the material's own shader.
 WIRING_NODE = "CubeGI Add"
@@ -154,7 +141,7 @@ def _corner_colour(socket, mesh, loop_ids, loop_vertex, fallback, problems):
             return np.tile(fallback, (k, 1))
         uv = np.empty(len(mesh.loops) * 2, dtype=np.float32)
         uv_layer.data.foreach_get("uv", uv)
-        return _sample_image(rgb, uv.reshape(-1, 2)[loop_ids].astype(np.float64))
+        return sample_image(rgb, uv.reshape(-1, 2)[loop_ids].astype(np.float64))
     if node.type in {"VERTEX_COLOR", "ATTRIBUTE"}:
         name = node.layer_name if node.type == "VERTEX_COLOR" else node.attribute_name
         attr = mesh.color_attributes.get(name) if name else mesh.color_attributes.active_color
@@ -318,13 +305,25 @@ def _groups(vertex, normal, material):
 
 
 def _world_radiance(scene, notes):
-    """The world's Background as a uniform sky radiance ``(3,)``.
+    """The world's mean radiance over the sphere ``(3,)`` (see :func:`_world_sky`)."""
+    return _world_sky(scene, notes)[0]
 
-    A colour input fed by an Environment Texture with an image is averaged over the sphere
-    (each pixel weighted by its solid angle); fed by anything else (a Sky Texture, a
-    gradient, ...) the world's viewport colour stands in. Both are noted: CubeGI's sky is
-    uniform.
+
+def _world_sky(scene, notes):
+    """The world's Background: ``(mean radiance (3,), pattern or None)``.
+
+    A colour input fed by an Environment Texture with an image gives its mean over the
+    sphere (each pixel weighted by its solid angle) and its pattern (the image over that
+    mean, reduced to at most SKY_MAP_WIDTH pixels across): the probes see the sky's
+    directions. Fed by anything else (a Sky Texture, a gradient, ...) the world's viewport
+    colour stands in as a uniform sky, with a note.
     """
+    pattern = []
+    colour = _world_colour(scene, notes, pattern)
+    return colour, (pattern[0] if pattern else None)
+
+
+def _world_colour(scene, notes, pattern):
     world = scene.world
     if world is None:
         return np.zeros(3)
@@ -341,29 +340,55 @@ def _world_radiance(scene, notes):
                 problems = []
                 strength = _strength(node.inputs["Strength"], problems)
                 notes.extend(f"world {world.name!r}: Background Strength {p}; using {strength:g}" for p in problems)
-                return _background_colour(world, node.inputs["Color"], notes) * strength
+                return _background_colour(world, node.inputs["Color"], notes, pattern) * strength
             notes.append(f"world {world.name!r}: its surface is a {node.bl_label} node, not a Background; using its viewport colour")
     return np.asarray(world.color[:3], dtype=np.float64)
 
 
-def _background_colour(world, socket, notes):
+# An environment image is reduced to at most this many pixels across (box filter) before
+# the probes' texels look it up: 9 SH coefficients keep only its broad directions.
+SKY_MAP_WIDTH = 128
+
+
+def _background_colour(world, socket, notes, pattern):
     if not socket.is_linked:
         return np.asarray(socket.default_value[:3], dtype=np.float64)
     node = socket.links[0].from_node
     if node.type == "TEX_ENVIRONMENT" and node.image is not None:
         rgb = _image_pixels(node.image)
         if rgb is not None:
+            rgb = _box_reduce(rgb, SKY_MAP_WIDTH)
             h = rgb.shape[0]
             # Equirectangular rows: solid angle proportional to sin(polar angle) at the row centre.
             weight = np.sin(np.pi * (np.arange(h) + 0.5) / h)[:, None]
             mean = (rgb * weight[:, :, None]).sum(axis=(0, 1)) / (weight.sum() * rgb.shape[1])
-            notes.append(f"world {world.name!r}: the environment image {node.image.name!r} is averaged to a uniform sky")
+            if node.projection == "EQUIRECTANGULAR" and not _mapped(node):
+                pattern.append((rgb / np.where(mean > 0, mean, 1.0)).astype(np.float32))
+            else:
+                notes.append(f"world {world.name!r}: the environment image {node.image.name!r} is mapped (a Mapping node or "
+                             "a mirror ball); CubeGI averages it to a uniform sky")
             return mean
     notes.append(
         f"world {world.name!r}: Background Color fed by a {node.bl_label} node, which CubeGI does not read; "
         f"using the world's viewport colour {tuple(round(c, 3) for c in world.color[:3])}"
     )
     return np.asarray(world.color[:3], dtype=np.float64)
+
+
+def _box_reduce(rgb, width):
+    """``rgb (h, w, 3)`` averaged over blocks so that it is at most ``width`` pixels across."""
+    h, w, _ = rgb.shape
+    f = max(1, -(-w // width))
+    if f == 1:
+        return rgb
+    h2, w2 = max(1, h // f), w // f
+    return rgb[: h2 * f, : w2 * f].reshape(h2, f, w2, f, 3).mean(axis=(1, 3))
+
+
+def _mapped(node):
+    """Whether an Environment Texture's vector input is driven (rotated, scaled)."""
+    vector = node.inputs.get("Vector")
+    return vector is not None and vector.is_linked
 
 
 def _light(ob_eval, matrix):
@@ -605,13 +630,15 @@ def _collect(context, depsgraph):
     if not parts:
         raise BakeError("the scene has no visible geometry to bake")
     tri_offsets = np.cumsum([0] + [len(p["points"]) for p in parts[:-1]])
+    sky, sky_map = _world_sky(scene, notes)
     arrays = SceneArrays(
         points=np.concatenate([p["points"] for p in parts]),
         normals=np.concatenate([p["normals"] for p in parts]),
         albedo=np.concatenate([p["albedo"] for p in parts]),
         emission=np.concatenate([p["emission"] for p in parts]),
         triangles=np.concatenate([p["triangles"] + o for p, o in zip(parts, tri_offsets)]).astype(np.int64),
-        sky=_world_radiance(scene, notes),
+        sky=sky,
+        sky_map=sky_map,
         lights=lights,
         point_object=np.repeat(np.arange(len(parts)), [len(p["points"]) for p in parts]),
         object_names=[p["name"] for p in parts],

@@ -51,10 +51,12 @@ class ProbeCapture:
                    time.perf_counter() - t, proxy, budget)
 
     def valid_for(self, scene, grid, cube_size: int, visibility: bool, budget=None) -> bool:
-        """True if this capture applies to ``scene`` baked on ``grid`` at these settings."""
+        """True if this capture applies to ``scene`` baked on ``grid`` at these settings (and
+        its sky pattern, which the tables hold)."""
         return (
             self.cube_size == int(cube_size) and self.visibility == bool(visibility) and self.budget == budget
             and _same_grid(self.grid, grid) and not self.fingerprint.changed(scene.fingerprint())
+            and _same_sky(self.transport, scene)
         )
 
     def patched(self, scene, grid, renderer, cube_size: int, visibility: bool = True, budget=None):
@@ -67,6 +69,8 @@ class ProbeCapture:
         fingerprint = scene.fingerprint()
         if (self.cube_size != int(cube_size) or self.visibility != bool(visibility) or not _same_grid(self.grid, grid)
                 or self.budget != budget or self.proxy is not None or not fingerprint.same_layout(self.fingerprint)):
+            return None
+        if not _same_sky(self.transport, scene):
             return None
         moved = fingerprint.changed(self.fingerprint)
         names = [name for name, _ in fingerprint.objects]
@@ -130,6 +134,14 @@ class ProbeCapture:
         """Memory held, in bytes."""
         arrays = [self.cubes.tid, self.cubes.bary, self.cubes.dist, self.cubes.backface, *self.transport.arrays()]
         return int(sum(a.nbytes for a in arrays))
+
+
+def _same_sky(transport, scene) -> bool:
+    """Whether the tables' sky pattern is ``scene``'s (both uniform, or the same image)."""
+    mine, theirs = getattr(transport, "sky_map", None), getattr(scene, "sky_map", None)
+    if mine is None or theirs is None:
+        return mine is None and theirs is None
+    return mine.shape == theirs.shape and np.array_equal(mine, theirs)
 
 
 def _same_grid(a, b) -> bool:

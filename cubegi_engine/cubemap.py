@@ -20,7 +20,7 @@ Conventions (fixed here, used by the GPU capture and by every look-up):
 
 import numpy as np
 
-__all__ = ["texel_uv", "texel_directions", "texel_solid_angles", "direction_to_texel", "perspective_90", "orthographic", "look_matrix", "cube_view_projections", "any_perpendicular"]
+__all__ = ["sample_image", "equirect_uv", "texel_uv", "texel_directions", "texel_solid_angles", "direction_to_texel", "perspective_90", "orthographic", "look_matrix", "cube_view_projections", "any_perpendicular"]
 
 FACE_FORWARD = np.array(
     [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.float64
@@ -130,3 +130,28 @@ def any_perpendicular(v):
     helper = np.array([0.0, 0.0, 1.0]) if abs(v[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
     p = np.cross(v, helper)
     return p / np.linalg.norm(p)
+
+
+def sample_image(rgb, uv):
+    """Bilinear, repeating look-up of ``rgb (h, w, 3)`` (row 0 at v = 0, as Blender stores
+    images) at ``uv (k, 2)``."""
+    h, w, _ = rgb.shape
+    x = uv[:, 0] * w - 0.5
+    y = uv[:, 1] * h - 0.5
+    x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    x0, x1 = x0 % w, (x0 + 1) % w
+    y0, y1 = y0 % h, (y0 + 1) % h
+    top = rgb[y0, x0] * (1 - fx) + rgb[y0, x1] * fx
+    bottom = rgb[y1, x0] * (1 - fx) + rgb[y1, x1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def equirect_uv(dirs):
+    """Cycles' equirectangular coordinates of unit directions ``(k, 3)``: u = 1/2 -
+    atan2(y, x) / 2 pi (+X at the image's centre, +Y a quarter to the left), v = 1 - acos(z)
+    / pi (+Z, up, at the top row)."""
+    d = np.asarray(dirs, dtype=np.float64)
+    u = 0.5 - np.arctan2(d[:, 1], d[:, 0]) / (2.0 * np.pi)
+    v = 1.0 - np.arccos(np.clip(d[:, 2], -1.0, 1.0)) / np.pi
+    return np.stack([u, v], axis=1)

@@ -42,7 +42,10 @@ class SceneArrays:
 
     points, normals: ``(s, 3)`` float64 world space, normals unit; albedo: ``(s, 3)``
     diffuse colour in [0, 1]; emission: ``(s, 3)`` emitted radiance; triangles: ``(t, 3)``
-    int64 point indices; sky: ``(3,)`` radiance of the world background; lights: list of
+    int64 point indices; sky: ``(3,)`` radiance of the world background (its mean over the
+    sphere); sky_map: None for a uniform sky, or its pattern: an equirectangular image ``(h,
+    w, 3)`` (Cycles' mapping, :func:`cubegi_engine.cubemap.equirect_uv`) of the radiance
+    over ``sky``, mean 1 over the sphere per channel; lights: list of
     :class:`cubegi_engine.lights.Light`.
     """
 
@@ -56,6 +59,7 @@ class SceneArrays:
     point_object: np.ndarray | None = None  # (s,) int: which object each point belongs to
     dark: np.ndarray | None = None  # (s,) bool: points that get no light (bad input set aside)
     object_names: list = field(default_factory=list)  # per point_object index
+    sky_map: np.ndarray | None = None  # see above
 
     def zero_dark_points_inplace(self, light: np.ndarray) -> np.ndarray:
         """``light (s, 3)`` with the dark points' rows set to zero, in place; returned."""

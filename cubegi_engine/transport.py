@@ -116,6 +116,13 @@ class Transport:
         self.bary = (capture.bary.reshape(p, -1, 3) * hit[..., None]).astype(np.float32)
         sky = (tid < 0).astype(np.float32)
         self.sky_projection = sky @ self.sh_weights  # (p, 9): SH of a unit sky seen by each probe
+        # (p, 9, 3): the same for the sky's pattern (an environment image), or None (uniform).
+        self.sky_projection_map = None
+        self.sky_map = getattr(scene, "sky_map", None)  # kept: a capture is valid for this pattern only
+        if self.sky_map is not None:
+            pattern = cubemap.sample_image(np.asarray(scene.sky_map, dtype=np.float64), cubemap.equirect_uv(dirs))
+            weights = (self.sh_weights[:, :, None] * pattern[:, None, :].astype(np.float32)).reshape(len(dirs), 27)
+            self.sky_projection_map = (sky @ weights).reshape(p, 9, 3)
         back_share = (back * solid[None, :]).sum(axis=1) / (4.0 * np.pi)
         self.probe_valid = back_share <= INSIDE_BACKFACE_SHARE
         self.seen_from_behind = None
@@ -152,17 +159,20 @@ class Transport:
     def arrays(self):
         """The tables' arrays (for memory accounting)."""
         proxy = [] if self.proxy is None else [self.proxy.points, self.proxy.triangles, self.proxy.cluster, self.proxy.share]
+        proxy += [] if self.sky_projection_map is None else [self.sky_projection_map]
         return [self.sh_weights, self.corners, self.bary, self.sky_projection, self.probe_valid, self.index, self.point_weights, *proxy]
 
     def landing_share(self):
         """Per point, the cosine-weighted share of its view that is surface, not sky:
         ``(s, 3)`` in [0, 1] (the light of a unit sky, from the probes, taken from 1)."""
-        return np.clip(1.0 - self.interpolate(self.sky_coefficients(np.ones(3))).astype(np.float64), 0.0, 1.0)
+        unit = np.repeat(self.sky_projection[:, :, None], 3, axis=2)  # geometric: a uniform unit sky
+        return np.clip(1.0 - self.interpolate(unit).astype(np.float64), 0.0, 1.0)
 
     def sky_coefficients(self, sky):
-        """SH radiance coefficients ``(p, 9, 3)`` of a uniform sky of radiance ``sky (3,)``
-        where each probe sees sky."""
-        return self.sky_projection[:, :, None] * np.asarray(sky, dtype=np.float32)[None, None, :]
+        """SH radiance coefficients ``(p, 9, 3)`` of the sky of mean radiance ``sky (3,)``
+        where each probe sees sky (uniform, or the scene's sky pattern times ``sky``)."""
+        projection = self.sky_projection[:, :, None] if self.sky_projection_map is None else self.sky_projection_map
+        return projection * np.asarray(sky, dtype=np.float32)[None, None, :]
 
     def texel_radiance(self, radiance):
         """Radiance seen by every texel ``(p, 6n^2, 3)`` from point radiance ``(s, 3)``."""

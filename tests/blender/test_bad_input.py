@@ -406,7 +406,7 @@ def test_an_emitter_too_small_for_the_probes_still_lights_the_scene(empty_scene,
     assert direct.max() > 0.1 and np.isfinite(direct).all()
 
 
-def test_a_linked_world_colour_is_averaged_or_noted(empty_scene, cubegi):
+def test_a_linked_world_colour_is_read_or_noted(empty_scene, cubegi):
     read = cubegi.cubegi_addon.scene_data.collect
     v, f = scenes.grid_patch((-1, -1, 0), (2, 0, 0), (0, 2, 0), 2, 2)
     scenes.mesh_object("Ground", v, f)
@@ -417,10 +417,11 @@ def test_a_linked_world_colour_is_averaged_or_noted(empty_scene, cubegi):
     tree.links.new(sky.outputs["Color"], bg.inputs["Color"])
     collected = read(bpy.context)
     assert any("Background Color fed by a Sky Texture node" in n for n in collected.notes), collected.notes
-    # An environment image: its solid-angle-weighted mean (top half 2.0, bottom half 0.0: 1.0).
-    image = bpy.data.images.new("env", 8, 4, float_buffer=True)
-    px = np.zeros((4, 8, 4), dtype=np.float32)
-    px[2:, :, :3] = 2.0  # image rows run bottom to top: the upper half of the sphere
+    # An environment image: its solid-angle-weighted mean (top half 2.0, bottom half 0.0: 1.0)
+    # and its pattern over that mean, which the probes see.
+    image = bpy.data.images.new("env", 64, 32, float_buffer=True)
+    px = np.zeros((32, 64, 4), dtype=np.float32)
+    px[16:, :, :3] = 2.0  # image rows run bottom to top: the upper half of the sphere
     px[..., 3] = 1.0
     image.pixels.foreach_set(px.ravel())
     env = tree.nodes.new("ShaderNodeTexEnvironment")
@@ -429,7 +430,26 @@ def test_a_linked_world_colour_is_averaged_or_noted(empty_scene, cubegi):
     bg.inputs["Strength"].default_value = 0.5
     collected = read(bpy.context)
     np.testing.assert_allclose(collected.arrays.sky, 0.5, rtol=1e-6)
-    assert any("environment image 'env' is averaged" in n for n in collected.notes), collected.notes
+    pattern = collected.arrays.sky_map
+    assert pattern.shape == (32, 64, 3)
+    np.testing.assert_allclose(pattern[16:], 2.0, rtol=1e-6)
+    np.testing.assert_allclose(pattern[:16], 0.0, atol=1e-7)
+    assert not any("environment image" in n for n in collected.notes), collected.notes
+    # The ground sees the bright half: more light than from a uniform sky of the same mean.
+    assert bpy.ops.cubegi.bake(grid=(2, 2, 2), cube_size=16, bounces=1) == {"FINISHED"}
+    directional = cubegi.cubegi_addon.attributes.read(bpy.data.objects["Ground"].data, "CubeGI_direct").mean()
+    tree.links.remove(bg.inputs["Color"].links[0])
+    bg.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)  # x 0.5 strength: the same mean
+    assert bpy.ops.cubegi.bake(grid=(2, 2, 2), cube_size=16, bounces=1) == {"FINISHED"}
+    uniform = cubegi.cubegi_addon.attributes.read(bpy.data.objects["Ground"].data, "CubeGI_direct").mean()
+    assert directional > 1.4 * uniform > 0, (directional, uniform)
+    tree.links.new(env.outputs["Color"], bg.inputs["Color"])
+    # Turned by a Mapping node, the image is averaged, with a note.
+    mapping = tree.nodes.new("ShaderNodeMapping")
+    tree.links.new(mapping.outputs["Vector"], env.inputs["Vector"])
+    collected = read(bpy.context)
+    assert collected.arrays.sky_map is None
+    assert any("environment image 'env' is mapped" in n for n in collected.notes), collected.notes
 
 
 def test_lights_that_reach_nothing_visible_are_left_out_and_named(empty_scene, cubegi):

@@ -141,3 +141,55 @@ def test_an_emissive_panel_lights_both_ways_as_cycles_does(empty_scene, cubegi):
     co = np.array([vv.co for vv in bpy.data.objects["Room"].data.vertices])
     above = (co[:, 2] > 2.49) & (np.abs(co[:, 0]) < 0.5) & (np.abs(co[:, 1]) < 0.5)
     assert ceiling[above].mean() > 0.2  # the panel's back lights the ceiling (Cycles: about 0.3)
+
+
+def _env_image(name="Sky"):
+    """An equirectangular sky: blue, brighter overhead and towards one side, over a brown
+    ground half."""
+    image = bpy.data.images.new(name, 128, 64, float_buffer=True)
+    elev = ((np.arange(64) + 0.5) / 64 - 0.5) * np.pi  # rows run bottom to top
+    u = (np.arange(128) + 0.5) / 128
+    sky = np.array([0.4, 0.6, 1.0]) * (0.5 + 1.5 * np.clip(np.sin(elev), 0, 1))[:, None]
+    px = np.zeros((64, 128, 4), np.float32)
+    px[:, :, :3] = np.where((elev > 0)[:, None, None], sky[:, None, :], np.array([0.25, 0.2, 0.15]))
+    px[32:, :, :3] *= (1.0 + 0.8 * np.cos(2 * np.pi * (u - 0.3)))[None, :, None]
+    px[..., 3] = 1.0
+    image.pixels.foreach_set(px.ravel())
+    return image
+
+
+# The sky reaches the vertices through the probes (their cube maps' sky texels, projected on
+# 9 SH coefficients), uniform or from an environment image's directions. Measured on the
+# courtyard without its sun, 4 bounces, against Cycles at 128 samples (rel. RMSE, bias):
+# uniform sky direct 9.6% (+1.6%), total 6.8%; the image below direct 12.0% (+1.7%), total
+# 9.2% (averaged to a uniform sky, as before, it was 64% (-47%) and 55%). The error sits
+# where the walls meet the ground (the probes see those corners from a distance).
+SKY_TOL = {"uniform": (0.13, 0.09), "image": (0.16, 0.12)}
+
+
+@pytest.mark.parametrize("sky", list(SKY_TOL))
+def test_the_sky_matches_cycles(empty_scene, cubegi, sky):
+    from cubegi.cubegi_addon import attributes, bench_scenes, reference, scene_data
+
+    bench_scenes.courtyard()
+    for ob in [o for o in bpy.data.objects if o.type == "LIGHT"]:
+        bpy.data.objects.remove(ob)
+    if sky == "image":
+        tree = bpy.context.scene.world.node_tree
+        env = tree.nodes.new("ShaderNodeTexEnvironment")
+        env.image = _env_image()
+        tree.links.new(env.outputs["Color"], tree.nodes["Background"].inputs["Color"])
+    obs = sorted((o for o in bpy.context.scene.objects if o.type == "MESH"), key=lambda o: o.name)
+    assert bpy.ops.cubegi.bake(bounces=4) == {"FINISHED"}
+    ref, _ = reference.bake_reference(bpy.context, obs, samples=128, seed=0)
+
+    def stack(values):
+        return np.concatenate([values[o.name] for o in obs])
+
+    ours = {layer: stack({o.name: attributes.read(o.data, layer) for o in obs}) for layer in ("CubeGI_direct", "CubeGI")}
+    areas = np.concatenate([scene_data.vertex_areas(o) for o in obs])
+    err = metrics.compare(ours["CubeGI_direct"], ours["CubeGI"], stack(ref["DIRECT"]), stack(ref["INDIRECT"]), areas)
+    print(sky, err)
+    direct_tol, total_tol = SKY_TOL[sky]
+    assert err["direct"]["rel_rmse"] < direct_tol and abs(err["direct"]["rel_bias"]) < 0.04, err
+    assert err["total"]["rel_rmse"] < total_tol and abs(err["total"]["rel_bias"]) < 0.04, err

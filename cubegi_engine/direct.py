@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import cubemap, lights as lights_mod
+from . import cubemap, lights as lights_mod, sh
 from .emitters import emitter_direct
 from .transport import capture_cubes, clip_planes
 
@@ -34,6 +34,12 @@ LIGHT_LEFT_OUT = 1e-4
 # Area light shadow eyes sit this share of the scene's size off the light's plane, so the
 # light's own geometry (if any) and surfaces it rests on do not shadow it.
 AREA_EYE_LIFT = 1e-4
+# A point or spot light whose radius is at least this share of its median distance to the
+# scene's points casts soft shadows: its visibility is averaged over depth cube maps drawn
+# from SOFT_SAMPLES points on its sphere (each at half the sharp map's edge, and no smaller
+# than an area light's). Smaller ones keep one sharp map from the centre (a 1 cm bulb).
+SOFT_RADIUS_SHARE = 0.02
+SOFT_SAMPLES = 32
 
 
 @dataclass
@@ -109,10 +115,21 @@ def draw_shadow(scene, renderer, settings, light, size=None) -> Shadow:
         samples = light.samples if light.samples is not None and len(light.samples) else light.position[None]
         shadow.eyes = samples + light.direction * (AREA_EYE_LIFT * scene.scale)
         shadow.cubes = capture_cubes(renderer, shadow.eyes, size or settings.area_shadow_size, near, far, with_bary=False)
+    elif soft(light, scene.points):
+        shadow.eyes = light.position + light.radius * sh.fibonacci_sphere(SOFT_SAMPLES)
+        edge = size or max(settings.area_shadow_size, settings.shadow_size // 2)
+        shadow.cubes = capture_cubes(renderer, shadow.eyes, edge, near, far, with_bary=False)
     else:
         shadow.eyes = light.position[None]
         shadow.cubes = capture_cubes(renderer, shadow.eyes, size or settings.shadow_size, near, far, with_bary=False)
     return shadow
+
+
+def soft(light, points) -> bool:
+    """Whether a point or spot light's radius makes its shadows soft (see SOFT_RADIUS_SHARE)."""
+    if light.kind not in ("POINT", "SPOT") or light.radius <= 0.0 or not len(points):
+        return False
+    return light.radius >= SOFT_RADIUS_SHARE * float(np.median(np.linalg.norm(points - light.position, axis=1)))
 
 
 def _nearest_distance(points, eye):
@@ -130,17 +147,19 @@ def visibility(shadow, pts, nrm, ids) -> np.ndarray:
             pts, nrm, vp, axis, eye, tid, dist, back, shadow.triangles, shadow.vertices, ids, radius, shadow.scale
         )
     cap = shadow.cubes
-    if light.kind != "AREA":
+    if len(shadow.eyes) == 1 and light.kind != "AREA":
         return lights_mod.shadow_visibility(
             pts, nrm, light.position, cap.tid[0], cap.dist[0], cap.backface[0], shadow.triangles, shadow.vertices, ids, shadow.scale
         )
+    # Several eyes (an area light's points, a soft point light's sphere): their visibility
+    # weighted by how much light each sends the receiver.
     num = np.zeros(len(pts))
     den = np.zeros(len(pts))
     for k, eye in enumerate(shadow.eyes):
         rel = eye - pts
         d2 = np.einsum("sc,sc->s", rel, rel)
         cos_r = np.maximum(0.0, np.einsum("sc,sc->s", nrm, rel)) / np.sqrt(np.maximum(d2, 1e-300))
-        cos_l = np.maximum(0.0, -(rel @ light.direction)) / np.sqrt(np.maximum(d2, 1e-300))
+        cos_l = np.maximum(0.0, -(rel @ light.direction)) / np.sqrt(np.maximum(d2, 1e-300)) if light.kind == "AREA" else 1.0
         w = cos_r * cos_l / np.maximum(d2, 1e-300) + 1e-12
         vis = lights_mod.shadow_visibility(
             pts, nrm, eye, cap.tid[k], cap.dist[k], cap.backface[k], shadow.triangles, shadow.vertices, ids, shadow.scale,

@@ -48,7 +48,8 @@ def light_moving(obj, lights, shadows, field, renderer, settings):
             static = shadows.get(light.name)
             if static is not None:
                 vis *= visibility(static, pts, nrm, outside[lit])
-            own_light = light if light.kind != "AREA" else replace(light, samples=light.position[None])
+            # Its own shadow from the light's centre alone (one small map, every update).
+            own_light = replace(light, samples=light.position[None], radius=0.0)
             own = draw_shadow(obj, renderer, settings, own_light, size=SELF_SHADOW_SIZE)
             vis *= visibility(own, pts, nrm, np.arange(s)[lit])
             value[lit] *= vis[:, None]

@@ -193,3 +193,16 @@ def test_the_sky_matches_cycles(empty_scene, cubegi, sky):
     direct_tol, total_tol = SKY_TOL[sky]
     assert err["direct"]["rel_rmse"] < direct_tol and abs(err["direct"]["rel_bias"]) < 0.04, err
     assert err["total"]["rel_rmse"] < total_tol and abs(err["total"]["rel_bias"]) < 0.04, err
+
+
+def test_a_large_point_light_casts_soft_shadows_as_cycles(empty_scene, cubegi):
+    """A bulb of 0.1 m radius 0.5 m from the red wall, the blocks between it and the floor:
+    its shadows are averaged over 32 points on its sphere. Measured against Cycles at 256
+    samples: direct light 2.0% rel. RMSE (one sharp map from its centre gave 8.6%; 16 points
+    4.2%, 64 points 1.5%)."""
+    scenes.cornell(light=False)
+    scenes.add_light("POINT", (-0.5, -0.3, 1.0), 60.0, shadow_soft_size=0.1)
+    obs = [ob for ob in bpy.context.scene.objects if ob.type == "MESH"]
+    err = _bake_both(cubegi, obs, ("DIRECT",), samples=256)["DIRECT"]
+    print(err)
+    assert err["rel_rmse"] < 0.035 and abs(err["rel_bias"]) < 0.01, err

@@ -40,6 +40,10 @@ AREA_EYE_LIFT = 1e-4
 # than an area light's). Smaller ones keep one sharp map from the centre (a 1 cm bulb).
 SOFT_RADIUS_SHARE = 0.02
 SOFT_SAMPLES = 32
+# Every sample draws the whole scene six times: past this many triangles the samples drop in
+# proportion (to no fewer than MIN_SOFT_SAMPLES), so a heavy scene's soft light costs about
+# what a light scene's does (on a GPU the drawing is cheap and this could go).
+SOFT_TRIANGLES, MIN_SOFT_SAMPLES = 100_000, 8
 
 
 @dataclass
@@ -116,7 +120,8 @@ def draw_shadow(scene, renderer, settings, light, size=None) -> Shadow:
         shadow.eyes = samples + light.direction * (AREA_EYE_LIFT * scene.scale)
         shadow.cubes = capture_cubes(renderer, shadow.eyes, size or settings.area_shadow_size, near, far, with_bary=False)
     elif soft(light, scene.points):
-        shadow.eyes = light.position + light.radius * sh.fibonacci_sphere(SOFT_SAMPLES)
+        count = int(np.clip(SOFT_SAMPLES * SOFT_TRIANGLES / max(len(scene.triangles), 1), MIN_SOFT_SAMPLES, SOFT_SAMPLES))
+        shadow.eyes = light.position + light.radius * sh.fibonacci_sphere(count)
         edge = size or max(settings.area_shadow_size, settings.shadow_size // 2)
         shadow.cubes = capture_cubes(renderer, shadow.eyes, edge, near, far, with_bary=False)
     else:

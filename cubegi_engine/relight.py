@@ -163,8 +163,8 @@ class BounceOperator:
         return g
 
     def inverse(self, factor):
-        """A solver of ``(1 - factor M) x = c`` per channel (``c``, ``x``: ``(9p, 3)`` or
-        ``(9p, 3, k)``), or None where GMRES is used.
+        """A solver of ``(1 - factor M) x = c`` per channel (``c``, ``x``: ``(9p, 3)``), or
+        None where GMRES is used.
 
         The inverse is kept: a later factor (the energy balance moves a little with every
         edit) is served by iterative refinement on it, ``x += A0^-1 (c - A x)``, to a residual

@@ -3,7 +3,7 @@ must not import bpy."""
 
 import numpy as np
 
-__all__ = ["cut_triangles", "near_any_triangle", "chunks", "POINT_CHUNK"]
+__all__ = ["cut_triangles", "near_any_triangle", "edge_neighbours", "chunks", "POINT_CHUNK"]
 
 # Per-point tests that make several (s, 9, 3) float64 arrays run this many points at a time:
 # a million points then need tens of megabytes, not gigabytes, and stay in cache.
@@ -84,4 +84,25 @@ def near_any_triangle(centres, radius, a, b, c, tiles=8, centre_normals=None, ac
         for (p, _), d in zip(edges, inward):
             near &= np.einsum("mkc,kc->mk", pts[:, None, :] - p[None, sel], d[sel]) >= -radius
         out[cells] = near.any(axis=1)
+    return out
+
+
+def edge_neighbours(triangles) -> np.ndarray:
+    """``(t, 3)``: for each triangle, the triangle across each of its edges (edge k joins
+    corners k and k + 1), -1 where none (a border). Where more than two triangles share an
+    edge, each is paired with the next one in index order."""
+    t = len(triangles)
+    out = np.full((t, 3), -1, dtype=np.int64)
+    if not t:
+        return out
+    tri = np.asarray(triangles, dtype=np.int64)
+    a = tri.ravel()
+    b = np.roll(tri, -1, axis=1).ravel()
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    key = lo * (int(tri.max()) + 1) + hi
+    order = np.argsort(key, kind="stable")
+    same = key[order[1:]] == key[order[:-1]]
+    first, second = order[:-1][same], order[1:][same]
+    out.ravel()[first] = second // 3
+    out.ravel()[second] = first // 3
     return out

@@ -227,7 +227,8 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     index, weight: ``(s, 8)`` from :meth:`ProbeGrid.trilinear`. Returns new weights ``(s, 8)``.
 
     ``cover`` = ``(probe_tid (p, 6, n, n), triangles (t, 3), triangle_object (t,), vertices,
-    point_object (s,))`` (the triangles the probes drew, over ``vertices``) adds a
+    point_object (s,), triangle_normals (t, 3), edge_neighbours (t, 3))`` (the triangles the
+    probes drew, over ``vertices``) adds a
     test the depth map's tolerance is too coarse for: a triangle of another object (or of
     the same object, facing away from the point: the far side of a thin wall) that the
     probe's texel sees towards the point, whose plane the exact ray from the probe crosses
@@ -236,8 +237,8 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     gets no probe light, instead of falling back to its plain weights.
     """
     if len(points) > POINT_CHUNK:
-        def part(sl):  # the cover's last entry is per point
-            return None if cover is None else (*cover[:4], cover[4][sl])
+        def part(sl):  # the cover's point_object is per point
+            return None if cover is None else (*cover[:4], cover[4][sl], *cover[5:])
 
         return np.concatenate([
             visibility_weights(grid, probe_pos, probe_dist, probe_valid, points[sl], normals[sl], index[sl], weight[sl], part(sl))
@@ -269,23 +270,26 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     return w
 
 
+# How many edges away from a seen triangle the cover test looks for the one the ray crosses.
+COVER_RINGS = 2
+
+
 def _covered(cover, eyes, points, normals, index, face, row, col, n, cell):
     """``(s, 8)``: another object's triangle lies between each probe and point (see above).
 
     The texel towards the point and its 8 neighbours are asked which triangles they see;
     the exact ray from the probe to the point is cut with each one's plane, and it covers
-    the point if the cut lies inside that triangle, in front of the point. (The texel alone
-    may see a neighbour of the triangle the ray really crosses; a cut near but outside the
-    other object must not count, or the floor around a rug would go dark.)
+    the point if the cut lies inside that triangle or one across its edges, in front of the
+    point. (At a grazing angle the texels around the ray may all see neighbours of the
+    triangle it really crosses, near a rug's edge; a cut near but outside the other object
+    must not count, or the floor around a rug would go dark.)
     """
-    probe_tid, triangles, tri_object, vertices, point_object = cover
+    probe_tid, triangles, tri_object, vertices, point_object, tri_normals, neighbours = cover
     q = points[:, None, :] + 1e-3 * cell[..., None] * normals[:, None, :]
     ray = q - eyes
     d = np.linalg.norm(ray, axis=-1)
     u = ray / np.maximum(d, 1e-300)[..., None]
     eps = 1e-4 * cell
-    p0 = vertices[triangles[:, 0]]
-    tri_normals = np.cross(vertices[triangles[:, 1]] - p0, vertices[triangles[:, 2]] - p0)
     covered = np.zeros(index.shape, dtype=bool)
     for dr in (-1, 0, 1):
         for dc in (-1, 0, 1):
@@ -298,6 +302,28 @@ def _covered(cover, eyes, points, normals, index, face, row, col, n, cell):
             pick = np.nonzero(candidate)
             if not len(pick[0]):
                 continue
-            t, inside, _ = cut_triangles(eyes[pick], u[pick], tid[pick], triangles, vertices)
-            covered[pick] = inside & (t > 0) & (t < d[pick] - eps[pick[0], 0])
+            seen = tid[pick]
+            t, inside, _ = cut_triangles(eyes[pick], u[pick], seen, triangles, vertices)
+            ahead = (t > 0) & (t < d[pick] - eps[pick[0], 0])
+            # Not inside the seen triangle: the triangles around it, COVER_RINGS edges away,
+            # of the same object (its plane cut, inside one of them, in front of the point).
+            ring = seen[:, None]
+            for _ in range(COVER_RINGS):
+                ring = neighbours[np.maximum(ring, 0)].reshape(len(seen), -1) * (ring >= 0).repeat(3, axis=1)
+                ring = np.where((ring >= 0) & (tri_object[np.maximum(ring, 0)] == tri_object[seen][:, None]), ring, -1)
+                more = np.flatnonzero(ahead & ~inside)
+                if not len(more):
+                    break
+                for k in range(ring.shape[1]):
+                    other = ring[more, k]
+                    rows = more[other >= 0]
+                    # As for the seen triangles: another object's, or the same one's facing away.
+                    tri = ring[rows, k]
+                    away = np.einsum("rc,rc->r", tri_normals[tri], normals[pick[0][rows]]) < -0.5 * np.linalg.norm(tri_normals[tri], axis=1)
+                    rows = rows[(tri_object[tri] != point_object[pick[0][rows]]) | away]
+                    if not len(rows):
+                        continue
+                    t2, in2, _ = cut_triangles(eyes[pick][rows], u[pick][rows], ring[rows, k], triangles, vertices)
+                    inside[rows[in2 & (t2 > 0) & (t2 < d[pick][rows] - eps[pick[0][rows], 0])]] = True
+            covered[pick] = inside & ahead
     return covered

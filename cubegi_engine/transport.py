@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import cubemap, sh
+from .geometry import edge_neighbours
 from .grid import visibility_weights
 
 __all__ = ["CubeCapture", "capture_cubes", "clip_planes", "Transport", "reference_coefficients", "COEFFS_PER_POINT"]
@@ -143,7 +144,10 @@ class Transport:
             cover = None
             if scene.point_object is not None:
                 vertices = scene.points if proxy is None else proxy.points
-                cover = (capture.tid.reshape(p, 6, n, n), triangles, self.triangle_object, vertices, scene.point_object)
+                p0 = vertices[triangles[:, 0]]
+                normals = np.cross(vertices[triangles[:, 1]] - p0, vertices[triangles[:, 2]] - p0)
+                cover = (capture.tid.reshape(p, 6, n, n), triangles, self.triangle_object, vertices, scene.point_object,
+                         normals, edge_neighbours(triangles))
             weight = visibility_weights(
                 grid, positions, dist, self.probe_valid, scene.points, scene.normals, index, weight, cover
             )

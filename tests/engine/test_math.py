@@ -206,3 +206,14 @@ def test_a_probe_subset_keeps_the_weights_of_the_probes_points_use():
     values = np.arange(sub.count, dtype=float)
     full = sub.expand(values, fill=-1.0)
     assert full.shape == (g.count,) and (full[~used] == -1).all() and np.array_equal(full[used], values)
+
+
+def test_edge_neighbours_pair_the_triangles_across_each_edge():
+    from cubegi.cubegi_engine.geometry import edge_neighbours
+
+    # Two quads side by side: 0-1-4-3 and 1-2-5-4, two triangles each.
+    tris = np.array([[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]])
+    nb = edge_neighbours(tris)
+    assert nb[0].tolist() == [-1, 3, 1]  # edge 1-4 borders triangle 3, edge 4-0 triangle 1
+    assert nb[1].tolist() == [0, -1, -1] and nb[3].tolist() == [2, -1, 0]
+    assert (edge_neighbours(np.zeros((0, 3), dtype=np.int64)) == -1).all()

@@ -274,6 +274,34 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
 COVER_RINGS = 2
 
 
+def _blocks(tid, tri_object, tri_normals, point_object, normals):
+    """Whether triangles ``tid`` may cover points of ``point_object`` facing ``normals``:
+    another object's, or the far side of a thin part of the same one (facing away)."""
+    safe = np.maximum(tid, 0)
+    nrm = tri_normals[safe]
+    facing_away = np.einsum("...c,...c->...", nrm, normals) < -0.5 * np.linalg.norm(nrm, axis=-1)
+    return (tri_object[safe] != point_object) | facing_away
+
+
+def _unique_per_row(ids, tried):
+    """``ids (m, k)`` with each row's repeats, and the ids in ``tried``'s row, set to -1; the
+    -1 entries moved to the end and the columns that are -1 in every row dropped."""
+    both = np.concatenate([tried, ids], axis=1)
+    order = np.argsort(both, axis=1, kind="stable")
+    srt = np.take_along_axis(both, order, axis=1)
+    dup = np.zeros_like(srt, dtype=bool)
+    dup[:, 1:] = srt[:, 1:] == srt[:, :-1]
+    # An id is new if it comes from ``ids`` and its first occurrence in the sorted row is from ``ids``.
+    from_ids = order >= tried.shape[1]
+    first = ~dup
+    group_first_from_ids = np.maximum.accumulate(np.where(first, np.arange(srt.shape[1])[None, :], 0), axis=1)
+    new = from_ids & np.take_along_axis(from_ids, group_first_from_ids, axis=1) & first & (srt >= 0)
+    out = np.where(new, srt, -1)
+    out = -np.sort(-out, axis=1)  # the new ids first, the -1s at the end
+    keep = (out >= 0).any(axis=0)
+    return out[:, keep] if keep.any() else out[:, :1]
+
+
 def _covered(cover, eyes, points, normals, index, face, row, col, n, cell):
     """``(s, 8)``: another object's triangle lies between each probe and point (see above).
 
@@ -291,39 +319,42 @@ def _covered(cover, eyes, points, normals, index, face, row, col, n, cell):
     u = ray / np.maximum(d, 1e-300)[..., None]
     eps = 1e-4 * cell
     covered = np.zeros(index.shape, dtype=bool)
-    for dr in (-1, 0, 1):
-        for dc in (-1, 0, 1):
-            tid = probe_tid[index, face, np.clip(row + dr, 0, n - 1), np.clip(col + dc, 0, n - 1)]
-            safe = np.maximum(tid, 0)
-            # Another object, or the far side of a thin part of the same one (facing away).
-            nrm = tri_normals[safe]
-            facing_away = np.einsum("...c,...c->...", nrm, normals[:, None, :]) < -0.5 * np.linalg.norm(nrm, axis=-1)
-            candidate = (tid >= 0) & ~covered & ((tri_object[safe] != point_object[:, None]) | facing_away)
-            pick = np.nonzero(candidate)
-            if not len(pick[0]):
-                continue
-            seen = tid[pick]
-            t, inside, _ = cut_triangles(eyes[pick], u[pick], seen, triangles, vertices)
-            ahead = (t > 0) & (t < d[pick] - eps[pick[0], 0])
-            # Not inside the seen triangle: the triangles around it, COVER_RINGS edges away,
-            # of the same object (its plane cut, inside one of them, in front of the point).
-            ring = seen[:, None]
-            for _ in range(COVER_RINGS):
-                ring = neighbours[np.maximum(ring, 0)].reshape(len(seen), -1) * (ring >= 0).repeat(3, axis=1)
-                ring = np.where((ring >= 0) & (tri_object[np.maximum(ring, 0)] == tri_object[seen][:, None]), ring, -1)
-                more = np.flatnonzero(ahead & ~inside)
-                if not len(more):
-                    break
-                for k in range(ring.shape[1]):
-                    other = ring[more, k]
-                    rows = more[other >= 0]
-                    # As for the seen triangles: another object's, or the same one's facing away.
-                    tri = ring[rows, k]
-                    away = np.einsum("rc,rc->r", tri_normals[tri], normals[pick[0][rows]]) < -0.5 * np.linalg.norm(tri_normals[tri], axis=1)
-                    rows = rows[(tri_object[tri] != point_object[pick[0][rows]]) | away]
-                    if not len(rows):
-                        continue
-                    t2, in2, _ = cut_triangles(eyes[pick][rows], u[pick][rows], ring[rows, k], triangles, vertices)
-                    inside[rows[in2 & (t2 > 0) & (t2 < d[pick][rows] - eps[pick[0][rows], 0])]] = True
-            covered[pick] = inside & ahead
+    # Per pair and texel: a seen candidate the ray's plane cut lies ahead of but outside of.
+    missed = np.full(index.shape + (9,), -1, dtype=np.int64)
+    for j, (dr, dc) in enumerate((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)):
+        tid = probe_tid[index, face, np.clip(row + dr, 0, n - 1), np.clip(col + dc, 0, n - 1)]
+        candidate = (tid >= 0) & ~covered & _blocks(tid, tri_object, tri_normals, point_object[:, None], normals[:, None, :])
+        pick = np.nonzero(candidate)
+        if not len(pick[0]):
+            continue
+        t, inside, _ = cut_triangles(eyes[pick], u[pick], tid[pick], triangles, vertices)
+        ahead = (t > 0) & (t < d[pick] - eps[pick[0], 0])
+        covered[pick] = inside & ahead
+        # Another object's triangles only (a rug over a floor): a thin part's far side is seen
+        # whole by the texels around the ray.
+        miss = ahead & ~inside & (tri_object[tid[pick]] != point_object[pick[0]])
+        missed[pick[0][miss], pick[1][miss], j] = tid[pick][miss]
+    # Where no seen triangle holds the cut: the same objects' triangles up to COVER_RINGS edges
+    # around the seen ones (each tried once per pair).
+    pairs = np.nonzero(~covered & (missed >= 0).any(axis=2))
+    if len(pairs[0]) and COVER_RINGS:
+        frontier = missed[pairs]  # (m, 9)
+        tried = frontier
+        found = np.zeros(len(pairs[0]), dtype=bool)
+        eye, ray_u, depth = eyes[pairs], u[pairs], d[pairs] - eps[pairs[0], 0]
+        owner, nrm = point_object[pairs[0]], normals[pairs[0]]
+        for _ in range(COVER_RINGS):
+            parent = np.repeat(frontier, 3, axis=1)
+            ring = neighbours[np.maximum(frontier, 0)].reshape(len(frontier), -1)  # (m, 3k)
+            ring = np.where((parent >= 0) & (ring >= 0) & (tri_object[np.maximum(ring, 0)] == tri_object[np.maximum(parent, 0)]), ring, -1)
+            ring = _unique_per_row(ring, tried)
+            for k in range(ring.shape[1]):
+                sel = np.flatnonzero((ring[:, k] >= 0) & ~found)
+                if not len(sel):
+                    continue
+                t, inside, _ = cut_triangles(eye[sel], ray_u[sel], ring[sel, k], triangles, vertices)
+                found[sel[inside & (t > 0) & (t < depth[sel])]] = True
+            tried = np.concatenate([tried, ring], axis=1)
+            frontier = ring
+        covered[pairs[0][found], pairs[1][found]] = True
     return covered

@@ -342,7 +342,6 @@ def _covered(cover, eyes, points, normals, index, face, row, col, n, cell):
         tried = frontier
         found = np.zeros(len(pairs[0]), dtype=bool)
         eye, ray_u, depth = eyes[pairs], u[pairs], d[pairs] - eps[pairs[0], 0]
-        owner, nrm = point_object[pairs[0]], normals[pairs[0]]
         for _ in range(COVER_RINGS):
             parent = np.repeat(frontier, 3, axis=1)
             ring = neighbours[np.maximum(frontier, 0)].reshape(len(frontier), -1)  # (m, 3k)

@@ -217,3 +217,13 @@ def test_edge_neighbours_pair_the_triangles_across_each_edge():
     assert nb[0].tolist() == [-1, 3, 1]  # edge 1-4 borders triangle 3, edge 4-0 triangle 1
     assert nb[1].tolist() == [0, -1, -1] and nb[3].tolist() == [2, -1, 0]
     assert (edge_neighbours(np.zeros((0, 3), dtype=np.int64)) == -1).all()
+
+
+def test_unique_per_row_keeps_each_new_id_once():
+    from cubegi.cubegi_engine.grid import _unique_per_row
+
+    ids = np.array([[5, 3, 5, -1, 7], [1, 1, 2, 2, -1], [-1, -1, -1, -1, -1]])
+    tried = np.array([[3, -1], [9, 2], [4, 4]])
+    out = _unique_per_row(ids, tried)
+    assert [sorted(x for x in row if x >= 0) for row in out.tolist()] == [[5, 7], [1], []]
+    assert (out[:, :1] >= -1).all() and out.shape[1] == 2  # columns that are -1 everywhere dropped

@@ -92,7 +92,7 @@ def edge_neighbours(triangles) -> np.ndarray:
     corners k and k + 1), -1 where none (a border). Where more than two triangles share an
     edge, each is paired with the next one in index order."""
     t = len(triangles)
-    out = np.full((t, 3), -1, dtype=np.int64)
+    out = np.full((t, 3), -1, dtype=np.int32)
     if not t:
         return out
     tri = np.asarray(triangles, dtype=np.int64)

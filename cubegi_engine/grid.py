@@ -270,8 +270,9 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     return w
 
 
-# How many edges away from a seen triangle the cover test looks for the one the ray crosses.
-COVER_RINGS = 2
+# How many edges away from a seen triangle the cover test looks for the one the ray crosses,
+# and how many (point, probe) pairs it searches at a time.
+COVER_RINGS, RING_CHUNK = 2, 16384
 
 
 def _blocks(tid, tri_object, tri_normals, point_object, normals):
@@ -320,7 +321,7 @@ def _covered(cover, eyes, points, normals, index, face, row, col, n, cell):
     eps = 1e-4 * cell
     covered = np.zeros(index.shape, dtype=bool)
     # Per pair and texel: a seen candidate the ray's plane cut lies ahead of but outside of.
-    missed = np.full(index.shape + (9,), -1, dtype=np.int64)
+    missed = np.full(index.shape + (9,), -1, dtype=np.int32)
     for j, (dr, dc) in enumerate((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)):
         tid = probe_tid[index, face, np.clip(row + dr, 0, n - 1), np.clip(col + dc, 0, n - 1)]
         candidate = (tid >= 0) & ~covered & _blocks(tid, tri_object, tri_normals, point_object[:, None], normals[:, None, :])
@@ -336,8 +337,9 @@ def _covered(cover, eyes, points, normals, index, face, row, col, n, cell):
         missed[pick[0][miss], pick[1][miss], j] = tid[pick][miss]
     # Where no seen triangle holds the cut: the same objects' triangles up to COVER_RINGS edges
     # around the seen ones (each tried once per pair).
-    pairs = np.nonzero(~covered & (missed >= 0).any(axis=2))
-    if len(pairs[0]) and COVER_RINGS:
+    need = np.nonzero(~covered & (missed >= 0).any(axis=2))
+    for start in range(0, len(need[0]) if COVER_RINGS else 0, RING_CHUNK):  # bounded temporaries
+        pairs = (need[0][start : start + RING_CHUNK], need[1][start : start + RING_CHUNK])
         frontier = missed[pairs]  # (m, 9)
         tried = frontier
         found = np.zeros(len(pairs[0]), dtype=bool)

@@ -1,9 +1,11 @@
 """Render the README's pictures of the demo Room: with EEVEE, without CubeGI (EEVEE's own
 lighting) and with CubeGI's baked light wired into the materials (Show in Renders); and the
 dynamic-scene sequence, Suzanne (dynamic) moved through the Room and lit from the kept
-probe field at each place, side by side (Workbench, the lit colour).
+probe field at each place, side by side (Workbench, the lit colour); and the error picture,
+each vertex's indirect error against Cycles coloured, before and after the cover test asked
+the triangles around the seen ones (the rug leak).
 
-Usage: python scripts/render_docs.py [OUT_DIR] [--dynamic-only]   (default: docs/)
+Usage: python scripts/render_docs.py [OUT_DIR] [--dynamic-only | --error-only]   (default: docs/)
 """
 
 import os
@@ -90,9 +92,78 @@ def dynamic_sequence(out):
     print(f"render_docs: {image.filepath_raw}", flush=True)
 
 
+def _tile(paths, out_path, size):
+    """Put the PNGs ``paths`` side by side into ``out_path`` and remove them."""
+    import bpy
+    import numpy as np
+
+    w, h = size
+    tiles = []
+    for path in paths:
+        image = bpy.data.images.load(path)
+        px = np.empty(w * h * 4, dtype=np.float32)
+        image.pixels.foreach_get(px)
+        bpy.data.images.remove(image)
+        os.remove(path)
+        tiles.append(px.reshape(h, w, 4))
+    strip = np.concatenate(tiles, axis=1)
+    image = bpy.data.images.new("tiles", strip.shape[1], strip.shape[0], alpha=True)
+    image.pixels.foreach_set(strip.ravel())
+    image.filepath_raw = out_path
+    image.file_format = "PNG"
+    image.save()
+    print(f"render_docs: {out_path}", flush=True)
+
+
+def error_picture(out, samples=1024):
+    """The Room's per-vertex indirect error against a Cycles bake (``samples``; the
+    benchmark's cached reference when there is one), with the cover test's ring search off
+    (before) and on (after), the carpet hidden to show the floor under it: black none, red
+    the scene's mean indirect light or more too bright, blue as much too dark."""
+    import bpy
+    import numpy as np
+
+    from cubegi_engine.__main__ import load_extension
+
+    load_extension()
+    from cubegi.cubegi_addon import attributes, demo, reference, session
+    from cubegi.cubegi_engine import grid
+
+    demo.build_room()
+    objects = sorted((ob for ob in bpy.context.scene.objects if ob.type == "MESH"), key=lambda ob: ob.name)
+    cache = os.path.join(ROOT, "out", "benchmark", "cache", f"room-cycles-{samples}spp.npz")
+    if os.path.exists(cache):  # the benchmark's reference, stacked over the meshes by name
+        stacked = np.load(cache)["indirect"]
+        ends = np.cumsum([len(ob.data.vertices) for ob in objects])
+        ref = {"INDIRECT": {ob.name: part for ob, part in zip(objects, np.split(stacked, ends[:-1]))}}
+    else:
+        ref, _ = reference.bake_reference(bpy.context, objects, passes=("INDIRECT",), samples=samples, seed=0)
+    mean = float(np.mean(np.concatenate([ref["INDIRECT"][ob.name] for ob in objects])))
+    paths, rings = [], grid.COVER_RINGS
+    for k, name in enumerate(("before", "after")):
+        grid.COVER_RINGS = 0 if name == "before" else rings
+        session.forget()
+        assert bpy.ops.cubegi.bake(bounces=5) == {"FINISHED"}
+        for ob in objects:
+            e = (attributes.read(ob.data, "CubeGI") - ref["INDIRECT"][ob.name]).mean(axis=1) / mean
+            colour = np.zeros((len(e), 3))
+            colour[:, 0], colour[:, 2] = np.clip(e, 0, 1), np.clip(-e, 0, 1)
+            attributes.put(ob.data, "CubeGI_error", colour)
+        paths.append(os.path.join(out, f"_error_{k}.png"))
+        bpy.data.objects["Carpet"].hide_render = True  # for the picture only: the bakes see it
+        demo.render_png(paths[-1], attribute="CubeGI_error", resolution=(480, 270))
+        bpy.data.objects["Carpet"].hide_render = False
+    grid.COVER_RINGS = rings
+    _tile(paths, os.path.join(out, "room_indirect_error.png"), (480, 270))
+
+
 if __name__ == "__main__":
     args = [a for a in sys.argv[1:] if not a.startswith("--")]
     folder = os.path.abspath(args[0] if args else os.path.join(ROOT, "docs"))
-    if "--dynamic-only" not in sys.argv:
-        main(folder)
-    dynamic_sequence(folder)
+    if "--error-only" in sys.argv:
+        error_picture(folder)
+    else:
+        if "--dynamic-only" not in sys.argv:
+            main(folder)
+        dynamic_sequence(folder)
+        error_picture(folder)

@@ -357,7 +357,12 @@ def _background_colour(world, socket, notes, pattern):
     if node.type == "TEX_ENVIRONMENT" and node.image is not None:
         rgb = _image_pixels(node.image)
         if rgb is not None:
-            rgb = _box_reduce(rgb, SKY_MAP_WIDTH)
+            bad = ~np.isfinite(rgb).all(axis=2)
+            if bad.any():
+                notes.append(f"world {world.name!r}: the environment image {node.image.name!r} has {int(bad.sum())} pixels "
+                             "that are NaN or infinite; they count as black")
+                rgb = np.where(bad[..., None], 0.0, rgb)
+            rgb = _box_reduce(np.maximum(rgb, 0.0), SKY_MAP_WIDTH)
             h = rgb.shape[0]
             # Equirectangular rows: solid angle proportional to sin(polar angle) at the row centre.
             weight = np.sin(np.pi * (np.arange(h) + 0.5) / h)[:, None]

@@ -444,6 +444,12 @@ def test_a_linked_world_colour_is_read_or_noted(empty_scene, cubegi):
     uniform = cubegi.cubegi_addon.attributes.read(bpy.data.objects["Ground"].data, "CubeGI_direct").mean()
     assert directional > 1.4 * uniform > 0, (directional, uniform)
     tree.links.new(env.outputs["Color"], bg.inputs["Color"])
+    # Pixels that are NaN or infinite count as black, with a note; the sky stays finite.
+    px[20, 3, 0], px[25, 40, 1] = np.inf, np.nan
+    image.pixels.foreach_set(px.ravel())
+    collected = read(bpy.context)
+    assert np.isfinite(collected.arrays.sky).all() and np.isfinite(collected.arrays.sky_map).all()
+    assert any("'env' has 2 pixels that are NaN or infinite" in n for n in collected.notes), collected.notes
     # Turned by a Mapping node, the image is averaged, with a note.
     mapping = tree.nodes.new("ShaderNodeMapping")
     tree.links.new(mapping.outputs["Vector"], env.inputs["Vector"])

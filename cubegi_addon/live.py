@@ -22,6 +22,7 @@ from ..cubegi_engine import relight
 from ..cubegi_engine.direct import light_direct
 from ..cubegi_engine.emitters import emitter_direct
 from ..cubegi_engine.errors import BakeError
+from ..cubegi_engine.scene import same_sky_map
 from . import attributes, dynamic, grid_objects, probe_view, scene_data, session
 from .gpu_capture import GpuRenderer
 
@@ -95,8 +96,10 @@ def update(context, materials=False, write=True, settle=True, bounce_layers=True
     if kept is None:
         state_of(context)  # refuses with the reason
     t = time.perf_counter()
-    lights, sky, _ = scene_data.scene_lights(context)
+    lights, sky, pattern, _ = scene_data.scene_lights(context)
     report.seconds["read"] = time.perf_counter() - t
+    if not same_sky_map(kept.arrays.sky_map, pattern):
+        raise BakeError("the world's environment image changed: Bake again (the probes' tables hold its directions)")
     drawn = False
     if kept.light is not None or materials or not _same_lights(kept.arrays, lights, sky):
         t = time.perf_counter()

@@ -304,11 +304,6 @@ def _groups(vertex, normal, material):
     return order[change], inverse
 
 
-def _world_radiance(scene, notes):
-    """The world's mean radiance over the sphere ``(3,)`` (see :func:`_world_sky`)."""
-    return _world_sky(scene, notes)[0]
-
-
 def _world_sky(scene, notes):
     """The world's Background: ``(mean radiance (3,), pattern or None)``.
 
@@ -559,13 +554,15 @@ def moving_objects(context):
 
 def scene_lights(context):
     """The lights and the sky as a bake would see them now, without reading any mesh:
-    ``(lights, sky (3,), notes)``. For updates of light alone (see :mod:`.live`)."""
+    ``(lights, sky (3,), sky pattern or None, notes)``. For updates of light alone (see
+    :mod:`.live`)."""
     notes, lights = [], []
     with _as_rendered(context.view_layer):
         for inst, ob, _, _ in _rendered_instances(context, context.evaluated_depsgraph_get()):
             if ob.type == "LIGHT":
                 _add_light(inst, ob, lights, notes)
-    return lights, _world_radiance(context.scene, notes), notes
+    sky, pattern = _world_sky(context.scene, notes)
+    return lights, sky, pattern, notes
 
 
 def _collect(context, depsgraph):

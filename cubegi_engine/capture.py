@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import cubemap
-from .scene import GeometryFingerprint
+from .scene import GeometryFingerprint, same_sky_map
 from .transport import CubeCapture, Transport, capture_cubes, clip_planes
 
 __all__ = ["ProbeCapture"]
@@ -137,10 +137,7 @@ class ProbeCapture:
 
 def _same_sky(transport, scene) -> bool:
     """Whether the tables' sky pattern is ``scene``'s (both uniform, or the same image)."""
-    mine, theirs = getattr(transport, "sky_map", None), getattr(scene, "sky_map", None)
-    if mine is None or theirs is None:
-        return mine is None and theirs is None
-    return mine.shape == theirs.shape and np.array_equal(mine, theirs)
+    return same_sky_map(getattr(transport, "sky_map", None), getattr(scene, "sky_map", None))
 
 
 def _same_grid(a, b) -> bool:

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["SceneArrays", "GeometryFingerprint"]
+__all__ = ["SceneArrays", "GeometryFingerprint", "same_sky_map"]
 
 
 @dataclass(frozen=True)
@@ -112,3 +112,10 @@ class SceneArrays:
             out.append((names[k], h.hexdigest()))
             layout.append((names[k], int(sel.sum()), t.hexdigest()))
         return GeometryFingerprint(tuple(out), tuple(layout))
+
+
+def same_sky_map(a, b) -> bool:
+    """Whether two sky patterns (``SceneArrays.sky_map``; None: a uniform sky) are the same."""
+    if a is None or b is None:
+        return a is None and b is None
+    return a.shape == b.shape and np.array_equal(a, b)

@@ -130,6 +130,39 @@ def test_world_colour_and_material_edits_equal_a_full_bake(empty_scene, cubegi):
         assert np.abs(updated[key] - full[key]).max() < 3e-2 * max(v.max() for v in full.values()), key
 
 
+def test_an_environment_image_updates_with_its_strength_and_refuses_a_new_image(empty_scene, cubegi):
+    """The sky of an environment image: a strength edit is a weight (equal to a full bake);
+    new pixels change the probes' tables, so Update refuses with the reason and writes
+    nothing."""
+    from cubegi.cubegi_addon.bench_scenes import courtyard
+
+    courtyard()
+    tree = bpy.context.scene.world.node_tree
+    image = bpy.data.images.new("Sky", 32, 16, float_buffer=True)
+    px = np.ones((16, 32, 4), np.float32)
+    px[8:, :, :3] = (0.3, 0.5, 1.0)
+    image.pixels.foreach_set(px.ravel())
+    env = tree.nodes.new("ShaderNodeTexEnvironment")
+    env.image = image
+    tree.links.new(env.outputs["Color"], tree.nodes["Background"].inputs["Color"])
+    settings = dict(grid=(4, 4, 2), cube_size=16, bounces=3)
+    assert bpy.ops.cubegi.bake(**settings) == {"FINISHED"}
+    tree.nodes["Background"].inputs["Strength"].default_value = 2.0
+    report = cubegi.cubegi_addon.live.update(bpy.context)
+    assert "world colour" in report.changed
+    read = cubegi.cubegi_addon.attributes.read
+    updated = read(bpy.data.objects["Ground"].data, "CubeGI_total")
+    cubegi.cubegi_addon.session.forget()
+    assert bpy.ops.cubegi.bake(**settings) == {"FINISHED"}
+    np.testing.assert_allclose(updated, read(bpy.data.objects["Ground"].data, "CubeGI_total"), rtol=2e-2, atol=1e-4)
+    before = read(bpy.data.objects["Ground"].data, "CubeGI_total")
+    px[8:, :, :3] = (1.0, 0.5, 0.3)
+    image.pixels.foreach_set(px.ravel())
+    with pytest.raises(cubegi.cubegi_engine.errors.BakeError, match="environment image changed"):
+        cubegi.cubegi_addon.live.update(bpy.context)
+    np.testing.assert_array_equal(read(bpy.data.objects["Ground"].data, "CubeGI_total"), before)
+
+
 def test_geometry_edits_are_refused_and_change_nothing(room):
     assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
     baked = _light()

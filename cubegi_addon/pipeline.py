@@ -195,7 +195,7 @@ def _note_capture(collected, result, grid):
         )
     if not result.probe_valid.any():
         collected.notes.append(
-            f"all {grid.count} probes see back faces over more than a quarter of their view (inside geometry, or "
+            f"all {result.capture.grid.count} probes captured see back faces over more than a quarter of their view (inside geometry, or "
             "normals pointing away from them); each point uses its plain trilinear weights"
         )
     if result.seen_from_behind is not None:

@@ -95,7 +95,7 @@ def simplify(scene, budget) -> CaptureProxy | None:
     owner = scene.point_object if scene.point_object is not None else np.zeros(s, dtype=np.int64)
     owner = np.asarray(owner, dtype=np.int64)
     objects = int(owner.max()) + 1 if s else 0
-    prep = _Prepared(points, np.asarray(scene.normals, dtype=np.float64), tris, owner, objects)
+    prep = _Prepared(points, np.asarray(scene.normals, dtype=np.float64), tris, owner, objects, scene.point_areas())
     tri_count = np.bincount(prep.tri_owner, minlength=objects)
     area = np.bincount(prep.tri_owner, prep.tri_area, minlength=objects)
     simplified = tri_count > KEEP_WHOLE
@@ -105,7 +105,6 @@ def simplify(scene, budget) -> CaptureProxy | None:
     # A surface of area A tessellated into clusters of edge h has about 2 A / h^2 triangles.
     ratio = (budget - kept_whole) / max(int(tri_count[simplified].sum()), 1)
     cell = np.where(simplified, np.sqrt(2.0 * area / np.maximum(tri_count * ratio, 1.0)), 0.0)
-    prep.areas = scene.point_areas() if hasattr(scene, "point_areas") else np.ones(s)
     best = None
     for _ in range(ROUNDS):
         proxy = _cluster(prep, cell)
@@ -121,11 +120,11 @@ def simplify(scene, budget) -> CaptureProxy | None:
 
 
 class _Prepared:
-    """What every clustering round of one scene reads: the points sorted along X, each
-    object's points, the triangles' boxes, sizes and normals."""
+    """What every clustering round of one scene reads: the points (and their areas) sorted
+    along X, each object's points, the triangles' boxes, sizes and normals."""
 
-    def __init__(self, points, normals, tris, owner, objects):
-        self.points, self.normals, self.tris, self.owner = points, normals, tris, owner
+    def __init__(self, points, normals, tris, owner, objects, areas):
+        self.points, self.normals, self.tris, self.owner, self.areas = points, normals, tris, owner, areas
         self.rel = points - points.min(axis=0)  # cells are counted from the scene's lowest corner
         self.by_x = np.argsort(points[:, 0], kind="stable")
         self.xs = points[self.by_x, 0]
@@ -138,7 +137,6 @@ class _Prepared:
         length = np.linalg.norm(n, axis=1)
         self.tri_area = 0.5 * length
         self.tri_normal = n / np.maximum(length, 1e-300)[:, None]
-        self.areas = None
 
 
 def _unique_rows(rows):

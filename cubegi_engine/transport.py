@@ -162,9 +162,9 @@ class Transport:
 
     def arrays(self):
         """The tables' arrays (for memory accounting)."""
-        proxy = [] if self.proxy is None else [self.proxy.points, self.proxy.triangles, self.proxy.cluster, self.proxy.share]
-        proxy += [] if self.sky_projection_map is None else [self.sky_projection_map]
-        return [self.sh_weights, self.corners, self.bary, self.sky_projection, self.probe_valid, self.index, self.point_weights, *proxy]
+        extra = [] if self.proxy is None else [self.proxy.points, self.proxy.triangles, self.proxy.cluster, self.proxy.share]
+        extra += [] if self.sky_projection_map is None else [self.sky_projection_map]
+        return [self.sh_weights, self.corners, self.bary, self.sky_projection, self.probe_valid, self.index, self.point_weights, *extra]
 
     def landing_share(self):
         """Per point, the cosine-weighted share of its view that is surface, not sky:

@@ -80,6 +80,10 @@ def _bake_options(p, demo=False):
         f"{d.capture_triangles:,}); direct light, shadows and the baked vertices use every triangle",
     )
     p.add_argument(
+        "--no-near-field", action="store_true",
+        help="leave each vertex's near surroundings to the probes (no rays; see the README's accuracy section)",
+    )
+    p.add_argument(
         "--no-energy-conservation", action="store_true",
         help="leave each bounce's total as interpolated (for comparison; see the README)",
     )
@@ -114,7 +118,8 @@ def _forwarded(args):
     if args.tolerance is not None:
         words += ["--tolerance", str(args.tolerance)]
     words += [flag for flag, on in (("--no-visibility", args.no_visibility), ("--no-tail", args.no_tail),
-                                    ("--no-energy-conservation", args.no_energy_conservation)) if on]
+                                    ("--no-energy-conservation", args.no_energy_conservation),
+                                    ("--no-near-field", args.no_near_field)) if on]
     if args.reference:
         words += ["--reference", args.reference, "--reference-samples", str(args.reference_samples)]
     if getattr(args, "lit", None):
@@ -157,7 +162,8 @@ def _settings(args):
     try:
         settings = BakeSettings.preset(
             args.quality, visibility=not args.no_visibility, tolerance=args.tolerance, add_tail=not args.no_tail,
-            conserve_energy=not args.no_energy_conservation, capture_triangles=args.capture_triangles or None, **given,
+            conserve_energy=not args.no_energy_conservation, capture_triangles=args.capture_triangles or None,
+            near_field=not args.no_near_field, **given,
         )
         settings.validate()
     except BakeError as exc:

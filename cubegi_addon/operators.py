@@ -29,7 +29,7 @@ def _settings_from(op, scene):
     return BakeSettings(
         cube_size=pick("cube_size"), bounces=pick("bounces"), cells=pick("cells"), visibility=pick("visibility"),
         tolerance=tolerance if tolerance > 0 else None, add_tail=pick("add_tail"),
-        capture_triangles=budget if budget > 0 else None, **prefs.capture_settings(),
+        capture_triangles=budget if budget > 0 else None, near_field=pick("near_field"), **prefs.capture_settings(),
     )
 
 
@@ -178,6 +178,10 @@ class CUBEGI_OT_bake(_ModalJob, bpy.types.Operator):
     capture_triangles: IntProperty(
         name="Capture Triangles", description="Triangles the probes draw at most, simplified (0: the full scene; default: "
         "the scene's setting)", default=BakeSettings.capture_triangles, min=0,
+    )
+    near_field: BoolProperty(
+        name="Near Field", description="Gather each vertex's near surroundings by rays (default: the scene's setting)",
+        default=BakeSettings.near_field,
     )
     quality: EnumProperty(
         name="Quality", description="A preset for the grid cells, cube-map size and bounces not given (default: the "

@@ -55,6 +55,7 @@ class VIEW3D_PT_cubegi(_SidebarTab, bpy.types.Panel):
         col.prop(settings, "cube_size")
         col.prop(settings, "visibility")
         col.prop(settings, "capture_triangles")
+        col.prop(settings, "near_field")
         col = layout.column(heading="Bounces")
         col.prop(settings, "bounces")
         col.prop(settings, "tolerance")

@@ -240,8 +240,15 @@ def _report(settings, lit, grid, grid_source, collected, result, timings, refere
         warnings=[w for w in (solution.tail_report.warning,) if w], reference=reference_report,
         capture_reused=result.capture_reused, probes_recaptured=result.probes_recaptured,
         left_out=list(result.direct_parts.left_out) + _left_out_of_capture(result.capture, grid),
-        capture_geometry=_capture_geometry(result.capture.proxy),
+        capture_geometry=_capture_geometry(result.capture.proxy), near_field=_near_field(result.capture.transport.near),
     )
+
+
+def _near_field(near):
+    if near is None:
+        return None
+    return {"points": near.count, "hits": len(near.hit_row), "pairs": near.pairs, "crowded": near.crowded,
+            "reach": near.reach, "seconds": near.seconds, "skipped": near.skipped}
 
 
 def _capture_geometry(proxy):
@@ -259,6 +266,14 @@ def _left_out_of_capture(capture, grid):
             f"probes: {grid.count - captured} of {grid.count} light no vertex (none lies within a cell of them) and were "
             f"not captured ({100 * (1 - captured / grid.count):.0f}% of the capture saved); a dynamic object in the scene "
             "keeps them all"
+        )
+    near = capture.transport.near
+    if near is not None and near.skipped:
+        out.append(f"near field: every vertex ({near.skipped}); the probes light their surroundings as seen from a cell away")
+    elif near is not None and near.crowded:
+        out.append(
+            f"near field: {near.crowded:,} vertices in dense, folded geometry (hundreds of triangles within {near.reach:.3g}); "
+            "the probes light their surroundings"
         )
     proxy = capture.proxy
     if proxy is not None:

@@ -65,6 +65,12 @@ class CubeGISceneSettings(bpy.types.PropertyGroup):
         "scene). Direct light, shadows and the baked vertices always use every triangle",
         default=BakeSettings.capture_triangles, min=0, soft_max=1_000_000,
     )
+    near_field: BoolProperty(
+        name="Near Field",
+        description="Gather each vertex's near surroundings (surfaces within a quarter of a cell: where walls meet, under "
+        "furniture) by rays, instead of the probes' view of them from up to a cell away",
+        default=BakeSettings.near_field,
+    )
     lit: EnumProperty(
         name="Lit Colour", description="Also write CubeGI_lit, the lit colour that glTF export carries as COLOR_0",
         items=LIT_ITEMS, default="NONE",

@@ -145,10 +145,10 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
     total = 3 + settings.bounces
 
     budget = settings.capture_triangles
-    reused = capture is not None and capture.valid_for(scene, grid, settings.cube_size, settings.visibility, budget)
+    reused = capture is not None and capture.valid_for(scene, grid, settings.cube_size, settings.visibility, budget, settings.near_field)
     patched = None
     if not reused and capture is not None:
-        patched = capture.patched(scene, grid, renderer, settings.cube_size, settings.visibility, budget)
+        patched = capture.patched(scene, grid, renderer, settings.cube_size, settings.visibility, budget, settings.near_field)
     if reused:
         yield Progress(Stage.CAPTURE, 0, total, f"reusing the capture of {grid.count} probes (the geometry is unchanged)")
         timings["capture"] = timings["tables"] = 0.0
@@ -164,9 +164,11 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
         timings["simplify"] = time.perf_counter() - t
         drawn = f" ({len(proxy.triangles):,} of {len(scene.triangles):,} triangles)" if proxy is not None else ""
         yield Progress(Stage.CAPTURE, 0, total, f"capturing {grid.count} probes at {settings.cube_size}x{settings.cube_size}{drawn}")
-        capture = ProbeCapture.take(scene, grid, drawer, settings.cube_size, settings.visibility, proxy, budget)
+        capture = ProbeCapture.take(scene, grid, drawer, settings.cube_size, settings.visibility, proxy, budget,
+                                    settings.near_field)
         timings["capture"], timings["tables"] = capture.capture_seconds, capture.tables_seconds
     transport = capture.transport
+    timings["near_field"] = transport.near.seconds if transport.near is not None and not reused else 0.0  # part of "tables"
 
     yield Progress(Stage.DIRECT, 1, total, f"direct light from {len(scene.lights)} lights")
     t = time.perf_counter()

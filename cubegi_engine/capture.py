@@ -33,33 +33,36 @@ class ProbeCapture:
     tables_seconds: float = 0.0
     proxy: object = None  # the CaptureProxy drawn instead of the scene's triangles, if any
     budget: int | None = None  # the capture-triangle budget it was taken with
+    near_field: bool = True  # whether the tables gather each point's near field
 
     @classmethod
-    def take(cls, scene, grid, renderer, cube_size: int, visibility: bool = True, proxy=None, budget=None) -> "ProbeCapture":
+    def take(cls, scene, grid, renderer, cube_size: int, visibility: bool = True, proxy=None, budget=None,
+             near_field: bool = True) -> "ProbeCapture":
         """Draw every probe's cube map of ``scene`` and build the tables. With ``proxy``
         (a :class:`~cubegi_engine.proxy.CaptureProxy`), ``renderer`` draws the proxy's
         triangles and the tables gather through its clusters; ``budget``: the setting it
-        was made for."""
+        was made for; ``near_field``: the tables gather each point's near field."""
         positions = grid.positions()
         near, far = clip_planes(scene.scale, grid.point_cell_edge(positions))
         t = time.perf_counter()
         cubes = capture_cubes(renderer, positions, cube_size, near, far)
         t_capture = time.perf_counter() - t
         t = time.perf_counter()
-        transport = Transport(scene, grid, cubes, visibility=visibility, proxy=proxy)
+        transport = Transport(scene, grid, cubes, visibility=visibility, proxy=proxy, near_field=near_field)
         return cls(grid, int(cube_size), bool(visibility), scene.fingerprint(), cubes, transport, t_capture,
-                   time.perf_counter() - t, proxy, budget)
+                   time.perf_counter() - t, proxy, budget, bool(near_field))
 
-    def valid_for(self, scene, grid, cube_size: int, visibility: bool, budget=None) -> bool:
+    def valid_for(self, scene, grid, cube_size: int, visibility: bool, budget=None, near_field: bool = True) -> bool:
         """True if this capture applies to ``scene`` baked on ``grid`` at these settings (and
         its sky pattern, which the tables hold)."""
         return (
             self.cube_size == int(cube_size) and self.visibility == bool(visibility) and self.budget == budget
+            and self.near_field == bool(near_field)
             and _same_grid(self.grid, grid) and not self.fingerprint.changed(scene.fingerprint())
             and _same_sky(self.transport, scene)
         )
 
-    def patched(self, scene, grid, renderer, cube_size: int, visibility: bool = True, budget=None):
+    def patched(self, scene, grid, renderer, cube_size: int, visibility: bool = True, budget=None, near_field: bool = True):
         """This capture brought up to date for ``scene`` whose geometry moved but kept its
         layout (the same objects, point counts and triangles): only the probes that saw a
         moved object, or may see it where it is now, are drawn again; the tables are built
@@ -68,7 +71,7 @@ class ProbeCapture:
         move with the geometry: take a new capture)."""
         fingerprint = scene.fingerprint()
         if (self.cube_size != int(cube_size) or self.visibility != bool(visibility) or not _same_grid(self.grid, grid)
-                or self.budget != budget or self.proxy is not None or not fingerprint.same_layout(self.fingerprint)
+                or self.budget != budget or self.near_field != bool(near_field) or self.proxy is not None or not fingerprint.same_layout(self.fingerprint)
                 or not _same_sky(self.transport, scene)):
             return None
         moved = fingerprint.changed(self.fingerprint)
@@ -87,9 +90,9 @@ class ProbeCapture:
                 mine[redraw] = theirs
         t_capture = time.perf_counter() - t
         t = time.perf_counter()
-        transport = Transport(scene, grid, cubes, visibility=visibility)
+        transport = Transport(scene, grid, cubes, visibility=visibility, near_field=near_field)
         patched = ProbeCapture(grid, int(cube_size), bool(visibility), fingerprint, cubes, transport, t_capture,
-                               time.perf_counter() - t, None, budget)
+                               time.perf_counter() - t, None, budget, bool(near_field))
         return patched, int(redraw.sum())
 
     def _may_see(self, scene, objects) -> np.ndarray:

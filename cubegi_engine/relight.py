@@ -238,6 +238,7 @@ class Source:
     bounces: np.ndarray = None
     tail: np.ndarray = None
     indirect: np.ndarray = None
+    near: np.ndarray = None  # per bounce, what the near field adds on its support points
 
 
 class SceneLight:
@@ -255,6 +256,7 @@ class SceneLight:
         self.count, self.add_tail = int(count), bool(add_tail)
         self.sources = {}
         self.factors = np.ones((self.count, 3))
+        self.near_factors = None  # (steps, 3): the near field's scale per bounce (and tail)
         self.solve_seconds = 0.0
 
     def _add(self, key, direct, own, weight, light=None):
@@ -321,8 +323,60 @@ class SceneLight:
         inverse = self.op.inverse(self.factors[-1]) if self.add_tail and self.count else None
         for src in self.sources.values():
             src.bounces, src.tail = self.op.bounces(src.first, self.factors, inverse, self.add_tail)
-            src.indirect = self.scene.zero_dark_points_inplace(self.op.light(src.bounces.sum(axis=0) + src.tail))
+        near = self.transport.near
+        if near is not None and near.count:
+            self._near_field(near)
+        else:
+            self.near_factors = None
+            for src in self.sources.values():
+                src.near = None
+                src.indirect = self.scene.zero_dark_points_inplace(self.op.light(src.bounces.sum(axis=0) + src.tail))
         self.solve_seconds = time.perf_counter() - t
+
+    def _near_field(self, near, iterations=4):
+        """Every source's light with the near field (:mod:`cubegi_engine.nearfield`), as the
+        one-shot bake makes it: each bounce gathered once more from the one before, then
+        scaled per channel to the total its probe light has (with the energy balance: the
+        near field moves light, the balance says how much; the factors are the whole
+        scene's, like the balance's). Worked on the near field's support points only;
+        ``src.near``: per bounce, what it adds there (scaled)."""
+        sup = near.support
+        rows_i = self.op.I[sup]  # (u, 9p)
+        p = self.transport.probe_count
+        albedo = self.op.albedo[sup]
+        area = self.op.areas[sup]
+        sources = list(self.sources.values())
+        count = len(self.factors)
+        steps = [(k, [s.bounces[k] for s in sources]) for k in range(count)]
+        if self.add_tail and count:
+            steps.append((count, [s.tail for s in sources]))
+        prev = [s.direct[sup] for s in sources]
+        scale = np.ones((len(steps), 3))
+        deltas = [[None] * len(steps) for _ in sources]
+        for k, coeffs in steps:
+            base = [(rows_i @ c.astype(np.float32)).astype(np.float64) for c in coeffs]
+            parts = [self.transport.interpolate_rows(np.asarray(c).reshape(p, 9, 3), near.rows, near.open_basis) for c in coeffs]
+            if k < count:
+                d = [near.delta(b, q, albedo * r) for b, q, r in zip(base, parts, prev)]
+            else:  # the tail: the sum of the bounces after the last, each from the one before
+                d = [np.zeros_like(b) for b in base]
+                for _ in range(iterations):
+                    d = [near.delta(b, q, albedo * (r + b + x)) for b, q, r, x in zip(base, parts, prev, d)]
+            if self.op.landing is not None:
+                probe = sum(self.op.u @ c * s.weight for c, s in zip(coeffs, sources))
+                added = sum(area @ x * s.weight for x, s in zip(d, sources))
+                scale[k] = _balance(probe, probe + added)
+            for n, (b, x) in enumerate(zip(base, d)):
+                deltas[n][k] = scale[k] * x  # what the near field adds on the support, scaled
+                prev[n] = scale[k] * (b + x)
+        self.near_factors = scale
+        for n, src in enumerate(sources):
+            total = sum((scale[k] * c for k, c in zip(range(count), src.bounces)), np.zeros_like(src.tail))
+            total = total + (scale[count] * src.tail if len(steps) > count else src.tail)
+            src.indirect = self.op.light(total)
+            src.indirect[sup] += sum(deltas[n])
+            src.near = np.stack(deltas[n][:count]) if count else np.zeros((0, len(sup), 3))
+            self.scene.zero_dark_points_inplace(src.indirect)
 
     # --- the scene's light now ---------------------------------------------------------------
     def _sum(self, term):
@@ -347,7 +401,11 @@ class SceneLight:
         """``(s, 3)`` the light of bounce ``k`` (1-based)."""
         if not self.sources or not 1 <= k <= self.count:
             return np.zeros((len(self.scene.points), 3))
-        return self.scene.zero_dark_points_inplace(self.op.light(self._sum(lambda s: s.bounces[k - 1])))
+        light = self.op.light(self._sum(lambda s: s.bounces[k - 1]))
+        if self.near_factors is not None:  # the near field's: scaled, and what it adds
+            light *= self.near_factors[k - 1]
+            light[self.transport.near.support] += self._sum(lambda s: s.near[k - 1])
+        return self.scene.zero_dark_points_inplace(light)
 
     def field_coeffs(self):
         """``(coeffs, source_coeffs)``, each ``(p, 9, 3)`` float32: what the probes see (the sky,

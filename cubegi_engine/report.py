@@ -39,6 +39,8 @@ class BakeReport:
     left_out: list = field(default_factory=list)  # what the bake left out, each with why
     # The probes' simplified geometry: {"triangles", "of", "clusters", "max_offset"}, or None.
     capture_geometry: dict | None = None
+    # The near field: {"points", "hits", "pairs", "crowded", "reach", "seconds", "skipped"}, or None (off).
+    near_field: dict | None = None
     input: str | None = None
     output: str | None = None
     version: str = __version__
@@ -74,6 +76,7 @@ class BakeReport:
             "probes_recaptured": self.probes_recaptured,
             "left_out": self.left_out,
             "capture_geometry": self.capture_geometry,
+            "near_field": self.near_field,
             "timings": self.timings,
             "total_seconds": self.total_seconds,
             "reference": self.reference,
@@ -102,7 +105,7 @@ class BakeReport:
             tail=TailReport.from_dict(d["tail"]), timings=timings, attributes=d.get("attributes", []),
             warnings=d.get("warnings", []), reference=d.get("reference"), capture_reused=d.get("capture_reused", False),
             probes_recaptured=d.get("probes_recaptured"), left_out=d.get("left_out", []),
-            capture_geometry=d.get("capture_geometry"),
+            capture_geometry=d.get("capture_geometry"), near_field=d.get("near_field"),
             input=d.get("input"), output=d.get("output"), version=d.get("cubegi_version", __version__),
         )
 
@@ -137,6 +140,12 @@ class BakeReport:
                 lines.append(
                     f"  {part:8s} rel. RMSE {100 * e['rel_rmse']:6.2f}%  bias {100 * e['rel_bias']:+6.2f}%  p95 {100 * e['p95_rel']:6.2f}%"
                 )
+        near = self.near_field
+        if near and near.get("points"):
+            lines.append(
+                f"near field: {near['points']:,} points gathered their surroundings within {near['reach']:.3g} by rays "
+                f"({near['hits']:,} hits, {near['seconds']:.2f} s)"
+            )
         lines += [f"left out: {x}" for x in self.left_out]
         lines += [f"warning: {w}" for w in self.warnings]
         lines += [f"note: {n}" for n in self.notes]

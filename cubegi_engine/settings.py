@@ -57,6 +57,9 @@ class BakeSettings:
     # (:mod:`cubegi_engine.proxy`; None: always the full scene). Direct light, shadows and the
     # shading points always use the full scene.
     capture_triangles: int | None = 100_000
+    # Gather each point's near field (surfaces within a quarter of a cell) by rays, as a
+    # final gather of every bounce (:mod:`cubegi_engine.nearfield`).
+    near_field: bool = True
 
     def validate(self) -> "BakeSettings":
         """Raise a :class:`BakeError` naming the first setting out of range; else self."""
@@ -91,5 +94,6 @@ class BakeSettings:
         return {
             "cube_size": self.cube_size, "bounces": self.bounces, "cells": self.cells, "visibility": self.visibility,
             "shadow_size": self.shadow_size, "tolerance": self.tolerance, "add_tail": self.add_tail,
-            "conserve_energy": self.conserve_energy, "capture_triangles": self.capture_triangles, **extra,
+            "conserve_energy": self.conserve_energy, "capture_triangles": self.capture_triangles,
+            "near_field": self.near_field, **extra,
         }

@@ -60,6 +60,17 @@ def conserve_energy(light, radiance, landing, areas):
     return light * factor, factor
 
 
+def keep_total(light, before, areas):
+    """``light (s, 3)`` scaled per channel to the area-weighted total of ``before``: the near
+    field moves where a bounce's light lands, the energy balance has said how much lands
+    (factors within ENERGY_FACTOR_RANGE; else left as it is)."""
+    got = (areas[:, None] * light).sum(axis=0)
+    want = (areas[:, None] * before).sum(axis=0)
+    factor = np.where((got > 0) & (want > 0), want / np.where(got > 0, got, 1.0), 1.0)
+    lo, hi = ENERGY_FACTOR_RANGE
+    return light * np.where((factor >= lo) & (factor <= hi), factor, 1.0)
+
+
 @dataclass
 class LightSolution:
     """The indirect light of one direct light on one capture.
@@ -117,6 +128,8 @@ def solve_steps(scene, transport, direct, settings: BakeSettings | None = None, 
     indirect_mean = np.zeros(3)
     remaining = 1.0 if np.any(direct > 0) else 0.0
     cap = settings.bounces
+    near = transport.near  # each bounce's light is gathered once more with its near field
+    seen_before = direct
     for b in range(1, cap + 1):
         t0 = time.perf_counter()
         texels = transport.texel_radiance(albedo * previous)
@@ -128,10 +141,16 @@ def solve_steps(scene, transport, direct, settings: BakeSettings | None = None, 
         if landing is not None:
             light, factor = conserve_energy(light, albedo * previous, landing, areas)
         bounce_coeffs = bounce_coeffs + coeffs * factor.astype(np.float32)  # as balanced
+        gathered = light
+        if near is not None:
+            gathered = scene.zero_dark_points_inplace(near.correct(
+                light, transport.interpolate_rows(coeffs * factor.astype(np.float32), near.rows, near.open_basis), albedo * seen_before))
+            if landing is not None:
+                gathered = keep_total(gathered, light, areas)
         t3 = time.perf_counter()
         mean = area_weighted_mean(light, areas)
         ratio = convergence.ratios(previous_mean, mean)
-        light_sum = light_sum + light
+        light_sum = light_sum + gathered
         indirect_mean = indirect_mean + mean
         remaining = convergence.remaining_share(indirect_mean, mean, ratio)
         record = BounceRecord(
@@ -141,13 +160,14 @@ def solve_steps(scene, transport, direct, settings: BakeSettings | None = None, 
             estimated_remaining=remaining, energy_factor=factor.tolist(),
         )
         records.append(record)
-        bounces.append(light)
+        bounces.append(gathered)
+        seen_before = gathered
         previous, previous_mean = light, mean
         yield Progress(
             Stage.BOUNCE, first_step + b, total,
             f"bounce {b}/{cap}: mean light {mean.mean():.4g}, x{record.ratio_mean:.3f} of the bounce before, "
             f"about {100 * remaining:.3g}% of the indirect light still missing",
-            light=light_sum, new_light=light, bounce=b,
+            light=light_sum, new_light=gathered, bounce=b,
         )
         if settings.tolerance is not None and remaining < settings.tolerance:
             break
@@ -155,6 +175,10 @@ def solve_steps(scene, transport, direct, settings: BakeSettings | None = None, 
             break
 
     tail, tail_coeffs, report = _tail(transport, albedo, coeffs, bounces, records, remaining, areas, settings)
+    if tail is not None and tail_coeffs is not None and near is not None:  # a solved tail: its near field too
+        part = transport.interpolate_rows(tail_coeffs, near.rows, near.open_basis)
+        fixed = near.correct_sum(tail, part, albedo, seen_before)
+        tail = keep_total(fixed, tail, areas) if landing is not None else fixed
     if tail is not None:
         scene.zero_dark_points_inplace(tail)
     solution = LightSolution(direct, bounces, records, tail, report, bounce_coeffs, tail_coeffs)

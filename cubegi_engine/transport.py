@@ -25,9 +25,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import cubemap, sh
+from . import cubemap, nearfield, sh
 from .geometry import edge_neighbours
 from .grid import visibility_weights
+from .nearfield import NEAR_REACH
 
 __all__ = ["CubeCapture", "capture_cubes", "clip_planes", "Transport", "reference_coefficients", "COEFFS_PER_POINT"]
 
@@ -98,9 +99,11 @@ class Transport:
     After construction every bounce is a few gathers and matrix products (float32).
     """
 
-    def __init__(self, scene, grid, capture, visibility=True, proxy=None):
+    def __init__(self, scene, grid, capture, visibility=True, proxy=None, near_field=True):
         """``proxy``: the :class:`~cubegi_engine.proxy.CaptureProxy` the capture drew (its
-        triangles are what the texels see), or None for the scene's own triangles."""
+        triangles are what the texels see), or None for the scene's own triangles.
+        ``near_field``: gather each point's short-range surroundings by rays
+        (:mod:`cubegi_engine.nearfield`)."""
         n = capture.size
         self.proxy = proxy
         triangles = scene.triangles if proxy is None else proxy.triangles
@@ -159,11 +162,28 @@ class Transport:
         # Per point: trilinear weight x diffuse SH basis of its normal, (s, 8 * 9).
         basis = sh.diffuse_basis(scene.normals)
         self.point_weights = (weight[:, :, None] * basis[:, None, :]).reshape(len(scene.points), COEFFS_PER_POINT).astype(np.float32)
+        # The near field (a final gather of each point's short-range surroundings), or None.
+        self.near = None
+        if near_field:
+            reach = NEAR_REACH * grid.point_cell_edge(scene.points)
+            hidden = (np.abs(self.point_weights).max(axis=1) < 1e-6) & ~self.no_probe  # covered: no probe light
+            self.near = nearfield.build(scene.points, scene.normals, reach, scene.triangles, hidden=hidden)
+
+    def interpolate_rows(self, coeffs, rows, basis):
+        """``(m, 3)``: the probe light of points ``rows (m,)`` from coefficients ``(p, 9, 3)``
+        for per-row bases ``(m, 9)`` instead of their normals' diffuse basis (same weights)."""
+        rows = np.asarray(rows, dtype=np.int64)
+        if not len(rows):
+            return np.zeros((0, 3))
+        w = self.point_weights[rows].reshape(len(rows), 8, 9)[:, :, 0].astype(np.float64) / sh.C0  # the probes' weights
+        g = np.asarray(coeffs, dtype=np.float64)[self.index[rows]]  # (m, 8, 9, 3)
+        return np.einsum("mj,mk,mjkc->mc", w, basis, g)
 
     def arrays(self):
         """The tables' arrays (for memory accounting)."""
         extra = [] if self.proxy is None else [self.proxy.points, self.proxy.triangles, self.proxy.cluster, self.proxy.share]
         extra += [] if self.sky_projection_map is None else [self.sky_projection_map]
+        extra += [] if self.near is None else [self.near.rows, self.near.open_basis, self.near.hit_row, self.near.hit_corner, self.near.hit_weight]
         return [self.sh_weights, self.corners, self.bary, self.sky_projection, self.probe_valid, self.index, self.point_weights, *extra]
 
     def landing_share(self):

@@ -87,10 +87,10 @@ def test_kept_bakes_are_freed_on_file_load_and_bounded(cornell, tmp_path, monkey
 
 
 def test_the_probe_field_lights_the_scenes_points_as_the_bake_does(cornell):
-    """With plain trilinear weights (no visibility) the field at the scene's own points is
-    the bake's light from the probes: the indirect light. Deringing each bounce apart or
+    """With plain trilinear weights (no visibility, no near field) the field at the scene's
+    own points is the bake's light from the probes: the indirect light. Deringing each bounce apart or
     their sum differs slightly where a probe rings."""
-    assert bpy.ops.cubegi.bake(grid=(3, 3, 3), cube_size=16, bounces=4, visibility=False) == {"FINISHED"}
+    assert bpy.ops.cubegi.bake(grid=(3, 3, 3), cube_size=16, bounces=4, visibility=False, near_field=False) == {"FINISHED"}
     kept = cornell.cubegi_addon.session.kept(bpy.context.scene)
     field, result = kept.result.field, kept.result
     at_points = field.light_at(kept.arrays.points, kept.arrays.normals)

@@ -1,0 +1,196 @@
+"""The near field's rays, hits and light, in pure numpy (no bpy): against closed forms and a
+brute-force ray caster."""
+
+import numpy as np
+import pytest
+
+from cubegi.cubegi_engine import nearfield, sh
+
+
+def _quad(lo, hi, z, up=True):
+    """A square from ``lo`` to ``hi`` (x, y) at height ``z``: 4 points, 2 triangles facing
+    up (or down)."""
+    pts = np.array([[lo, lo, z], [hi, lo, z], [hi, hi, z], [lo, hi, z]], dtype=float)
+    tris = np.array([[0, 1, 2], [0, 2, 3]]) if up else np.array([[0, 2, 1], [0, 3, 2]])
+    return pts, tris
+
+
+def _scene(*parts):
+    """Points and triangles of several parts, as one list (triangles re-indexed)."""
+    pts, tris, n = [], [], 0
+    for p, t in parts:
+        pts.append(p)
+        tris.append(t + n)
+        n += len(p)
+    return np.concatenate(pts), np.concatenate(tris)
+
+
+def test_the_ray_pattern_is_cosine_weighted():
+    d = nearfield.ray_pattern(256)
+    assert np.allclose(np.linalg.norm(d, axis=1), 1.0) and (d[:, 2] > 0).all()
+    # For cosine-weighted directions the mean of cos(theta) is 2/3 and of cos^2 is 1/2.
+    assert abs(d[:, 2].mean() - 2 / 3) < 2e-3 and abs((d[:, 2] ** 2).mean() - 0.5) < 2e-3
+    # Its SH average is the diffuse basis (the cosine lobe) to quadrature accuracy.
+    assert np.abs(sh.basis(d).mean(axis=0) - sh.diffuse_basis(np.array([0.0, 0.0, 1.0]))).max() < 0.01
+
+
+def test_a_point_under_a_plate_sees_only_the_plate():
+    """A point 1 cm under a 2 m plate facing it: every ray hits; its light is the plate's
+    radiance, and none of the probes' light is kept."""
+    plate = _quad(-1, 1, 0.01, up=False)
+    point = (np.zeros((1, 3)), np.zeros((0, 3), dtype=int))
+    pts, tris = _scene(point, plate)
+    normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    near = nearfield.build(pts, normals, 0.5, tris)
+    assert near.rows.tolist() == [0]
+    assert np.allclose(near.open_basis[0], sh.diffuse_basis(normals[0]), atol=1e-12)  # all of the probes' light goes
+    radiance = np.zeros((len(pts), 3))
+    radiance[1:] = [0.2, 0.4, 0.8]
+    assert np.allclose(near.gather(radiance), [[0.2, 0.4, 0.8]])
+    light = near.correct(np.full((len(pts), 3), 5.0), probe_part=np.full((1, 3), 5.0), radiance=radiance)
+    assert np.allclose(light[0], [0.2, 0.4, 0.8]) and np.allclose(light[1:], 5.0)
+
+
+def test_a_back_face_occludes_and_sends_nothing():
+    plate = _quad(-1, 1, 0.01, up=True)  # its back faces the point
+    pts, tris = _scene((np.zeros((1, 3)), np.zeros((0, 3), dtype=int)), plate)
+    normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    near = nearfield.build(pts, normals, 0.5, tris)
+    assert near.rows.tolist() == [0] and np.allclose(near.open_basis[0], sh.diffuse_basis(normals[0]))
+    assert np.allclose(near.gather(np.ones((len(pts), 3))), 0.0)
+
+
+def test_a_point_in_the_open_and_its_own_surface_cast_nothing():
+    """A floor point far from anything: its own (coplanar) triangles are no candidates, so
+    it has no near field; a wall beyond the reach changes nothing."""
+    floor = _quad(-2, 2, 0.0)
+    wall = (np.array([[1.5, -2, 0], [1.5, 2, 0], [1.5, 2, 2], [1.5, -2, 2]], float), np.array([[0, 1, 2], [0, 2, 3]]))
+    point = (np.array([[0.0, 0.0, 0.0]]), np.zeros((0, 3), dtype=int))
+    pts, tris = _scene(point, floor, wall)
+    normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    near = nearfield.build(pts[:5], normals[:5], 0.5, tris[:2])  # the floor alone
+    assert near.count == 0
+    near = nearfield.build(pts, normals, 0.5, tris)
+    assert 0 not in near.rows.tolist()
+
+
+def test_where_a_wall_meets_the_floor_half_the_light_is_the_walls():
+    """A point on the floor at the foot of a wall that reaches far beyond the rays: the wall
+    fills half of its hemisphere (cosine-weighted: half the rays), its light is half the
+    wall's radiance and half the probes' over the open half."""
+    wall = (np.array([[0.0, -50, 0], [0.0, 50, 0], [0.0, 50, 50], [0.0, -50, 50]]), np.array([[0, 2, 1], [0, 3, 2]]))  # faces -x
+    point = (np.array([[0.0, 0.0, 0.0]]), np.zeros((0, 3), dtype=int))
+    pts, tris = _scene(point, wall)
+    normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    near = nearfield.build(pts, normals, 1.0, tris, rays=256)
+    radiance = np.ones((len(pts), 3))
+    assert abs(near.gather(radiance)[0, 0] - 0.5) < 0.02
+    # What the probes lose: their light over the wall's half (+x) only. A uniform radiance
+    # of 1 loses half; a radiance 1 + x (bright towards the wall) loses the +x half's share,
+    # 1/2 + (2/3) * (2/pi) * ... = 1/2 + 2/(3 pi) by the half-space integral of x cos(theta).
+    coeffs = np.zeros((9, 3))
+    coeffs[0] = 2.0 * np.sqrt(np.pi)  # SH of radiance 1: c00 = 2 sqrt(pi)
+    assert np.allclose(near.open_basis[0] @ coeffs, 0.5, atol=0.02)
+    coeffs[3] = 2.0 * np.sqrt(np.pi / 3.0)  # SH of radiance x: c11 = 2 sqrt(pi / 3)
+    assert np.allclose(near.open_basis[0] @ coeffs, 0.5 + 2.0 / (3.0 * np.pi), atol=0.02)
+
+
+def _brute_force_hits(points, normals, reach, vertices, triangles, rays):
+    """Per point and ray, the nearest triangle hit within reach (-1 for none), testing every
+    triangle with the same rays as the near field."""
+    turn = 2.0 * np.pi * ((points / reach) @ nearfield.TURN_HASH % 1.0)
+    dirs = nearfield._directions(normals, rays, turn)
+    slack = nearfield.SLACK * reach + nearfield.COORD_SLACK * np.abs(points).max(axis=1)
+    out = np.full((len(points), rays), -1)
+    a, b, c = (vertices[triangles[:, i]] for i in range(3))
+    for i in range(len(points)):
+        o = np.repeat(points[i : i + 1] + slack[i] * normals[i], len(a), axis=0)
+        for k in range(rays):
+            d = np.repeat(dirs[i, k][None], len(a), axis=0)
+            t, _, _, hit, _ = nearfield._intersect(o, d, a, b, c, np.full(len(a), reach), np.full(len(a), 2 * slack[i]))
+            # Only triangles with a corner in front of the point's plane count (as in the near field).
+            front = np.max(np.stack([(v - points[i]) @ normals[i] for v in (a, b, c)]), axis=0) > slack[i]
+            t = np.where(hit & front, t, np.inf)
+            if np.isfinite(t.min()):
+                out[i, k] = int(np.argmin(t))
+    return out
+
+
+def test_the_voxel_search_finds_what_testing_every_triangle_finds():
+    rng = np.random.default_rng(3)
+    centres = rng.uniform(-1, 1, (150, 3))
+    edge = rng.normal(size=(150, 2, 3)) * 0.15
+    verts = np.concatenate([centres, centres + edge[:, 0], centres + edge[:, 1]])
+    tris = np.stack([np.arange(150), np.arange(150) + 150, np.arange(150) + 300], axis=1)
+    pts = rng.uniform(-1, 1, (60, 3))
+    nrm = rng.normal(size=(60, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    allp = np.concatenate([pts, verts])
+    alln = np.concatenate([nrm, np.tile([0.0, 0.0, 1.0], (len(verts), 1))])
+    reach, rays = 0.4, 16
+    near = nearfield.build(allp, alln, reach, tris + len(pts), rays=rays)
+    expected = _brute_force_hits(pts, nrm, reach, allp, tris + len(pts), rays)
+    got = np.full((len(pts), rays), -1)
+    hit_points = near.rows[near.hit_row]
+    mine = hit_points < len(pts)
+    # Which triangle each of the near field's hits is on: its corners name it.
+    key = {tuple(sorted(t)): i for i, t in enumerate((tris + len(pts)).tolist())}
+    per_point = {}
+    for p, corners in zip(hit_points[mine], near.hit_corner[mine]):
+        per_point.setdefault(int(p), []).append(key[tuple(sorted(corners.tolist()))])
+    for p in range(len(pts)):
+        assert sorted(per_point.get(p, [])) == sorted(t for t in expected[p] if t >= 0), p
+    assert (expected >= 0).sum() > 20  # the test has hits to compare
+
+
+def test_the_near_field_does_not_depend_on_the_order_of_points_or_the_scale():
+    plate = _quad(-1, 1, 0.05, up=False)
+    floor = _quad(-2, 2, 0.0)
+    pts, tris = _scene(floor, plate)
+    pts = np.concatenate([pts, np.array([[0.3, -0.2, 0.0], [0.95, 0.1, 0.0], [1.5, 0.0, 0.0]])])
+    normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    normals[4:8] = [0.0, 0.0, -1.0]
+    radiance = np.random.default_rng(0).uniform(0, 1, (len(pts), 3))
+
+    def light(order, scale):
+        inv = np.argsort(order)
+        near = nearfield.build(pts[order] * scale, normals[order], 0.3 * scale, inv[tris])
+        out = np.zeros((len(pts), 3))
+        out[near.rows] = near.gather(radiance[order])
+        return out[inv]
+
+    base = light(np.arange(len(pts)), 1.0)
+    assert np.abs(base).max() > 0.1
+    order = np.random.default_rng(1).permutation(len(pts))
+    for scale in (1.0, 1e-3, 1e3):
+        np.testing.assert_allclose(light(order, scale), base, atol=1e-9)
+
+
+def test_crowded_points_and_scenes_over_the_budget_are_left_out_and_counted():
+    """A point among more candidate triangles than the cap keeps the probes' light; a scene
+    whose pairs would exceed the budget gets no near field, with the reason."""
+    rng = np.random.default_rng(2)
+    n = 400
+    c = rng.uniform(-0.05, 0.05, (n, 3)) + [0.0, 0.0, 0.1]
+    verts = np.concatenate([c, c + [0.02, 0, 0], c + [0, 0.02, 0]])
+    tris = np.stack([np.arange(n), np.arange(n) + n, np.arange(n) + 2 * n], axis=1)
+    pts = np.concatenate([np.zeros((1, 3)), verts])
+    normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    near = nearfield.build(pts, normals, 0.5, tris + 1)
+    assert near.crowded >= 1 and 0 not in near.rows.tolist()
+    near = nearfield.build(pts, normals, 0.5, tris + 1, max_pairs=10)
+    assert near.count == 0 and "more than 10" in near.skipped
+
+
+@pytest.mark.parametrize("reach", [0.05, 0.2])
+def test_a_surface_passing_out_of_reach_fades(reach):
+    """A plate facing a point at a distance near the reach: its light falls continuously to
+    nothing as the plate goes out of reach (no step)."""
+    values = []
+    for h in np.linspace(0.6 * reach, 1.1 * reach, 11):
+        plate = _quad(-50 * reach, 50 * reach, h, up=False)
+        pts, tris = _scene((np.zeros((1, 3)), np.zeros((0, 3), dtype=int)), plate)
+        near = nearfield.build(pts, np.tile([0.0, 0.0, 1.0], (len(pts), 1)), reach, tris)
+        values.append(float(near.gather(np.ones((len(pts), 3)))[0, 0]) if near.count else 0.0)
+    assert values[0] > 0.2 and values[-1] == 0.0
+    assert np.abs(np.diff(values)).max() < 0.2  # no jump

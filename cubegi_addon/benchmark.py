@@ -101,8 +101,11 @@ def run_scene(scene_name, config, cache_dir, log=print):
         settings = {"grid": "x".join(map(str, res)), "cube": cube, "bounces": bounces, "tail": tail}
         records.append(_cubegi_run(scene_name, objects, ref, areas, settings, log,
                                    grid=res, cube_size=cube, bounces=bounces, add_tail=tail))
-    # The default a new user gets (no options: the fitted grid), and the one before the presets.
-    for which, kw in (("before", {"cube_size": 32, "cells": 8, "bounces": 5}), ("after", {})):
+        if bounces == max(b for b, _ in config["bounces"]):  # the same without the near field
+            records.append(_cubegi_run(scene_name, objects, ref, areas, {**settings, "near field": False}, log,
+                                       grid=res, cube_size=cube, bounces=bounces, add_tail=tail, near_field=False))
+    # The default a new user gets (no options: the fitted grid), and the one before the near field.
+    for which, kw in (("before", {"near_field": False}), ("after", {})):
         records.append(_cubegi_run(scene_name, objects, ref, areas, {"default": which}, log, **kw))
     for k, samples in enumerate(config["cycles_samples"]):
         baked, seconds = reference.bake_reference(bpy.context, objects, samples=samples, seed=1 + k)
@@ -131,7 +134,7 @@ def _cubegi_run(scene_name, objects, ref, areas, settings, log, **bake):
     t = rep.total_seconds
     if "grid" not in settings:  # a default bake: what it chose
         settings = dict(settings, grid="x".join(map(str, rep.grid["resolution"])), cube=rep.settings["cube_size"],
-                        bounces=len(rep.bounces), tail=rep.tail.added)
+                        bounces=len(rep.bounces), tail=rep.tail.added, **({"near field": False} if not rep.near_field else {}))
     extra = {"probes": rep.grid["probes"], "timings": rep.timings, "estimated_remaining_error": rep.estimated_remaining_error}
     record = _record(scene_name, "cubegi", settings, t, {"indirect": t, "total": t}, direct, indirect, ref, areas, extra)
     e = record["errors"]

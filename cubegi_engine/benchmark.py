@@ -140,8 +140,9 @@ def markdown(records, meta=None):
         lines += [
             "## The default setting, indirect light (relative RMSE)",
             "",
-            "before: 8 cells along the longest side, 32^2 faces, 5 bounces + tail; after: the Balanced preset (8 cells, "
-            "16^2, 5 bounces + tail). Both as a new user gets them (the fitted grid, probes that light no vertex left out).",
+            "before: the Balanced preset (8 cells along the longest side, 16^2 faces, 5 bounces + tail) without the near "
+            "field; after: the same with it (the default). Both as a new user gets them (the fitted grid, probes that light "
+            "no vertex left out).",
             "",
             "| scene | before: time | error | speed-up over Cycles | after: time | error | Cycles at that error | speed-up |",
             "|---|---|---|---|---|---|---|---|",

@@ -211,52 +211,18 @@ def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS
     cast = np.unique(pair_p)
     dirs = np.zeros((s, rays, 3))
     dirs[cast] = _directions(normals[cast], rays, turn[cast])
-    best = np.full((s, rays), np.inf)
-    hit_tri = np.full((s, rays), -1, dtype=np.int64)
-    hit_uv = np.zeros((s, rays, 2))
-    hit_front = np.zeros((s, rays), dtype=bool)
-    centre = (a + b + c) / 3.0
-    radius = np.sqrt(np.max(np.stack([np.sum((v - centre) ** 2, axis=1) for v in (a, b, c)]), axis=0))
     # Rays start this far off their surface, and a surface within twice that of a ray's start
     # counts as met there: float32 meshes put points that lie on another surface up to a
     # few 1e-7 of their coordinates off it, at any scale.
     slack = SLACK * reach + COORD_SLACK * np.abs(points).max(axis=1)
-    step = max(1, TEST_CHUNK // rays)
-    for lo in range(0, len(pair_p), step):
-        pp, tt = pair_p[lo : lo + step], pair_t[lo : lo + step]
-        # Only the rays inside the cone around the triangle's bounding sphere are tested.
-        to = centre[tt] - points[pp]
-        dist = np.linalg.norm(to, axis=1)
-        cos_cone = np.sqrt(np.clip(1.0 - (radius[tt] / np.maximum(dist, 1e-300)) ** 2, 0.0, 1.0))
-        cos_cone[dist <= radius[tt]] = -1.0
-        along = np.einsum("pkc,pc->pk", dirs[pp], to) / np.maximum(dist, 1e-300)[:, None]
-        pi, ki = np.nonzero(along >= cos_cone[:, None] - 1e-9)
-        p, t_ = pp[pi], tt[pi]
-        origin = points[p] + slack[p, None] * normals[p]
-        t, u, v, hit, front = _intersect(origin, dirs[p, ki], a[t_], b[t_], c[t_], reach[p], 2.0 * slack[p])
-        p, k, t_, t, u, v, front = p[hit], ki[hit], t_[hit], t[hit], u[hit], v[hit], front[hit]
-        order = np.lexsort((t, p * rays + k))
-        p, k, t_, t, u, v, front = (x[order] for x in (p, k, t_, t, u, v, front))
-        head = np.ones(len(p), dtype=bool)
-        head[1:] = (p[1:] != p[:-1]) | (k[1:] != k[:-1])
-        p, k, t_, t, u, v, front = (x[head] for x in (p, k, t_, t, u, v, front))
-        nearer = t < best[p, k]
-        p, k = p[nearer], k[nearer]
-        best[p, k], hit_tri[p, k] = t[nearer], t_[nearer]
-        hit_uv[p, k] = np.stack([u[nearer], v[nearer]], axis=1)
-        hit_front[p, k] = front[nearer]
+    best, hit_tri, hit_uv, hit_front = index.trace(points, normals, dirs, reach, slack, pair_p, pair_t)
     point, ray = np.nonzero(hit_tri >= 0)
     rows, hit_row = np.unique(point, return_inverse=True)
     uv = np.clip(hit_uv[point, ray], 0.0, 1.0)
     weight = np.stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], axis=1)
     corners = tri[hit_tri[point, ray]]
     if hidden is not None:
-        # A corner under another object (a floor point under a block standing on it) is dark
-        # while the surface around it, where the ray lands, is lit: the hit takes the other
-        # corners, scaled up to make their weights whole where they hold at least half of
-        # them (a hit nearer the hidden corners stays as dark as they are, continuously).
-        kept = weight * ~np.asarray(hidden, dtype=bool)[corners]
-        weight = kept / np.maximum(kept.sum(axis=1, keepdims=True), 0.5)
+        weight = _uncover(index, weight, corners, np.asarray(hidden, dtype=bool), hit_tri[point, ray], reach[point])
     # Hits fade out over the last FADE of the reach (their direction goes back to the
     # probes by as much): no step in the light where a surface passes out of reach.
     fade = np.clip((reach[:, None] - best) / (FADE * reach[:, None]), 0.0, 1.0)  # (s, rays); 0 where no hit
@@ -271,6 +237,33 @@ def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS
     open_basis = np.einsum("mk,mkj->mj", hit_mask, y) / rays + share[:, None] * pattern_error
     return NearField(rows.astype(np.int64), open_basis, hit_row.astype(np.int64).ravel(), corners, weight,
                      rays, float(reach.max()), len(pair_p), int(crowded.sum()), "", time.perf_counter() - t0)
+
+
+def _uncover(index, weight, corners, hidden, tri, reach):
+    """Barycentric ``weight (h, 3)`` of hits on triangles ``tri`` with ``corners`` some of
+    which are ``hidden`` (under another object: a floor point under a wall standing on it,
+    whose light stands for no surface a ray can land on). The hit takes the other corners
+    (none: no light):
+    where the hit point itself is not covered (nothing within ``reach`` along its
+    triangle's normal: the floor beside the wall), their weights made whole; where it is
+    (the floor under a block standing 2 cm above it, lit only through the gap) scaled up to
+    whole only where they hold at least half of the weight (a hit deeper in the gap stays
+    darker, continuously)."""
+    mixed = np.flatnonzero(hidden[corners].any(axis=1))
+    if not len(mixed):
+        return weight
+    k = tri[mixed]
+    at = np.einsum("hc,hcx->hx", weight[mixed], np.stack([index.a[k], index.b[k], index.c[k]], axis=1))
+    up = index.unit[k]
+    r = reach[mixed]
+    pair_p, pair_t, _ = index.candidates(at, up, r)
+    slack = SLACK * r + COORD_SLACK * np.abs(at).max(axis=1)
+    t, _, _, _ = index.trace(at, up, up[:, None, :], r, slack, pair_p, pair_t)
+    free = ~np.isfinite(t[:, 0])
+    kept = weight[mixed] * ~hidden[corners[mixed]]
+    out = weight.copy()
+    out[mixed] = kept / np.maximum(kept.sum(axis=1, keepdims=True), np.where(free, 1e-2, 0.5)[:, None])
+    return out
 
 
 def _intersect(o, d, a, b, c, reach, start):
@@ -298,6 +291,8 @@ class _VoxelIndex:
 
     def __init__(self, a, b, c, voxel):
         self.a, self.b, self.c = a, b, c
+        self.centre = (a + b + c) / 3.0
+        self.radius = np.sqrt(np.max(np.stack([np.sum((v - self.centre) ** 2, axis=1) for v in (a, b, c)]), axis=0))
         normal = np.cross(b - a, c - a)
         self.unit = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
         self.offset = np.einsum("ij,ij->i", self.unit, a)
@@ -317,6 +312,42 @@ class _VoxelIndex:
         key, self.tri = key[order], tri[order]
         self.keys, self.start = np.unique(key, return_index=True)
         self.end = np.append(self.start[1:], len(key))
+
+    def trace(self, points, normals, dirs, reach, slack, pair_p, pair_t):
+        """The nearest hit of every ray ``points + slack normals + t dirs`` (``dirs (s, k, 3)``)
+        within ``reach`` among the candidate pairs: ``(t (s, k) inf where none, triangle (s, k)
+        -1 where none, (u, v) (s, k, 2), front (s, k))``. Only the rays inside the cone around a
+        triangle's bounding sphere are tested against it."""
+        a, b, c = self.a, self.b, self.c
+        s, rays = dirs.shape[:2]
+        best = np.full((s, rays), np.inf)
+        hit_tri = np.full((s, rays), -1, dtype=np.int64)
+        hit_uv = np.zeros((s, rays, 2))
+        hit_front = np.zeros((s, rays), dtype=bool)
+        step = max(1, TEST_CHUNK // rays)
+        for lo in range(0, len(pair_p), step):
+            pp, tt = pair_p[lo : lo + step], pair_t[lo : lo + step]
+            to = self.centre[tt] - points[pp]
+            dist = np.linalg.norm(to, axis=1)
+            cos_cone = np.sqrt(np.clip(1.0 - (self.radius[tt] / np.maximum(dist, 1e-300)) ** 2, 0.0, 1.0))
+            cos_cone[dist <= self.radius[tt]] = -1.0
+            along = np.einsum("pkc,pc->pk", dirs[pp], to) / np.maximum(dist, 1e-300)[:, None]
+            pi, ki = np.nonzero(along >= cos_cone[:, None] - 1e-9)
+            p, t_ = pp[pi], tt[pi]
+            origin = points[p] + slack[p, None] * normals[p]
+            t, u, v, hit, front = _intersect(origin, dirs[p, ki], a[t_], b[t_], c[t_], reach[p], 2.0 * slack[p])
+            p, k, t_, t, u, v, front = p[hit], ki[hit], t_[hit], t[hit], u[hit], v[hit], front[hit]
+            order = np.lexsort((t, p * rays + k))
+            p, k, t_, t, u, v, front = (x[order] for x in (p, k, t_, t, u, v, front))
+            head = np.ones(len(p), dtype=bool)
+            head[1:] = (p[1:] != p[:-1]) | (k[1:] != k[:-1])
+            p, k, t_, t, u, v, front = (x[head] for x in (p, k, t_, t, u, v, front))
+            nearer = t < best[p, k]
+            p, k = p[nearer], k[nearer]
+            best[p, k], hit_tri[p, k] = t[nearer], t_[nearer]
+            hit_uv[p, k] = np.stack([u[nearer], v[nearer]], axis=1)
+            hit_front[p, k] = front[nearer]
+        return best, hit_tri, hit_uv, hit_front
 
     def _key(self, ix, iy, iz):
         d = self.dims

@@ -194,3 +194,35 @@ def test_a_surface_passing_out_of_reach_fades(reach):
         values.append(float(near.gather(np.ones((len(pts), 3)))[0, 0]) if near.count else 0.0)
     assert values[0] > 0.2 and values[-1] == 0.0
     assert np.abs(np.diff(values)).max() < 0.2  # no jump
+
+
+def test_a_corner_hidden_under_a_wall_lends_no_darkness_to_the_floor_beside_it():
+    """A floor triangle strip from x = -1 to 0 whose corners at x = 0 stand under a wall
+    (hidden: no probe sees them, so their light is dark): rays from the wall's foot land on
+    the open floor beside it and take its lit corners' light; under a plate 2 cm above the
+    floor (covered), a hit near the hidden corners stays dark."""
+    floor = np.array([[-1.0, -1, 0], [0.0, -1, 0], [0.0, 1, 0], [-1.0, 1, 0]])
+    floor_tris = np.array([[0, 1, 2], [0, 2, 3]])
+    foot = np.array([[-0.01, 0.0, 0.0]])  # on the wall's face, facing -x
+    pts = np.concatenate([floor, foot])
+    normals = np.concatenate([np.tile([0.0, 0.0, 1.0], (4, 1)), [[-1.0, 0.0, 0.0]]])
+    hidden = np.array([False, True, True, False, False])
+    radiance = np.array([[1.0] * 3, [0.0] * 3, [0.0] * 3, [1.0] * 3, [0.0] * 3])
+    near = nearfield.build(pts, normals, 0.3, floor_tris, rays=64, hidden=hidden)
+    row = near.rows.tolist().index(4)
+    # Half the foot's rays land on the floor; each takes the lit corners' light, 1.
+    assert abs(near.gather(radiance)[row, 0] - 0.5) < 0.05
+    near_plain = nearfield.build(pts, normals, 0.3, floor_tris, rays=64)
+    assert near_plain.gather(radiance)[near_plain.rows.tolist().index(4), 0] < 0.2  # barycentric: mostly the dark corner
+
+    plate = _quad(-0.2, 0.2, 0.02, up=False)
+    centre = np.array([[0.0, 0.0, 0.02]])  # the plate's middle, facing down
+    pts2 = np.concatenate([pts, plate[0], centre])
+    normals2 = np.concatenate([normals, np.tile([0.0, 0.0, -1.0], (5, 1))])
+    tris2 = np.concatenate([floor_tris, plate[1] + len(pts)])
+    hidden2 = np.concatenate([hidden, np.zeros(5, dtype=bool)])
+    radiance2 = np.concatenate([radiance, np.zeros((5, 3))])
+    near = nearfield.build(pts2, normals2, 0.1, tris2, rays=64, hidden=hidden2)
+    row = near.rows.tolist().index(len(pts2) - 1)
+    # Its rays land on the floor under the plate, near the hidden corners: dark.
+    assert near.gather(radiance2)[row, 0] < 0.1

@@ -190,7 +190,7 @@ def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS
         return NearField.empty(rays, seconds=time.perf_counter() - t0)
     a, b, c = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]
     index = _VoxelIndex(a, b, c, float(reach.max()))
-    if s > 2 * SAMPLE:  # estimate the pairs first: a dense scene's would take too long
+    if s > 16 * SAMPLE:  # estimate the pairs first: a dense scene's would take too long
         sample = np.linspace(0, s - 1, SAMPLE).astype(np.int64)
         pp, _, _ = index.candidates(points[sample], normals[sample], reach[sample])
         estimate = int(len(pp) * s / SAMPLE)
@@ -363,10 +363,17 @@ class _VoxelIndex:
         offsets = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
         out_p, out_t = [], []
         for lo in range(0, len(points), POINT_CHUNK):
-            idx = base[lo : lo + POINT_CHUNK, None, :] + offsets[None]  # (m, 27, 3)
-            key = np.sort(self._key(idx[..., 0], idx[..., 1], idx[..., 2]), axis=1)
-            new = np.ones(key.shape, dtype=bool)
-            new[:, 1:] = key[:, 1:] != key[:, :-1]
+            sl = slice(lo, lo + POINT_CHUNK)
+            idx = base[sl, None, :] + offsets[None]  # (m, 27, 3)
+            # Only the voxels within reach with a part in front of the point's tangent plane.
+            rel = self.origin + (idx + 0.5) * self.h - points[sl, None, :]
+            gap = np.maximum(np.abs(rel) - 0.5 * self.h, 0.0)
+            ahead = np.einsum("mvc,mc->mv", rel, normals[sl]) + 0.5 * self.h * np.abs(normals[sl]).sum(axis=1)[:, None]
+            use = (np.einsum("mvc,mvc->mv", gap, gap) <= reach[sl, None] ** 2) & (ahead > 0)
+            key = np.where(use, self._key(idx[..., 0], idx[..., 1], idx[..., 2]), -1)
+            key = np.sort(key, axis=1)
+            new = key >= 0
+            new[:, 1:] &= key[:, 1:] != key[:, :-1]
             pt, col = np.nonzero(new)
             key = key[pt, col]
             slot = np.minimum(np.searchsorted(self.keys, key), len(self.keys) - 1)

@@ -2,8 +2,7 @@
 lighting) and with CubeGI's baked light wired into the materials (Show in Renders); and the
 dynamic-scene sequence, Suzanne (dynamic) moved through the Room and lit from the kept
 probe field at each place, side by side (Workbench, the lit colour); and the error picture,
-each vertex's indirect error against Cycles coloured, before and after the cover test asked
-the triangles around the seen ones (the rug leak).
+each vertex's indirect error against Cycles coloured, without and with the near field.
 
 Usage: python scripts/render_docs.py [OUT_DIR] [--dynamic-only | --error-only]   (default: docs/)
 """
@@ -117,9 +116,9 @@ def _tile(paths, out_path, size):
 
 def error_picture(out, samples=1024):
     """The Room's per-vertex indirect error against a Cycles bake (``samples``; the
-    benchmark's cached reference when there is one), with the cover test's ring search off
-    (before) and on (after), the carpet hidden to show the floor under it: black none, red
-    the scene's mean indirect light or more too bright, blue as much too dark."""
+    benchmark's cached reference when there is one), without the near field (before) and
+    with it (after), the carpet hidden to show the floor under it: black none, red the
+    scene's mean indirect light or more too bright, blue as much too dark."""
     import bpy
     import numpy as np
 
@@ -127,7 +126,6 @@ def error_picture(out, samples=1024):
 
     load_extension()
     from cubegi.cubegi_addon import attributes, demo, reference, session
-    from cubegi.cubegi_engine import grid
 
     demo.build_room()
     objects = sorted((ob for ob in bpy.context.scene.objects if ob.type == "MESH"), key=lambda ob: ob.name)
@@ -139,11 +137,10 @@ def error_picture(out, samples=1024):
     else:
         ref, _ = reference.bake_reference(bpy.context, objects, passes=("INDIRECT",), samples=samples, seed=0)
     mean = float(np.mean(np.concatenate([ref["INDIRECT"][ob.name] for ob in objects])))
-    paths, rings = [], grid.COVER_RINGS
-    for k, name in enumerate(("before", "after")):
-        grid.COVER_RINGS = 0 if name == "before" else rings
+    paths = []
+    for k, near in enumerate((False, True)):
         session.forget()
-        assert bpy.ops.cubegi.bake(bounces=5) == {"FINISHED"}
+        assert bpy.ops.cubegi.bake(bounces=5, near_field=near) == {"FINISHED"}
         for ob in objects:
             e = (attributes.read(ob.data, "CubeGI") - ref["INDIRECT"][ob.name]).mean(axis=1) / mean
             colour = np.zeros((len(e), 3))
@@ -153,7 +150,6 @@ def error_picture(out, samples=1024):
         bpy.data.objects["Carpet"].hide_render = True  # for the picture only: the bakes see it
         demo.render_png(paths[-1], attribute="CubeGI_error", resolution=(480, 270))
         bpy.data.objects["Carpet"].hide_render = False
-    grid.COVER_RINGS = rings
     _tile(paths, os.path.join(out, "room_indirect_error.png"), (480, 270))
 
 

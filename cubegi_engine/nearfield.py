@@ -119,11 +119,34 @@ class NearField:
     def nbytes(self):
         return int(sum(a.nbytes for a in (self.rows, self.open_basis, self.hit_row, self.hit_corner, self.hit_weight)))
 
+    def _matrix(self):
+        """The hits as a sparse matrix, rows x points: ``(starts (m,), corner (e,), local
+        corner (e,), weight (e,))`` with each row's entries contiguous (a (row, corner) pair
+        once, its weights summed); made once."""
+        cached = self.__dict__.get("_csr")
+        if cached is None:
+            sup = self.support
+            key = np.repeat(self.hit_row, 3) * (int(self.hit_corner.max(initial=0)) + 1) + self.hit_corner.ravel()
+            uniq, inverse = np.unique(key, return_inverse=True)
+            weight = np.bincount(inverse.ravel(), self.hit_weight.ravel(), minlength=len(uniq))
+            row = uniq // (int(self.hit_corner.max(initial=0)) + 1)
+            corner = uniq % (int(self.hit_corner.max(initial=0)) + 1)
+            starts = np.searchsorted(row, np.arange(self.count))
+            cached = (starts, corner, np.searchsorted(sup, corner), weight)
+            self.__dict__["_csr"] = cached
+        return cached
+
+    def _gather(self, radiance, local):
+        """Each row's light from its hits: ``(m, c)`` for radiance ``(points or support, c)``."""
+        starts, corner, corner_local, weight = self._matrix()
+        r = np.asarray(radiance, dtype=np.float64)[corner_local if local else corner]
+        if not len(weight):
+            return np.zeros((self.count, r.shape[1]))
+        return np.add.reduceat(weight[:, None] * r, starts, axis=0)
+
     def gather(self, radiance):
         """``(m, 3)``: each row's light from its hits, for point radiance ``(s, 3)``."""
-        r = np.asarray(radiance, dtype=np.float64)
-        w = np.einsum("hc,hcr->hr", self.hit_weight, r[self.hit_corner])
-        return np.stack([np.bincount(self.hit_row, w[:, c], minlength=self.count) for c in range(3)], axis=1)
+        return self._gather(radiance, local=False)
 
     def correct(self, light, probe_part, radiance):
         """``light (s, 3)``, the probes' light, with the rows' near field: less ``probe_part
@@ -143,20 +166,19 @@ class NearField:
         if cached is None:
             cached = np.unique(np.concatenate([self.rows, self.hit_corner.ravel()]))
             self.__dict__["_support"] = cached
-            self.__dict__["_local"] = (np.searchsorted(cached, self.rows), np.searchsorted(cached, self.hit_corner))
+            self.__dict__["_local_rows"] = np.searchsorted(cached, self.rows)
         return cached
 
     def delta(self, base, probe_part, radiance):
-        """What the near field adds to light ``base (u, 3)`` on :attr:`support` (the probes'
-        light there), gathering from ``radiance (u, 3)`` there: ``(u, 3)``, zero off the
-        rows; linear, unclamped (relighting sums it over sources)."""
+        """What the near field adds to light ``base (u, c)`` on :attr:`support` (the probes'
+        light there), gathering from ``radiance (u, c)`` there: ``(u, c)``, zero off the
+        rows; linear, unclamped (relighting sums it over sources; ``c``: 3 channels per
+        source, side by side)."""
         self.support
-        rows, corners = self.__dict__["_local"]
+        rows = self.__dict__["_local_rows"]
         out = np.zeros(np.shape(base))
         if self.count:
-            w = np.einsum("hc,hcr->hr", self.hit_weight, np.asarray(radiance, dtype=np.float64)[corners])
-            gathered = np.stack([np.bincount(self.hit_row, w[:, c], minlength=self.count) for c in range(3)], axis=1)
-            out[rows] = gathered - probe_part
+            out[rows] = self._gather(radiance, local=True) - probe_part
         return out
 
     def correct_sum(self, light, probe_part, albedo, before, iterations=4):

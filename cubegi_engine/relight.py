@@ -30,6 +30,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from . import sh
 from .convergence import gmres
 from .errors import BakeError
 from .solve import ENERGY_FACTOR_RANGE
@@ -338,45 +339,70 @@ class SceneLight:
         one-shot bake makes it: each bounce gathered once more from the one before, then
         scaled per channel to the total its probe light has (with the energy balance: the
         near field moves light, the balance says how much; the factors are the whole
-        scene's, like the balance's). Worked on the near field's support points only;
-        ``src.near``: per bounce, what it adds there (scaled)."""
+        scene's, like the balance's). Worked on the near field's support points only, every
+        source at once (their channels side by side); ``src.near``: per bounce, what it adds
+        there (scaled)."""
+        rows_i, parts_m = self._near_matrices(near)
         sup = near.support
-        rows_i = self.op.I[sup]  # (u, 9p)
-        p = self.transport.probe_count
-        albedo = self.op.albedo[sup]
-        area = self.op.areas[sup]
         sources = list(self.sources.values())
-        count = len(self.factors)
-        steps = [(k, [s.bounces[k] for s in sources]) for k in range(count)]
+        n, count = len(sources), len(self.factors)
+        weights = np.stack([s.weight for s in sources])  # (n, 3)
+        albedo = np.tile(self.op.albedo[sup], (1, n))
+        area = self.op.areas[sup]
+
+        def side_by_side(arrays):  # n arrays (r, 3) -> (r, 3n)
+            return np.stack(arrays, axis=1).reshape(len(arrays[0]), 3 * n)
+
+        steps = [side_by_side([s.bounces[k] for s in sources]) for k in range(count)]
         if self.add_tail and count:
-            steps.append((count, [s.tail for s in sources]))
-        prev = [s.direct[sup] for s in sources]
+            steps.append(side_by_side([s.tail for s in sources]))
+        prev = side_by_side([s.direct[sup] for s in sources])
         scale = np.ones((len(steps), 3))
-        deltas = [[None] * len(steps) for _ in sources]
-        for k, coeffs in steps:
-            base = [(rows_i @ c.astype(np.float32)).astype(np.float64) for c in coeffs]
-            parts = [self.transport.interpolate_rows(np.asarray(c).reshape(p, 9, 3), near.rows, near.open_basis) for c in coeffs]
+        deltas = []
+        for k, c in enumerate(steps):
+            c32 = c.astype(np.float32)
+            base = (rows_i @ c32).astype(np.float64)
+            part = (parts_m @ c32).astype(np.float64)
             if k < count:
-                d = [near.delta(b, q, albedo * r) for b, q, r in zip(base, parts, prev)]
+                d = near.delta(base, part, albedo * prev)
             else:  # the tail: the sum of the bounces after the last, each from the one before
-                d = [np.zeros_like(b) for b in base]
+                d = np.zeros_like(base)
                 for _ in range(iterations):
-                    d = [near.delta(b, q, albedo * (r + b + x)) for b, q, r, x in zip(base, parts, prev, d)]
+                    d = near.delta(base, part, albedo * (prev + base + d))
             if self.op.landing is not None:
-                probe = sum(self.op.u @ c * s.weight for c, s in zip(coeffs, sources))
-                added = sum(area @ x * s.weight for x, s in zip(d, sources))
+                probe = ((self.op.u @ c).reshape(n, 3) * weights).sum(axis=0)
+                added = ((area @ d).reshape(n, 3) * weights).sum(axis=0)
                 scale[k] = _balance(probe, probe + added)
-            for n, (b, x) in enumerate(zip(base, d)):
-                deltas[n][k] = scale[k] * x  # what the near field adds on the support, scaled
-                prev[n] = scale[k] * (b + x)
+            f = np.tile(scale[k], n)
+            deltas.append(f * d)  # what the near field adds on the support, scaled
+            prev = f * (base + d)
         self.near_factors = scale
-        for n, src in enumerate(sources):
-            total = sum((scale[k] * c for k, c in zip(range(count), src.bounces)), np.zeros_like(src.tail))
-            total = total + (scale[count] * src.tail if len(steps) > count else src.tail)
+        for m, src in enumerate(sources):
+            cols = slice(3 * m, 3 * m + 3)
+            total = src.tail if len(steps) == count else np.zeros_like(src.tail)
+            for k in range(len(steps)):
+                total = total + scale[k] * (src.bounces[k] if k < count else src.tail)
             src.indirect = self.op.light(total)
-            src.indirect[sup] += sum(deltas[n])
-            src.near = np.stack(deltas[n][:count]) if count else np.zeros((0, len(sup), 3))
+            src.indirect[sup] += sum(d[:, cols] for d in deltas)
+            src.near = np.stack([d[:, cols] for d in deltas[:count]]) if count else np.zeros((0, len(sup), 3))
             self.scene.zero_dark_points_inplace(src.indirect)
+
+    def _near_matrices(self, near):
+        """``(I on the support (u, 9p), the probes' light in the hit directions (m, 9p))``,
+        float32, made once per near field."""
+        cached = getattr(self, "_near_cache", None)
+        if cached is not None and cached[0] is near:
+            return cached[1]
+        t = self.transport
+        p = t.probe_count
+        rows_i = self.op.I[near.support]
+        w = t.point_weights[near.rows].reshape(near.count, 8, 9)[:, :, 0].astype(np.float64) / sh.C0
+        cols = (t.index[near.rows][:, :, None] * 9 + np.arange(9)[None, None, :]).reshape(near.count, -1)
+        values = (w[:, :, None] * near.open_basis[:, None, :]).reshape(near.count, -1)
+        flat = (np.arange(near.count)[:, None] * (9 * p) + cols).ravel()
+        parts_m = np.bincount(flat, values.ravel(), minlength=near.count * 9 * p).reshape(near.count, 9 * p).astype(np.float32)
+        self._near_cache = (near, (rows_i, parts_m))
+        return rows_i, parts_m
 
     # --- the scene's light now ---------------------------------------------------------------
     def _sum(self, term):

@@ -184,7 +184,8 @@ def test_the_readmes_headless_recipe_gives_what_the_cli_gives(saved_scene, tmp_p
 
 def test_cli_quality_presets_set_what_is_not_given(saved_scene, tmp_path):
     """``--quality draft`` bakes with 4 cells along the longest side, 16^2 faces and 3
-    bounces; an explicit option still wins; the default is the balanced preset."""
+    bounces; an explicit option still wins; the default is the balanced preset, with the
+    near field (``--no-near-field`` turns it off)."""
     import json
 
     src, _ = saved_scene
@@ -192,6 +193,7 @@ def test_cli_quality_presets_set_what_is_not_given(saved_scene, tmp_path):
         "draft": ["--quality", "draft"],
         "draft, 2 bounces": ["--quality", "draft", "--bounces", "2"],
         "default": [],
+        "no near field": ["--no-near-field"],
     }
     got = {}
     for name, extra in runs.items():
@@ -206,3 +208,5 @@ def test_cli_quality_presets_set_what_is_not_given(saved_scene, tmp_path):
     balanced = got["default"]["settings"]
     assert (balanced["cells"], balanced["cube_size"], balanced["bounces"]) == (8, 16, 5)
     assert max(got["default"]["grid"]["resolution"]) == 8
+    assert balanced["near_field"] is True and got["default"]["near_field"]["points"] > 0
+    assert got["no near field"]["settings"]["near_field"] is False and got["no near field"]["near_field"] is None

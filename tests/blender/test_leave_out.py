@@ -49,3 +49,26 @@ def test_probes_no_vertex_uses_are_not_captured_and_change_nothing(empty_scene, 
     for name, values in culled.items():
         np.testing.assert_allclose(values, whole[name], rtol=0.02, atol=1e-3 * float(np.abs(whole[name]).max()))
         np.testing.assert_allclose(values.mean(axis=0), whole[name].mean(axis=0), rtol=2e-3)
+
+
+def test_the_near_field_is_reported_and_dense_geometry_is_left_out_by_name(empty_scene, cubegi):
+    """The Room: the vertices with surfaces close in front of them gather them by rays; the
+    ones inside Suzanne's folds (hundreds of triangles within reach) are left out, and the
+    report says how many. Without the near field the report has none, and the light along
+    the walls and under the table differs."""
+    cubegi.cubegi_addon.demo.build_room()
+    assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
+    report = json.loads(bpy.context.scene.cubegi.last_report)
+    near = report["near_field"]
+    assert near["points"] > 1000 and near["hits"] > 10 * near["points"] and near["crowded"] > 1000 and not near["skipped"]
+    assert any(x.startswith(f"near field: {near['crowded']:,} vertices in dense, folded geometry") for x in report["left_out"])
+    assert report["settings"]["near_field"] is True and report["timings"]["near_field"] > 0
+    lines = cubegi.cubegi_engine.report.BakeReport.from_dict(report).summary_lines()
+    assert any(line.startswith(f"near field: {near['points']:,} points") for line in lines)
+    gathered = _light(cubegi)
+    assert bpy.ops.cubegi.bake(**SETTINGS, near_field=False) == {"FINISHED"}
+    report = json.loads(bpy.context.scene.cubegi.last_report)
+    assert report["near_field"] is None and not any(x.startswith("near field") for x in report["left_out"])
+    plain = _light(cubegi)
+    peak = max(float(v.max()) for v in plain.values())
+    assert max(float(np.abs(gathered[n] - plain[n]).max()) for n in plain) > 0.05 * peak

@@ -3,7 +3,11 @@
 Pure numpy; must not import bpy. Lights and emissive triangles (as two-sided area lights,
 :mod:`cubegi_engine.emitters`) are computed per point with shadows from depth maps drawn by
 the injected renderer. The sky reaches the points through the probes (the capture's
-tables), as in the paper; Cycles counts both as direct.
+tables), as in the paper, less the directions the near field finds blocked close by; Cycles
+counts both as direct. (Measured against the other way, the sky's visibility from every
+point along 64-256 directions with an orthographic depth map each: on the courtyard that
+took the direct error from 3.7% to 3.8-1.8% but the total from 3.6% to 4.9-4.7%, and added
+0.2-0.9 s to a 0.4 s bake.)
 
 Keeping each source's share apart is what lets a later edit of one light's power or colour
 be a weighted sum, and a moved light be recomputed alone.
@@ -220,6 +224,6 @@ def direct_light(scene, renderer, settings, transport, landing=None, shadows=Non
         parts[EMISSION] = scene.zero_dark_points_inplace(emitter_direct(scene, renderer, settings.area_shadow_size))
     if np.any(scene.sky > 0):
         sky_coeffs = transport.sky_coefficients(scene.sky)
-        coeffs = coeffs + sky_coeffs
-        parts[SKY] = transport.interpolate(sky_coeffs)
+        coeffs = coeffs + sky_coeffs  # what the probes see of it (the field, for dynamic objects)
+        parts[SKY] = transport.seen_light(sky_coeffs)
     return DirectLight(parts, coeffs, factor, light_seconds, time.perf_counter() - t, left_out)

@@ -295,10 +295,10 @@ class SceneLight:
         return self._add(EMISSION, direct, own, np.ones(3))
 
     def _seen(self, own):
-        """The diffuse light of what probes see directly (sky, emitters), as the bake
-        interpolates it: ringing probes deringed, clamped at zero (both commute with a
-        positive weight, so the source stays linear in it)."""
-        return self.transport.interpolate(np.asarray(own, dtype=np.float32).reshape(-1, 9, 3)).astype(np.float64)
+        """The diffuse light of what probes see directly (the sky), as the bake makes it
+        (:meth:`Transport.seen_light`: ringing probes deringed, clamped at zero, both of which
+        commute with a positive weight, so the source stays linear in it)."""
+        return self.transport.seen_light(np.asarray(own, dtype=np.float32).reshape(-1, 9, 3))
 
     def set_weight(self, key, weight):
         """A power or colour edit: the source's new weight ``(3,)``. The balance's factors

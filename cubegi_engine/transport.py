@@ -162,12 +162,27 @@ class Transport:
         # Per point: trilinear weight x diffuse SH basis of its normal, (s, 8 * 9).
         basis = sh.diffuse_basis(scene.normals)
         self.point_weights = (weight[:, :, None] * basis[:, None, :]).reshape(len(scene.points), COEFFS_PER_POINT).astype(np.float32)
+        # (s,) points another object covers (no probe sees them: a floor point under a wall
+        # standing on it, the underside of a block on the ground): they get no probe light,
+        # and no sky.
+        self.covered = (np.abs(self.point_weights).max(axis=1) < 1e-6) & ~self.no_probe
         # The near field (a final gather of each point's short-range surroundings), or None.
         self.near = None
         if near_field:
             reach = NEAR_REACH * grid.point_cell_edge(scene.points)
-            hidden = (np.abs(self.point_weights).max(axis=1) < 1e-6) & ~self.no_probe  # covered: no probe light
-            self.near = nearfield.build(scene.points, scene.normals, reach, scene.triangles, hidden=hidden)
+            self.near = nearfield.build(scene.points, scene.normals, reach, scene.triangles, hidden=self.covered)
+
+    def seen_light(self, coeffs):
+        """Diffuse light ``(s, 3)`` at the points of what the probes see directly, SH radiance
+        ``(p, 9, 3)`` (the sky): interpolated, less its radiance in the directions the near
+        field finds blocked close by (its rays that hit; the sky there is behind a wall).
+        Linear in ``coeffs`` but for the clamps of :meth:`interpolate`."""
+        light = self.interpolate(coeffs).astype(np.float64)
+        if self.near is None or not self.near.count:
+            return light
+        light[self.near.rows] = np.maximum(
+            light[self.near.rows] - self.interpolate_rows(coeffs, self.near.rows, self.near.open_basis), 0.0)
+        return light
 
     def interpolate_rows(self, coeffs, rows, basis):
         """``(m, 3)``: the probe light of points ``rows (m,)`` from coefficients ``(p, 9, 3)``

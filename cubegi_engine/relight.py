@@ -53,26 +53,6 @@ MAX_INVERSE_SIZE = 1500
 REFINE_TOL, REFINE_STEPS = 1e-10, 8
 
 
-def _gather_project_matrix(transport, s):
-    """``K (9p, s)``: SH coefficients of the probes from per-point radiance (one channel).
-    A simplified capture gathers from clusters: the matrix over them, expanded to points."""
-    if transport.proxy is not None:
-        return transport.proxy.expand_columns(_gather_matrix(transport, transport.proxy.count))
-    return _gather_matrix(transport, s)
-
-
-def _gather_matrix(transport, s):
-    p = transport.probe_count
-    corners = transport.corners.reshape(p, -1, 3).astype(np.int64)  # (p, t, 3)
-    bary = transport.bary.reshape(p, -1, 3).astype(np.float64)
-    w = transport.sh_weights.astype(np.float64)  # (t, 9)
-    flat = (np.arange(p)[:, None, None] * s + corners).ravel()
-    out = np.empty((p, 9, s), dtype=np.float32)
-    for j in range(9):
-        out[:, j, :] = np.bincount(flat, (bary * w[None, :, j, None]).ravel(), minlength=p * s).reshape(p, s)
-    return out.reshape(p * 9, s)
-
-
 def _interpolation_matrix(transport, s):
     """``I (s, 9p)``: diffuse light at the points from probe coefficients (one channel)."""
     p = transport.probe_count
@@ -104,7 +84,7 @@ class BounceOperator:
                 f"{p} probes x {s} points is too large to relight in place ({9 * p * s:,} numbers per matrix); bake again"
             )
         t = time.perf_counter()
-        self.K = _gather_project_matrix(transport, s)
+        self.K = transport.gather_project_matrix()
         self.I = _interpolation_matrix(transport, s)
         self.landing = None if landing is None else np.asarray(landing, dtype=np.float64)
         self.areas = np.ones(s) if areas is None else np.asarray(areas, dtype=np.float64)

@@ -111,9 +111,11 @@ def dering(coeffs):
     non-negative for every direction, not only the checked ones.
     """
     c = np.asarray(coeffs)
-    e0 = np.einsum("dk,...kc->...dc", _DERING_DIRS, c)
+    # One matrix product over every probe and channel: (512, 9) x (9, ... c).
+    flat = np.moveaxis(c, -2, 0).reshape(9, -1)
+    e0 = _DERING_DIRS.astype(np.result_type(c.dtype, np.float32)) @ flat
     # Near zero counts as ringing: the minimum can fall between the checked directions.
-    rings = e0.min(axis=-2) < DERING_MARGIN * np.abs(e0).mean(axis=-2)  # (..., c)
+    rings = (e0.min(axis=0) < DERING_MARGIN * np.abs(e0).mean(axis=0)).reshape(c.shape[:-2] + c.shape[-1:])  # (..., c)
     if not rings.any():
         return c, rings
     window = np.where(rings[..., None, :], DERING_WINDOW.astype(c.dtype)[:, None], 1.0)

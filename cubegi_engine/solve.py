@@ -132,10 +132,8 @@ def solve_steps(scene, transport, direct, settings: BakeSettings | None = None, 
     seen_before = direct
     for b in range(1, cap + 1):
         t0 = time.perf_counter()
-        texels = transport.texel_radiance(albedo * previous)
-        t1 = time.perf_counter()
-        coeffs = transport.project(texels)
-        t2 = time.perf_counter()
+        coeffs = transport.gather_project(albedo * previous)
+        t1 = t2 = time.perf_counter()
         light = scene.zero_dark_points_inplace(transport.interpolate(coeffs).astype(np.float64))
         factor = np.ones(3)
         if landing is not None:
@@ -240,7 +238,7 @@ def _solve_tail(transport, albedo, coeffs, tol, factor):
 
     def bounce(c):
         light = transport.interpolate(c.reshape(shape).astype(np.float32), clamp=False) * f.astype(np.float32)
-        return transport.project(transport.texel_radiance(albedo * light)).astype(np.float64).ravel()
+        return transport.gather_project(albedo * light).astype(np.float64).ravel()
 
     first = bounce(coeffs.astype(np.float64).ravel())  # c_{N+1}
     total, iterations, residual = convergence.gmres(lambda x: x - bounce(x), first, tol=tol)

@@ -82,6 +82,9 @@ NEAR_OF_SCALE, NEAR_OF_LOCAL = 1e-4, 1e-2
 # Points per chunk of :meth:`Transport.interpolate`; texels per chunk of texel_radiance.
 INTERPOLATE_CHUNK = 32768
 TEXEL_CHUNK = 100_000
+# A bake gathers through a dense (9p, s) matrix where it has at most this many numbers
+# (32 MB): a small scene's bounce is then one matrix product, not a pass over every texel.
+DENSE_GATHER_ELEMENTS = 8_000_000
 
 
 def clip_planes(scale, local=None):
@@ -162,6 +165,7 @@ class Transport:
         # Per point: trilinear weight x diffuse SH basis of its normal, (s, 8 * 9).
         basis = sh.diffuse_basis(scene.normals)
         self.point_weights = (weight[:, :, None] * basis[:, None, :]).reshape(len(scene.points), COEFFS_PER_POINT).astype(np.float32)
+        self._dense = None  # the gather-project matrix, once made (gather_project_matrix)
         # (s,) points another object covers (no probe sees them: a floor point under a wall
         # standing on it, the underside of a block on the ground): they get no probe light,
         # and no sky.
@@ -171,6 +175,27 @@ class Transport:
         if near_field:
             reach = NEAR_REACH * grid.point_cell_edge(scene.points)
             self.near = nearfield.build(scene.points, scene.normals, reach, scene.triangles, hidden=self.covered)
+
+    def gather_project_matrix(self):
+        """``K (9p, s)`` float32: the probes' SH coefficients from per-point radiance (one
+        channel), as a dense matrix; made once (a simplified capture gathers from clusters:
+        the matrix over them, expanded to the points)."""
+        if self._dense is None:
+            if self.proxy is not None:
+                self._dense = self.proxy.expand_columns(_gather_matrix(self, self.proxy.count))
+            else:
+                self._dense = _gather_matrix(self, len(self.index))
+        return self._dense
+
+    def gather_project(self, radiance):
+        """SH radiance coefficients ``(p, 9, 3)`` the probes see of point radiance ``(s, 3)``:
+        :meth:`texel_radiance` then :meth:`project`, or, where the scene is small enough that
+        the dense matrix (9p x s numbers, at most DENSE_GATHER_ELEMENTS) is cheaper than the
+        texels, one matrix product with it (built on the first call)."""
+        if 9 * self.probe_count * len(self.index) > DENSE_GATHER_ELEMENTS:
+            return self.project(self.texel_radiance(radiance))
+        out = self.gather_project_matrix() @ np.asarray(radiance, dtype=np.float32)
+        return out.reshape(self.probe_count, 9, -1)
 
     def seen_light(self, coeffs):
         """Diffuse light ``(s, 3)`` at the points of what the probes see directly, SH radiance
@@ -198,6 +223,7 @@ class Transport:
         """The tables' arrays (for memory accounting)."""
         extra = [] if self.proxy is None else [self.proxy.points, self.proxy.triangles, self.proxy.cluster, self.proxy.share]
         extra += [] if self.sky_projection_map is None else [self.sky_projection_map]
+        extra += [] if self._dense is None else [self._dense]
         extra += [] if self.near is None else [self.near.rows, self.near.open_basis, self.near.hit_row, self.near.hit_corner, self.near.hit_weight]
         return [self.sh_weights, self.corners, self.bary, self.sky_projection, self.probe_valid, self.index, self.point_weights, *extra]
 
@@ -252,6 +278,19 @@ class Transport:
             g = np.take(flat, self.index[sl], axis=0).reshape(-1, COEFFS_PER_POINT, 3)
             out[sl] = np.matmul(self.point_weights[sl, None, :], g)[:, 0]
         return np.maximum(out, 0.0) if clamp else out
+
+
+def _gather_matrix(transport, s):
+    """``(9p, s)`` float32 over ``s`` gathered points (the scene's, or a proxy's clusters)."""
+    p = transport.probe_count
+    corners = transport.corners.reshape(p, -1, 3).astype(np.int64)  # (p, t, 3)
+    bary = transport.bary.reshape(p, -1, 3).astype(np.float64)
+    w = transport.sh_weights.astype(np.float64)  # (t, 9)
+    flat = (np.arange(p)[:, None, None] * s + corners).ravel()
+    out = np.empty((p, 9, s), dtype=np.float32)
+    for j in range(9):
+        out[:, j, :] = np.bincount(flat, (bary * w[None, :, j, None]).ravel(), minlength=p * s).reshape(p, s)
+    return out.reshape(p * 9, s)
 
 
 def _seen_from_behind(triangle_object, count, tid, back, solid, probe_valid):

@@ -39,7 +39,7 @@ def _fail_at(monkeypatch, cubegi, stage):
     elif stage == "direct":
         monkeypatch.setattr(direct, "light_direct", boom)
     elif stage == "bounce":
-        monkeypatch.setattr(transport.Transport, "texel_radiance", boom)
+        monkeypatch.setattr(transport.Transport, "gather_project", boom)
     elif stage == "reference":
         monkeypatch.setattr(pipeline.reference, "reference_layers", boom)
     elif stage == "write":  # the first mesh is written, the second fails

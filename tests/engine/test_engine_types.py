@@ -163,6 +163,7 @@ def _operator(p=4, s=30, seed=0):
     from types import SimpleNamespace
 
     from cubegi.cubegi_engine.relight import BounceOperator
+    from cubegi.cubegi_engine.transport import _gather_matrix
 
     rng = np.random.default_rng(seed)
     t = 24  # texels per probe
@@ -175,6 +176,7 @@ def _operator(p=4, s=30, seed=0):
         point_weights=rng.uniform(0.0, 0.05, (s, 8, 9)).astype(np.float32),
         proxy=None,
     )
+    transport.gather_project_matrix = lambda: _gather_matrix(transport, s)
     return BounceOperator(transport, np.full((s, 3), 0.7))
 
 

@@ -124,6 +124,24 @@ def cube_view_projections(eye, near, far):
     return np.stack([proj @ look_matrix(eye, FACE_FORWARD[f], FACE_UP[f]) for f in range(6)])
 
 
+def cube_view_projections_many(eyes, nears, far):
+    """:func:`cube_view_projections` of many eyes ``(k, 3)`` with near planes ``(k,)`` at
+    once: ``(6k, 4, 4)`` float64, eye after eye."""
+    eyes = np.asarray(eyes, dtype=np.float64).reshape(-1, 3)
+    nears = np.broadcast_to(np.asarray(nears, dtype=np.float64), (len(eyes),))
+    rot = _FACE_ROTATIONS  # (6, 3, 3)
+    views = np.zeros((len(eyes), 6, 4, 4))
+    views[:, :, :3, :3] = rot
+    views[:, :, :3, 3] = -np.einsum("fij,kj->kfi", rot, eyes)
+    views[:, :, 3, 3] = 1.0
+    proj = np.zeros((len(eyes), 4, 4))
+    proj[:, 0, 0] = proj[:, 1, 1] = 1.0
+    proj[:, 2, 2] = -(far + nears) / (far - nears)
+    proj[:, 2, 3] = -2.0 * far * nears / (far - nears)
+    proj[:, 3, 2] = -1.0
+    return np.einsum("kij,kfjl->kfil", proj, views).reshape(-1, 4, 4)
+
+
 def any_perpendicular(v):
     """A unit vector perpendicular to ``v`` (3,)."""
     v = np.asarray(v, dtype=np.float64)
@@ -155,3 +173,7 @@ def equirect_uv(dirs):
     u = 0.5 - np.arctan2(d[:, 1], d[:, 0]) / (2.0 * np.pi)
     v = 1.0 - np.arccos(np.clip(d[:, 2], -1.0, 1.0)) / np.pi
     return np.stack([u, v], axis=1)
+
+
+# The rotation part of each face's view matrix (the same at every eye).
+_FACE_ROTATIONS = np.stack([look_matrix(np.zeros(3), FACE_FORWARD[f], FACE_UP[f])[:3, :3] for f in range(6)])

@@ -43,7 +43,7 @@ class BakeSettings:
     cells: int = 8
     visibility: bool = True
     shadow_size: int = 512
-    sun_shadow_size: int = 2048
+    sun_shadow_size: int = 1024
     area_shadow_size: int = 128
     # Stop once the estimated missing share of the indirect light is below this (None: run
     # all ``bounces``); ``bounces`` stays the cap.

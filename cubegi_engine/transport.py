@@ -63,8 +63,7 @@ def capture_cubes(renderer, eyes, size, near, far, with_bary=True):
     ``near``: one distance, or one per eye ``(k,)``. ``with_bary=False``: depth maps alone
     (the barycentrics come back zero; shadow tests do not read them)."""
     eyes = np.asarray(eyes, dtype=np.float64).reshape(-1, 3)
-    nears = np.broadcast_to(np.asarray(near, dtype=np.float64), (len(eyes),))
-    vps = np.concatenate([cubemap.cube_view_projections(e, n, far) for e, n in zip(eyes, nears)])
+    vps = cubemap.cube_view_projections_many(eyes, near, far)
     if with_bary:
         tid, bary, dist, back = renderer.render(vps, np.repeat(eyes, 6, axis=0), None, size)
     else:

@@ -217,9 +217,9 @@ def test_the_near_field_brings_contacts_and_corners_to_cycles(empty_scene, cubeg
     """The blocks stand 2 cm above the floor: the probes (half a metre away) see the bright
     floor around them, and give their undersides that light; rays from each vertex see the
     dark floor under the block instead. Measured at 4x4x4, 16^2, 256 samples: the undersides'
-    mean indirect light +61% too bright without the near field, +20% with it (what is left is
+    mean indirect light +62% too bright without the near field, +23% with it (what is left is
     their rims, whose rays land on floor triangles half under the block); the scene's
-    indirect rel. RMSE 21.0% -> 17.4%."""
+    indirect rel. RMSE 21.0% -> 17.5%."""
     scenes.cornell(light=True)
     obs = [ob for ob in bpy.context.scene.objects if ob.type == "MESH"]
     attributes, scene_data = cubegi.cubegi_addon.attributes, cubegi.cubegi_addon.scene_data

@@ -220,7 +220,8 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     tenth of the smallest cell edge, is no farther from the probe than the first surface the
     probe's cube map records in that direction (the depth test of a shadow map). This stops
     light leaking through walls thinner than a cell. If every probe of a point is left out,
-    the point keeps its plain trilinear weights over the valid probes (or all of them).
+    the point keeps its plain trilinear weights over the valid probes in front of its
+    surface (none: no probe light).
 
     probe_pos: ``(p, 3)``; probe_dist: ``(p, 6, n, n)`` distance to the first surface (inf
     where the probe sees sky); probe_valid: ``(p,)`` bool; points, normals: ``(s, 3)``;
@@ -261,9 +262,13 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     valid = probe_valid[index]
     w = weight * (visible & valid)
     total = w.sum(axis=1, keepdims=True)
-    fallback = weight * valid
+    # A point no probe sees takes the valid probes in front of its surface (a vertex in a
+    # corner too tight for the grid); none behind it (the outer face of a wall, whose probes
+    # are all inside the room: their light would leak out).
+    ahead = np.einsum("skc,sc->sk", probe_pos[index] - points[:, None, :], normals) > 0
+    fallback = weight * valid * ahead
     fallback_total = fallback.sum(axis=1, keepdims=True)
-    w = np.where(total > 1e-9, w, np.where(fallback_total > 1e-9, fallback, weight))
+    w = np.where(total > 1e-9, w, fallback)
     w = w / np.maximum(w.sum(axis=1, keepdims=True), 1e-300)  # a point with no probe at all keeps zeros
     dark = (total[:, 0] <= 1e-9) & covered.any(axis=1)
     w[dark] = 0.0

@@ -115,10 +115,6 @@ class NearField:
     def count(self):
         return len(self.rows)
 
-    @property
-    def nbytes(self):
-        return int(sum(a.nbytes for a in (self.rows, self.open_basis, self.hit_row, self.hit_corner, self.hit_weight)))
-
     def _matrix(self):
         """The hits as a sparse matrix, rows x points: ``(starts (m,), corner (e,), local
         corner (e,), weight (e,))`` with each row's entries contiguous (a (row, corner) pair

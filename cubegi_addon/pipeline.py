@@ -181,6 +181,18 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
 NO_PROBE_NOTE = 0.01
 
 
+def _coarse_objects(arrays, grid):
+    """The objects whose median triangle edge is longer than the grid's smallest cell."""
+    if arrays.point_object is None or not len(arrays.triangles):
+        return []
+    tri = arrays.triangles
+    p = arrays.points
+    edge = np.linalg.norm(p[tri[:, 1]] - p[tri[:, 0]], axis=1)
+    owner = arrays.point_object[tri[:, 0]]
+    cell = float(np.min(grid.point_cell_edge(p[:1])))
+    return [arrays.object_names[k] for k in np.unique(owner) if np.median(edge[owner == k]) > cell]
+
+
 def _note_capture(collected, result, grid):
     no_probe = result.capture.transport.no_probe
     if collected.arrays.dark is not None:
@@ -192,6 +204,13 @@ def _note_capture(collected, result, grid):
             f"{100 * no_probe.mean():.1f}% of the shading points get no probe light (the probes of their grid around "
             f"them all lie in a finer grid's box), on {', '.join(names)}; add a probe grid over them if they should "
             "get indirect light"
+        )
+    coarse = _coarse_objects(collected.arrays, grid)
+    if coarse:
+        collected.notes.append(
+            f"{', '.join(coarse[:5])}{' and more' if len(coarse) > 5 else ''}: edges longer than a probe cell, so their "
+            "light is known only at corners far apart (a cube's 8 vertices sit where it meets its neighbours); "
+            "subdivide them for light that changes across them"
         )
     if not result.probe_valid.any():
         collected.notes.append(

@@ -67,6 +67,7 @@ def bake_reference(context, meshes, passes=("DIRECT", "INDIRECT"), samples=128, 
     }
     out = {p: {} for p in passes}
     seconds = {}
+    shown = _show(view_layer, meshes)
     try:
         scene.render.engine = "CYCLES"
         for name, value in _CYCLES_SETTINGS.items():
@@ -101,7 +102,45 @@ def bake_reference(context, meshes, passes=("DIRECT", "INDIRECT"), samples=128, 
             setattr(scene.cycles, name, saved[name])
         scene.render.bake.use_pass_color = saved["use_pass_color"]
         scene.render.bake.target = saved["target"]
+        _unshow(shown)
         for o in view_layer.objects:
             o.select_set(o in saved["selected"])
         view_layer.objects.active = saved["active"]
     return out, seconds
+
+
+def _show(view_layer, meshes):
+    """Make ``meshes`` selectable for the bake where the viewport hides them (H, the monitor
+    toggle, a hidden collection: they still render, so Cycles must bake them); returns what
+    :func:`_unshow` puts back."""
+    changed = []
+
+    def layer_collections(lc):
+        yield lc
+        for child in lc.children:
+            yield from layer_collections(child)
+
+    for ob in meshes:
+        for owner, name in ((ob, "hide_viewport"), (ob, "hide_select")):
+            if getattr(owner, name):
+                changed.append((owner, name, True))
+                setattr(owner, name, False)
+        if ob.hide_get(view_layer=view_layer):
+            changed.append((ob, "hide_set", True))
+            ob.hide_set(False, view_layer=view_layer)
+        if not ob.visible_get(view_layer=view_layer):
+            for lc in layer_collections(view_layer.layer_collection):
+                if ob.name in lc.collection.objects:
+                    for owner, name in ((lc, "hide_viewport"), (lc.collection, "hide_viewport"), (lc.collection, "hide_select")):
+                        if getattr(owner, name):
+                            changed.append((owner, name, True))
+                            setattr(owner, name, False)
+    return changed
+
+
+def _unshow(changed):
+    for owner, name, value in reversed(changed):
+        if name == "hide_set":
+            owner.hide_set(value)
+        else:
+            setattr(owner, name, value)

@@ -474,3 +474,53 @@ def test_lights_that_reach_nothing_visible_are_left_out_and_named(empty_scene, c
     text = "\n".join(cubegi.cubegi_engine.report.BakeReport.from_dict(report).summary_lines())
     assert "left out: light Away: reaches no surface" in text
     np.testing.assert_allclose(cubegi.cubegi_addon.attributes.read(bpy.data.objects["Room"].data, "CubeGI_total"), alone, rtol=1e-5)
+
+
+def test_meshes_too_coarse_for_vertex_light_are_named(empty_scene, cubegi):
+    """A room of primitive cubes (8 vertices each): their light is known only at corners a
+    cell or more apart, and the bake says so, naming them; a subdivided box is not named."""
+    import json
+
+    bpy.ops.mesh.primitive_cube_add(size=1, location=(0, 0, 0.5))
+    bpy.context.object.scale = (4.0, 3.0, 1.0)
+    bpy.context.object.name = "Slab"
+    v, f = scenes.box_mesh((-1, -1, 1.5), (1, 1, 3.5), (8, 8, 8), inward=True)
+    scenes.mesh_object("Fine", v, f)
+    scenes.add_light("POINT", (0.2, 0.1, 2.5), 50.0)
+    assert bpy.ops.cubegi.bake(bounces=1, cube_size=8) == {"FINISHED"}
+    notes = json.loads(bpy.context.scene.cubegi.last_report)["scene"]["notes"]
+    coarse = [n for n in notes if "edges longer than a probe cell" in n]
+    assert len(coarse) == 1 and coarse[0].startswith("Slab:") and "Fine" not in coarse[0], notes
+
+
+@pytest.mark.parametrize("how", ["hide_set", "hide_viewport", "collection"])
+def test_the_cycles_reference_bakes_objects_hidden_only_in_the_viewport(empty_scene, cubegi, how):
+    """Cycles bakes only what it can select: a wall hidden in the viewport is shown for the
+    reference's bake and hidden again; its reference is the one it gets when shown."""
+    scenes.thin_wall()
+    settings = dict(grid=(4, 2, 2), bounces=1, cube_size=8, reference_samples=4)
+    read = cubegi.cubegi_addon.attributes.read
+    assert bpy.ops.cubegi.bake(**settings) == {"FINISHED"}
+    shown = read(bpy.data.objects["Wall"].data, "CubeGI_ref_direct")
+    bpy.ops.cubegi.clear()
+    wall = bpy.data.objects["Wall"]
+    if how == "hide_set":
+        wall.hide_set(True)
+    elif how == "hide_viewport":
+        wall.hide_viewport = True
+    else:
+        coll = bpy.data.collections.new("Walls")
+        bpy.context.scene.collection.children.link(coll)
+        coll.objects.link(wall)
+        bpy.context.scene.collection.objects.unlink(wall)
+        bpy.context.view_layer.layer_collection.children["Walls"].hide_viewport = True
+        coll.hide_viewport = True
+    assert bpy.ops.cubegi.bake(**settings) == {"FINISHED"}
+    hidden = read(bpy.data.objects["Wall"].data, "CubeGI_ref_direct")
+    assert np.ptp(shown) > 0 and np.allclose(hidden, shown, rtol=1e-4, atol=1e-6)
+    if how == "hide_set":
+        assert wall.hide_get()
+    elif how == "hide_viewport":
+        assert wall.hide_viewport
+    else:
+        assert bpy.context.view_layer.layer_collection.children["Walls"].hide_viewport and coll.hide_viewport

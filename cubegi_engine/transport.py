@@ -228,9 +228,14 @@ class Transport:
 
     def landing_share(self):
         """Per point, the cosine-weighted share of its view that is surface, not sky:
-        ``(s, 3)`` in [0, 1] (the light of a unit sky, from the probes, taken from 1)."""
+        ``(s, 3)`` in [0, 1] (the light of a unit sky, from the probes, taken from 1). A point
+        no probe lights (a wall's outer face, a floor under a rug) counts 0: no probe sees
+        the light it sends either, so the energy balance leaves it out on both sides (its
+        light mostly leaves through the sky, or lands where no probe looks)."""
         unit = np.repeat(self.sky_projection[:, :, None], 3, axis=2)  # geometric: a uniform unit sky
-        return np.clip(1.0 - self.interpolate(unit).astype(np.float64), 0.0, 1.0)
+        landing = np.clip(1.0 - self.interpolate(unit).astype(np.float64), 0.0, 1.0)
+        landing[np.abs(self.point_weights).max(axis=1) < 1e-6] = 0.0
+        return landing
 
     def sky_coefficients(self, sky):
         """SH radiance coefficients ``(p, 9, 3)`` of the sky of mean radiance ``sky (3,)``

@@ -241,3 +241,43 @@ def test_the_near_field_brings_contacts_and_corners_to_cycles(empty_scene, cubeg
     (rmse_off, under_off), (rmse_on, under_on) = got[False], got[True]
     assert rmse_on < 0.8 * rmse_off, got
     assert abs(under_off) < 0.3 and abs(under_on) < 0.35, got
+
+
+def test_sunlit_outer_walls_do_not_brighten_the_room_inside(empty_scene, cubegi):
+    """A room of thick walls (boxes) under a sun, lit inside by a bulb: the walls' sunlit
+    outer faces are seen by no probe, and their light leaves through the sky. The energy
+    balance leaves them out on both sides; counting their light as landing made the room's
+    indirect light +46% too bright (a hand-made room of this kind), now within 15%.
+    Measured here (32 samples): indirect bias +44% and rel. RMSE 77% before, +1.6% and 23%
+    after."""
+    import bmesh
+    import math
+
+    reference, scene_data, attributes = (getattr(cubegi.cubegi_addon, m) for m in ("reference", "scene_data", "attributes"))
+
+    def wall(name, loc, scale):
+        bpy.ops.mesh.primitive_cube_add(size=1, location=loc)
+        ob = bpy.context.object
+        ob.name, ob.scale = name, scale
+        bpy.ops.object.transform_apply(scale=True)
+        bm = bmesh.new()
+        bm.from_mesh(ob.data)
+        bmesh.ops.subdivide_edges(bm, edges=bm.edges[:], cuts=6, use_grid_fill=True)
+        bm.to_mesh(ob.data)
+        bm.free()
+        ob.data.materials.append(scenes.material(name, (0.7, 0.7, 0.7)))
+        return ob
+
+    obs = [wall("Floor", (0, 0, -0.1), (4.4, 3.4, 0.2)), wall("Ceiling", (0, 0, 2.6), (4.4, 3.4, 0.2)),
+           wall("N", (0, 1.6, 1.25), (4.4, 0.2, 2.5)), wall("S", (0, -1.6, 1.25), (4.4, 0.2, 2.5)),
+           wall("E", (2.1, 0, 1.25), (0.2, 3.0, 2.5)), wall("W", (-2.1, 0, 1.25), (0.2, 3.0, 2.5))]
+    scenes.add_light("SUN", (0, 0, 10), 4.0, rotation=(math.radians(50), 0.0, math.radians(-80)))
+    scenes.add_light("POINT", (0.3, 0.2, 1.8), 200.0)
+    scenes.set_world((0.0, 0.0, 0.0))
+    assert bpy.ops.cubegi.bake(bounces=4, cube_size=16) == {"FINISHED"}
+    ref, _ = reference.bake_reference(bpy.context, obs, passes=("INDIRECT",), samples=32, seed=0)
+    areas = np.concatenate([scene_data.vertex_areas(o) for o in obs])
+    ours = np.concatenate([attributes.read(o.data, "CubeGI") for o in obs])
+    err = metrics.errors(ours, np.concatenate([ref["INDIRECT"][o.name] for o in obs]), areas)
+    print(err)
+    assert abs(err["rel_bias"]) < 0.15 and err["rel_rmse"] < 0.35, err

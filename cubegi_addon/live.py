@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..cubegi_engine import relight
-from ..cubegi_engine.direct import light_direct
+from ..cubegi_engine.direct import light_direct, unit_sky_direct
 from ..cubegi_engine.emitters import emitter_direct
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.scene import same_sky_map
@@ -70,7 +70,10 @@ def state_of(context):
         def emitters(emission):
             return emitter_direct(replace(arrays, emission=emission), _renderer(kept), settings.area_shadow_size)
 
-        kept.light = relight.from_bake(kept.result, arrays, draw, settings.add_tail, settings.conserve_energy, emitters)
+        def sky():
+            return unit_sky_direct(arrays, _renderer(kept), kept.result.capture.transport)
+
+        kept.light = relight.from_bake(kept.result, arrays, draw, settings.add_tail, settings.conserve_energy, emitters, sky)
     return kept
 
 

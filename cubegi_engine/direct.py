@@ -3,11 +3,12 @@
 Pure numpy; must not import bpy. Lights and emissive triangles (as two-sided area lights,
 :mod:`cubegi_engine.emitters`) are computed per point with shadows from depth maps drawn by
 the injected renderer. The sky reaches the points through the probes (the capture's
-tables), as in the paper, less the directions the near field finds blocked close by; Cycles
-counts both as direct. (Measured against the other way, the sky's visibility from every
-point along 64-256 directions with an orthographic depth map each: on the courtyard that
-took the direct error from 3.7% to 3.8-1.8% but the total from 3.6% to 4.9-4.7%, and added
-0.2-0.9 s to a 0.4 s bake.)
+tables), as in the paper, less the directions the near field finds blocked close by; a
+vertex no probe lights and nothing encloses (the outer face of a thick wall) sees it along
+its own lines of sight, 64 orthographic depth maps as a sun's. Cycles counts both as
+direct. (Every vertex along its own lines of sight was measured too: on the courtyard that
+took the direct error from 3.7% to 3.8-1.8% with 64-256 maps but the total from 3.6% to
+4.9-4.7%, and added 0.2-0.9 s to a 0.4 s bake.)
 
 Keeping each source's share apart is what lets a later edit of one light's power or colour
 be a weighted sum, and a moved light be recomputed alone.
@@ -17,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import cubemap, lights as lights_mod, sh
+from . import cubemap, lights as lights_mod, nearfield, sh
 from .emitters import emitter_direct
 from .transport import capture_cubes, clip_planes
 
@@ -229,7 +230,71 @@ def direct_light(scene, renderer, settings, transport, landing=None, shadows=Non
         # Straight to every point, exact, from both faces (as Cycles): see cubegi_engine.emitters.
         parts[EMISSION] = scene.zero_dark_points_inplace(emitter_direct(scene, renderer, settings.area_shadow_size))
     if np.any(scene.sky > 0):
-        sky_coeffs = transport.sky_coefficients(scene.sky)
-        coeffs = coeffs + sky_coeffs  # what the probes see of it (the field, for dynamic objects)
-        parts[SKY] = transport.seen_light(sky_coeffs)
+        coeffs = coeffs + transport.sky_coefficients(scene.sky)  # what the probes see of it (the field)
+        parts[SKY] = scene.sky[None, :] * unit_sky_direct(scene, renderer, transport)
     return DirectLight(parts, coeffs, factor, light_seconds, time.perf_counter() - t, left_out)
+
+
+def unit_sky_direct(scene, renderer, transport) -> np.ndarray:
+    """Diffuse light ``(s, 3)`` of a sky of unit mean radiance (its pattern, if any): what
+    the probes see of it (:meth:`Transport.seen_light`), and for the vertices no probe
+    lights and nothing close encloses (the outer face of a thick wall: every probe is inside
+    the room) the sky along their own lines of sight (:func:`sky_direct`)."""
+    light = transport.seen_light(transport.sky_coefficients(np.ones(3)))
+    alone = transport.covered.copy()
+    if transport.near is not None:
+        alone &= ~transport.near.enclosed(len(alone))
+    if alone.any():  # not the underside of a block standing on the ground
+        alone[alone] = ~nearfield.resting(scene.points, scene.normals, scene.triangles, scene.scale)[alone]
+    if alone.any():
+        light[alone] = sky_direct(scene, renderer, np.flatnonzero(alone))
+    return light
+
+
+# The sky's direct light at a vertex no probe lights: its visibility along this many
+# directions (a Fibonacci sphere), each an orthographic depth map of this edge, as a sun's.
+SKY_DIRECTIONS = 64
+SKY_MAP_SIZE = 256
+
+
+def sky_direct(scene, renderer, which) -> np.ndarray:
+    """Diffuse light ``(k, 3)`` of a sky of unit mean radiance (its pattern, if any) at the
+    points ``which (k,)``, with the scene's shadows: the unoccluded sky for each normal (exact
+    for a uniform sky; the pattern's 9 SH coefficients otherwise) times the share of it the
+    point sees, measured along SKY_DIRECTIONS directions, each an orthographic depth map
+    drawn with the sun's machinery, weighted by the sky's radiance and the cosine."""
+    dirs = sh.fibonacci_sphere(SKY_DIRECTIONS)  # towards the sky
+    pattern = _sky_pattern(scene, dirs)  # (k, 3)
+    lo, hi = scene.bounds()
+    centre, radius = 0.5 * (lo + hi), 0.5 * scene.scale * SUN_BOX_MARGIN
+    eyes = centre + dirs * radius * SUN_EYE_DISTANCE
+    vps = np.stack([cubemap.orthographic(radius, SUN_NEAR * radius, SUN_FAR * radius)
+                    @ cubemap.look_matrix(e, -d, cubemap.any_perpendicular(d)) for e, d in zip(eyes, dirs)])
+    tid, _, dist, back = renderer.render(vps, eyes, -dirs, SKY_MAP_SIZE, with_bary=False)
+    pts, nrm = scene.points[which], scene.normals[which]
+    seen = np.zeros((len(which), 3))
+    facing = np.zeros((len(which), 3))
+    for k, d in enumerate(dirs):
+        cos = nrm @ d
+        on = np.flatnonzero(cos > 0)
+        if not len(on):
+            continue
+        vis = lights_mod.ortho_visibility(pts[on], nrm[on], vps[k], -d, eyes[k], tid[k], dist[k], back[k],
+                                          scene.triangles, scene.points, which[on], radius, scene.scale)
+        w = cos[on, None] * pattern[k][None, :]
+        seen[on] += w * vis[:, None]
+        facing[on] += w
+    open_sky = np.ones((len(which), 3))
+    if getattr(scene, "sky_map", None) is not None:  # the pattern's SH, as diffuse light per normal
+        n = 16
+        texel_dirs = cubemap.texel_directions(n).reshape(-1, 3)
+        coeffs = sh.project(_sky_pattern(scene, texel_dirs), texel_dirs, np.tile(cubemap.texel_solid_angles(n).ravel(), 6))
+        open_sky = np.maximum(sh.diffuse_basis(nrm) @ coeffs, 0.0)
+    return open_sky * np.where(facing > 0, seen / np.maximum(facing, 1e-300), 0.0)
+
+
+def _sky_pattern(scene, dirs):
+    """The sky's radiance over its mean in directions ``dirs (k, 3)``: ``(k, 3)``."""
+    if getattr(scene, "sky_map", None) is None:
+        return np.ones((len(dirs), 3))
+    return cubemap.sample_image(np.asarray(scene.sky_map, dtype=np.float64), cubemap.equirect_uv(dirs))

@@ -110,6 +110,15 @@ class NearField:
     crowded: int = 0
     skipped: str = ""
     seconds: float = 0.0
+    share: np.ndarray = None  # (m,) the cosine-weighted share of each row's view its hits cover
+
+    def enclosed(self, count, at_least=0.5):
+        """``(count,)`` bool: points whose near surroundings cover at least ``at_least`` of
+        their view (a floor under a rug, a block's underside on the ground)."""
+        out = np.zeros(count, dtype=bool)
+        if self.count and self.share is not None:
+            out[self.rows] = self.share >= at_least
+        return out
 
     @classmethod
     def empty(cls, rays, reason="", seconds=0.0):
@@ -259,7 +268,35 @@ def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS
     pattern_error = sh.diffuse_basis(normals[rows]) - y.mean(axis=1)
     open_basis = np.einsum("mk,mkj->mj", hit_mask, y) / rays + share[:, None] * pattern_error
     return NearField(rows.astype(np.int64), open_basis, hit_row.astype(np.int64).ravel(), corners, weight,
-                     rays, float(reach.max()), len(pair_p), int(crowded.sum()), "", time.perf_counter() - t0)
+                     rays, float(reach.max()), len(pair_p), int(crowded.sum()), "", time.perf_counter() - t0, share)
+
+
+def resting(points, normals, triangles, scale):
+    """``(s,)`` bool: points that lie on another surface facing them (the underside of a
+    block standing on the ground, a floor point under it): a triangle in the point's plane,
+    facing the other way, over the point. ``scale``: the scene's size."""
+    points = np.asarray(points, dtype=np.float64)
+    tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    if not len(points) or not len(tri):
+        return np.zeros(len(points), dtype=bool)
+    reach = np.full(len(points), 1e-3 * scale)
+    index = _VoxelIndex(points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]], float(reach[0]))
+    pp, _, _ = index.candidates(points, np.asarray(normals, dtype=np.float64), reach, touching=True)
+    out = np.zeros(len(points), dtype=bool)
+    out[pp] = True
+    return out
+
+
+def _over(x, a, b, c, unit):
+    """Whether points ``x`` project into triangles ``a, b, c`` (unit normals ``unit``), with
+    BARY_SLACK at the edges."""
+    e = BARY_SLACK
+    inside = np.ones(len(x), dtype=bool)
+    for p, q in ((a, b), (b, c), (c, a)):
+        edge = q - p
+        side = np.einsum("ij,ij->i", np.cross(edge, x - p), unit)
+        inside &= side >= -e * np.einsum("ij,ij->i", edge, edge)
+    return inside
 
 
 def _uncover(index, weight, corners, hidden, tri, reach):
@@ -376,10 +413,11 @@ class _VoxelIndex:
         d = self.dims
         return (np.clip(iz, 0, d[2] - 1) * d[1] + np.clip(iy, 0, d[1] - 1)) * d[0] + np.clip(ix, 0, d[0] - 1)
 
-    def candidates(self, points, normals, reach):
+    def candidates(self, points, normals, reach, touching=False):
         """(point, triangle) pairs a ray from the point into its hemisphere may hit within
         its reach (see the module docstring), and ``(s,)`` bool: the points left out as
-        crowded (their pairs are not made)."""
+        crowded (their pairs are not made). ``touching``: instead, the triangles that lie in
+        a point's plane, facing the other way, over it (see :func:`resting`)."""
         a, b, c = self.a, self.b, self.c
         base = np.floor((points - self.origin) / self.h).astype(np.int64)
         crowded = np.zeros(len(points), dtype=bool)
@@ -392,7 +430,7 @@ class _VoxelIndex:
             rel = self.origin + (idx + 0.5) * self.h - points[sl, None, :]
             gap = np.maximum(np.abs(rel) - 0.5 * self.h, 0.0)
             ahead = np.einsum("mvc,mc->mv", rel, normals[sl]) + 0.5 * self.h * np.abs(normals[sl]).sum(axis=1)[:, None]
-            use = (np.einsum("mvc,mvc->mv", gap, gap) <= reach[sl, None] ** 2) & (ahead > 0)
+            use = (np.einsum("mvc,mvc->mv", gap, gap) <= reach[sl, None] ** 2) & (ahead >= -1e-9 * self.h)  # or touching it
             key = np.where(use, self._key(idx[..., 0], idx[..., 1], idx[..., 2]), -1)
             key = np.sort(key, axis=1)
             new = key >= 0
@@ -420,7 +458,12 @@ class _VoxelIndex:
             nx = normals[pp]
             front = np.maximum(np.maximum(np.einsum("ij,ij->i", a[tt] - x, nx), np.einsum("ij,ij->i", b[tt] - x, nx)),
                                np.einsum("ij,ij->i", c[tt] - x, nx))
-            keep = front > SLACK * r + COORD_SLACK * np.abs(x).max(axis=1)
+            slack = SLACK * r + COORD_SLACK * np.abs(x).max(axis=1)
+            if touching:  # lying in the point's plane, facing the other way, over the point
+                keep = (np.abs(np.einsum("ij,ij->i", x, self.unit[tt]) - self.offset[tt]) <= 2.0 * slack) & (
+                    np.einsum("ij,ij->i", self.unit[tt], nx) < -0.5) & _over(x, a[tt], b[tt], c[tt], self.unit[tt])
+            else:
+                keep = front > slack
             pair = np.unique(pp[keep] * len(a) + tt[keep])  # a triangle listed in several voxels, once
             out_p.append(pair // len(a))
             out_t.append(pair % len(a))

@@ -231,9 +231,10 @@ class SceneLight:
     ``add_tail``).
     """
 
-    def __init__(self, scene, transport, light_direct, op: BounceOperator, count, add_tail=True, emitter_light=None):
+    def __init__(self, scene, transport, light_direct, op: BounceOperator, count, add_tail=True, emitter_light=None,
+                 sky_light=None):
         self.scene, self.transport, self.light_direct, self.op = scene, transport, light_direct, op
-        self.emitter_light = emitter_light
+        self.emitter_light, self.sky_light = emitter_light, sky_light
         self.count, self.add_tail = int(count), bool(add_tail)
         self.sources = {}
         self.factors = np.ones((self.count, 3))
@@ -257,10 +258,18 @@ class SceneLight:
             unit = self.light_direct(replace(light, colour=np.ones(3)))
         return self._add(key, unit, np.zeros((self.op.size, 3)), colour, light)
 
-    def set_sky(self, radiance):
-        """The uniform sky, of radiance ``(3,)``."""
+    def set_sky(self, radiance, direct=None):
+        """The sky, of (mean) radiance ``(3,)``; ``direct``: its direct light at that radiance
+        (else the unit sky's, from ``sky_light()``, or as the probes see it)."""
         own = self.transport.sky_coefficients(np.ones(3)).reshape(-1, 3).astype(np.float64)
-        return self._add(SKY, self._seen(own), own, radiance)
+        radiance = np.asarray(radiance, dtype=np.float64)
+        if direct is not None and np.all(radiance > 0):
+            unit = np.asarray(direct) / radiance[None, :]
+        elif self.sky_light is not None:
+            unit = self.sky_light()
+        else:
+            unit = self._seen(own)
+        return self._add(SKY, unit, own, radiance)
 
     def set_emission(self, emission, direct=None):
         """Every emitter of the scene, sending ``emission (s, 3)``: one source. ``direct``:
@@ -425,20 +434,20 @@ def light_key(light, index=0):
     return f"light:{light.name}" if light.name else f"light:#{index}"
 
 
-def from_bake(result, scene, light_direct, add_tail=True, conserve_energy=True, emitter_light=None):
-    """A solved :class:`SceneLight` of a finished bake: its capture, and its lights' and
-    emitters' direct light (no drawing). ``light_direct``, ``emitter_light``: for lights
-    and emission that change later."""
+def from_bake(result, scene, light_direct, add_tail=True, conserve_energy=True, emitter_light=None, sky_light=None):
+    """A solved :class:`SceneLight` of a finished bake: its capture, and its lights',
+    emitters' and sky's direct light (no drawing). ``light_direct``, ``emitter_light``,
+    ``sky_light``: for lights, emission and a sky that change later."""
     transport = result.capture.transport
     albedo = np.where(scene.dark[:, None], 0.0, scene.albedo) if scene.dark is not None else scene.albedo
     landing = transport.landing_share() if conserve_energy else None
     op = BounceOperator(transport, albedo, landing, scene.point_areas())
-    state = SceneLight(scene, transport, light_direct, op, len(result.solution.bounces), add_tail, emitter_light)
+    state = SceneLight(scene, transport, light_direct, op, len(result.solution.bounces), add_tail, emitter_light, sky_light)
     parts = result.direct_parts.parts
     for k, light in enumerate(scene.lights):
         state.set_light(light_key(light, k), light, parts.get(f"light:{light.name}"))
     if np.any(scene.sky > 0):
-        state.set_sky(scene.sky)
+        state.set_sky(scene.sky, parts.get(SKY))
     state.set_emission(scene.emission, parts.get(EMISSION))
     state.solve()
     return state

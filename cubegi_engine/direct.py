@@ -245,7 +245,7 @@ def unit_sky_direct(scene, renderer, transport) -> np.ndarray:
     if transport.near is not None:
         alone &= ~transport.near.enclosed(len(alone))
     if alone.any():  # not the underside of a block standing on the ground
-        alone[alone] = ~nearfield.resting(scene.points, scene.normals, scene.triangles, scene.scale)[alone]
+        alone[alone] = ~nearfield.resting(scene.points, scene.normals, scene.triangles, scene.scale, np.flatnonzero(alone))
     if alone.any():
         light[alone] = sky_direct(scene, renderer, np.flatnonzero(alone))
     return light

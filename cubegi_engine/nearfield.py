@@ -271,18 +271,21 @@ def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS
                      rays, float(reach.max()), len(pair_p), int(crowded.sum()), "", time.perf_counter() - t0, share)
 
 
-def resting(points, normals, triangles, scale):
-    """``(s,)`` bool: points that lie on another surface facing them (the underside of a
-    block standing on the ground, a floor point under it): a triangle in the point's plane,
-    facing the other way, over the point. ``scale``: the scene's size."""
+def resting(points, normals, triangles, scale, which):
+    """``(k,)`` bool: whether the points ``which (k,)`` lie on another surface facing them
+    (the underside of a block standing on the ground, a floor point under it): a triangle
+    in the point's plane, facing the other way, over the point. ``triangles`` index
+    ``points``; ``scale``: the scene's size."""
     points = np.asarray(points, dtype=np.float64)
     tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
-    if not len(points) or not len(tri):
-        return np.zeros(len(points), dtype=bool)
-    reach = np.full(len(points), 1e-3 * scale)
-    index = _VoxelIndex(points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]], float(reach[0]))
-    pp, _, _ = index.candidates(points, np.asarray(normals, dtype=np.float64), reach, touching=True)
-    out = np.zeros(len(points), dtype=bool)
+    which = np.asarray(which, dtype=np.int64)
+    if not len(which) or not len(tri):
+        return np.zeros(len(which), dtype=bool)
+    reach = np.full(len(which), 1e-3 * scale)
+    # Coarse voxels (a 64th of the scene): few entries to sort, and few points to ask.
+    index = _VoxelIndex(points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]], scale / 64.0)
+    pp, _, _ = index.candidates(points[which], np.asarray(normals, dtype=np.float64)[which], reach, touching=True)
+    out = np.zeros(len(which), dtype=bool)
     out[pp] = True
     return out
 

@@ -226,3 +226,18 @@ def test_a_corner_hidden_under_a_wall_lends_no_darkness_to_the_floor_beside_it()
     row = near.rows.tolist().index(len(pts2) - 1)
     # Its rays land on the floor under the plate, near the hidden corners: dark.
     assert near.gather(radiance2)[row, 0] < 0.1
+
+
+def test_resting_finds_a_face_lying_on_another_surface():
+    """A block's underside lying on the ground (the ground's triangle in its plane, facing
+    it, over it) rests; the ground beside the block, a point on the underside's rim past the
+    ground's edge, and a face lying on a surface that faces the same way do not."""
+    ground = _quad(-1, 1, 0.0, up=True)
+    underside = np.array([[0.0, 0.0, 0.0], [0.5, 0.5, 0.0], [1.5, 0.0, 0.0], [0.3, 0.3, 1e-3]])
+    pts = np.concatenate([ground[0], underside])
+    normals = np.concatenate([np.tile([0.0, 0.0, 1.0], (4, 1)), [[0, 0, -1.0], [0, 0, -1.0], [0, 0, -1.0], [0, 0, 1.0]]])
+    which = np.arange(4, 8)
+    got = nearfield.resting(pts, normals, ground[1], 2.0, which)
+    # 4: on the ground, facing down: rests. 5: the same. 6: past the ground's edge. 7: facing up (same way), 1 mm above.
+    assert got.tolist() == [True, True, False, False]
+    assert not nearfield.resting(pts, normals, ground[1], 2.0, np.arange(4)).any()  # the ground's own points

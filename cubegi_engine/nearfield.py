@@ -239,31 +239,35 @@ def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS
                                time.perf_counter() - t0)
     # Each point's pattern is turned by an angle hashed from its position (not its index:
     # the same scene in another object order bakes the same), decorrelating neighbours.
-    turn = 2.0 * np.pi * ((points / np.maximum(reach, 1e-300)[:, None]) @ TURN_HASH % 1.0)
-    cast = np.unique(pair_p)
-    dirs = np.zeros((s, rays, 3))
-    dirs[cast] = _directions(normals[cast], rays, turn[cast])
+    # Only the points with candidates cast rays; their arrays are theirs alone (a million
+    # points with a few thousand near surfaces do not make (s, rays) arrays).
+    cast, pair_local = np.unique(pair_p, return_inverse=True)
+    pair_local = pair_local.ravel()
+    at, nrm, rch = points[cast], normals[cast], reach[cast]
+    turn = 2.0 * np.pi * ((at / np.maximum(rch, 1e-300)[:, None]) @ TURN_HASH % 1.0)
+    dirs = _directions(nrm, rays, turn)  # (c, rays, 3)
     # Rays start this far off their surface, and a surface within twice that of a ray's start
     # counts as met there: float32 meshes put points that lie on another surface up to a
     # few 1e-7 of their coordinates off it, at any scale.
-    slack = SLACK * reach + COORD_SLACK * np.abs(points).max(axis=1)
-    best, hit_tri, hit_uv, hit_front = index.trace(points, normals, dirs, reach, slack, pair_p, pair_t)
-    point, ray = np.nonzero(hit_tri >= 0)
-    rows, hit_row = np.unique(point, return_inverse=True)
+    slack = SLACK * rch + COORD_SLACK * np.abs(at).max(axis=1)
+    best, hit_tri, hit_uv, hit_front = index.trace(at, nrm, dirs, rch, slack, pair_local, pair_t)
+    point, ray = np.nonzero(hit_tri >= 0)  # local
+    local_rows, hit_row = np.unique(point, return_inverse=True)
+    rows = cast[local_rows]
     uv = np.clip(hit_uv[point, ray], 0.0, 1.0)
     weight = np.stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], axis=1)
     corners = tri[hit_tri[point, ray]]
     if hidden is not None:
-        weight = _uncover(index, weight, corners, np.asarray(hidden, dtype=bool), hit_tri[point, ray], reach[point])
+        weight = _uncover(index, weight, corners, np.asarray(hidden, dtype=bool), hit_tri[point, ray], rch[point])
     # Hits fade out over the last FADE of the reach (their direction goes back to the
     # probes by as much): no step in the light where a surface passes out of reach.
-    fade = np.clip((reach[:, None] - best) / (FADE * reach[:, None]), 0.0, 1.0)  # (s, rays); 0 where no hit
+    fade = np.clip((rch[:, None] - best) / (FADE * rch[:, None]), 0.0, 1.0)  # (c, rays); 0 where no hit
     weight *= (hit_front[point, ray] * fade[point, ray])[:, None] / rays  # a back face occludes and sends nothing
     # What the probes' diffuse light loses: their radiance in the hit directions, averaged
     # as the rays average, plus the hit share of the pattern's own quadrature error (so a
     # point whose rays all hit keeps no probe light, and one whose rays all leave keeps all).
-    y = sh.basis(dirs[rows])  # (m, K, 9)
-    hit_mask = fade[rows]
+    y = sh.basis(dirs[local_rows])  # (m, K, 9)
+    hit_mask = fade[local_rows]
     share = hit_mask.mean(axis=1)
     pattern_error = sh.diffuse_basis(normals[rows]) - y.mean(axis=1)
     open_basis = np.einsum("mk,mkj->mj", hit_mask, y) / rays + share[:, None] * pattern_error

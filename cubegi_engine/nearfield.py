@@ -95,8 +95,10 @@ class NearField:
     rows: ``(m,)`` the points that have one; open_basis: ``(m, 9)`` what their diffuse
     basis loses to the hit directions; hit_row ``(h,)`` (index into rows), hit_corner
     ``(h, 3)`` point indices and hit_weight ``(h, 3)`` (barycentric / rays; zero for a
-    back face): the hits. ``crowded``: points left out for too many candidates;
-    ``skipped``: why the whole near field was left out ("" where it was not).
+    back face): the hits. ``reach``: the longest ray; ``pairs``: (point, triangle) pairs
+    tested; ``crowded``: points left out for too many candidates; ``skipped``: why the
+    whole near field was left out ("" where it was not); ``share``: ``(m,)`` the
+    cosine-weighted share of each row's view its hits cover.
     """
 
     rows: np.ndarray
@@ -110,7 +112,7 @@ class NearField:
     crowded: int = 0
     skipped: str = ""
     seconds: float = 0.0
-    share: np.ndarray = None  # (m,) the cosine-weighted share of each row's view its hits cover
+    share: np.ndarray = None
 
     def enclosed(self, count, at_least=0.5):
         """``(count,)`` bool: points whose near surroundings cover at least ``at_least`` of
@@ -135,14 +137,13 @@ class NearField:
         once, its weights summed); made once."""
         cached = self.__dict__.get("_csr")
         if cached is None:
-            sup = self.support
-            key = np.repeat(self.hit_row, 3) * (int(self.hit_corner.max(initial=0)) + 1) + self.hit_corner.ravel()
+            span = int(self.hit_corner.max(initial=0)) + 1
+            key = np.repeat(self.hit_row, 3) * span + self.hit_corner.ravel()
             uniq, inverse = np.unique(key, return_inverse=True)
             weight = np.bincount(inverse.ravel(), self.hit_weight.ravel(), minlength=len(uniq))
-            row = uniq // (int(self.hit_corner.max(initial=0)) + 1)
-            corner = uniq % (int(self.hit_corner.max(initial=0)) + 1)
+            row, corner = uniq // span, uniq % span
             starts = np.searchsorted(row, np.arange(self.count))
-            cached = (starts, corner, np.searchsorted(sup, corner), weight)
+            cached = (starts, corner, np.searchsorted(self.support, corner), weight)
             self.__dict__["_csr"] = cached
         return cached
 
@@ -176,7 +177,6 @@ class NearField:
         if cached is None:
             cached = np.unique(np.concatenate([self.rows, self.hit_corner.ravel()]))
             self.__dict__["_support"] = cached
-            self.__dict__["_local_rows"] = np.searchsorted(cached, self.rows)
         return cached
 
     def delta(self, base, probe_part, radiance):
@@ -184,8 +184,7 @@ class NearField:
         light there), gathering from ``radiance (u, c)`` there: ``(u, c)``, zero off the
         rows; linear, unclamped (relighting sums it over sources; ``c``: 3 channels per
         source, side by side)."""
-        self.support
-        rows = self.__dict__["_local_rows"]
+        rows = np.searchsorted(self.support, self.rows)  # the rows' places on the support
         out = np.zeros(np.shape(base))
         if self.count:
             out[rows] = self._gather(radiance, local=True) - probe_part

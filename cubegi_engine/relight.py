@@ -55,10 +55,17 @@ REFINE_TOL, REFINE_STEPS = 1e-10, 8
 
 def _interpolation_matrix(transport, s):
     """``I (s, 9p)``: diffuse light at the points from probe coefficients (one channel)."""
-    p = transport.probe_count
-    cols = (transport.index[:, :, None] * 9 + np.arange(9)[None, None, :]).reshape(s, -1)  # (s, 72)
-    flat = (np.arange(s)[:, None] * (9 * p) + cols).ravel()
-    return np.bincount(flat, transport.point_weights.astype(np.float64).ravel(), minlength=s * 9 * p).reshape(s, 9 * p).astype(np.float32)
+    return _dense_interpolation(transport.index, transport.point_weights, transport.probe_count)
+
+
+def _dense_interpolation(index, weights, p):
+    """``(m, 9p)`` float32: each row's light from probe coefficients (one channel), for its 8
+    probes ``index (m, 8)`` and their 72 weights ``(m, 72)`` (weight x basis)."""
+    m = len(index)
+    cols = (np.asarray(index)[:, :, None] * 9 + np.arange(9)[None, None, :]).reshape(m, -1)  # (m, 72)
+    flat = (np.arange(m)[:, None] * (9 * p) + cols).ravel()
+    values = np.asarray(weights, dtype=np.float64).ravel()
+    return np.bincount(flat, values, minlength=m * 9 * p).reshape(m, 9 * p).astype(np.float32)
 
 
 def _balance(target, got):
@@ -383,13 +390,10 @@ class SceneLight:
         if cached is not None and cached[0] is near:
             return cached[1]
         t = self.transport
-        p = t.probe_count
         rows_i = self.op.I[near.support]
-        w = t.point_weights[near.rows].reshape(near.count, 8, 9)[:, :, 0].astype(np.float64) / sh.C0
-        cols = (t.index[near.rows][:, :, None] * 9 + np.arange(9)[None, None, :]).reshape(near.count, -1)
-        values = (w[:, :, None] * near.open_basis[:, None, :]).reshape(near.count, -1)
-        flat = (np.arange(near.count)[:, None] * (9 * p) + cols).ravel()
-        parts_m = np.bincount(flat, values.ravel(), minlength=near.count * 9 * p).reshape(near.count, 9 * p).astype(np.float32)
+        w = t.probe_weights(near.rows)  # (m, 8)
+        parts_m = _dense_interpolation(t.index[near.rows], (w[:, :, None] * near.open_basis[:, None, :]).reshape(near.count, -1),
+                                       t.probe_count)
         self._near_cache = (near, (rows_i, parts_m))
         return rows_i, parts_m
 

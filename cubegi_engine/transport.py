@@ -214,9 +214,14 @@ class Transport:
         rows = np.asarray(rows, dtype=np.int64)
         if not len(rows):
             return np.zeros((0, 3))
-        w = self.point_weights[rows].reshape(len(rows), 8, 9)[:, :, 0].astype(np.float64) / sh.C0  # the probes' weights
         g = np.asarray(coeffs, dtype=np.float64)[self.index[rows]]  # (m, 8, 9, 3)
-        return np.einsum("mj,mk,mjkc->mc", w, basis, g)
+        return np.einsum("mj,mk,mjkc->mc", self.probe_weights(rows), basis, g)
+
+    def probe_weights(self, rows):
+        """``(m, 8)`` float64: the (visibility-aware) weights of the points ``rows``' 8 probes,
+        read back from :attr:`point_weights` (weight x diffuse basis, whose band-0 entry
+        is the constant ``sh.C0``)."""
+        return self.point_weights[rows].reshape(len(rows), 8, 9)[:, :, 0].astype(np.float64) / sh.C0
 
     def arrays(self):
         """The tables' arrays (for memory accounting)."""

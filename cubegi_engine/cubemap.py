@@ -124,15 +124,18 @@ def cube_view_projections(eye, near, far):
     return np.stack([proj @ look_matrix(eye, FACE_FORWARD[f], FACE_UP[f]) for f in range(6)])
 
 
-def cube_view_projections_many(eyes, nears, far):
+def cube_view_projections_many(eyes, nears, far, turns=None):
     """:func:`cube_view_projections` of many eyes ``(k, 3)`` with near planes ``(k,)`` at
-    once: ``(6k, 4, 4)`` float64, eye after eye."""
+    once: ``(6k, 4, 4)`` float64, eye after eye. ``turns``: ``(k, 3, 3)`` rotations, one per
+    eye, of its cube's frame (world direction = turn @ cube direction; see :func:`turned`)."""
     eyes = np.asarray(eyes, dtype=np.float64).reshape(-1, 3)
     nears = np.broadcast_to(np.asarray(nears, dtype=np.float64), (len(eyes),))
-    rot = _FACE_ROTATIONS  # (6, 3, 3)
+    rot = np.broadcast_to(_FACE_ROTATIONS, (len(eyes), 6, 3, 3))  # (k, 6, 3, 3)
+    if turns is not None:
+        rot = np.einsum("fij,klj->kfil", _FACE_ROTATIONS, np.asarray(turns, dtype=np.float64))
     views = np.zeros((len(eyes), 6, 4, 4))
     views[:, :, :3, :3] = rot
-    views[:, :, :3, 3] = -np.einsum("fij,kj->kfi", rot, eyes)
+    views[:, :, :3, 3] = -np.einsum("kfij,kj->kfi", rot, eyes)
     views[:, :, 3, 3] = 1.0
     proj = np.zeros((len(eyes), 4, 4))
     proj[:, 0, 0] = proj[:, 1, 1] = 1.0
@@ -140,6 +143,22 @@ def cube_view_projections_many(eyes, nears, far):
     proj[:, 2, 3] = -2.0 * far * nears / (far - nears)
     proj[:, 3, 2] = -1.0
     return np.einsum("kij,kfjl->kfil", proj, views).reshape(-1, 4, 4)
+
+
+def turns(count, seed=0):
+    """``(count, 3, 3)`` rotations spread uniformly over all orientations (Shoemake's unit
+    quaternions from a seeded generator): turning each of many shadow cube maps its own way
+    makes their texel edges fall in different places, so their errors at a silhouette
+    average out instead of adding up."""
+    u1, u2, u3 = np.random.default_rng(seed).random((3, count))
+    a, b = np.sqrt(1.0 - u1), np.sqrt(u1)
+    w, x = a * np.sin(2 * np.pi * u2), a * np.cos(2 * np.pi * u2)
+    y, z = b * np.sin(2 * np.pi * u3), b * np.cos(2 * np.pi * u3)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], axis=-1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], axis=-1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=-1),
+    ], axis=1)
 
 
 def any_perpendicular(v):

@@ -19,13 +19,16 @@ object at the area-shadow size.
 
 import numpy as np
 
-from . import lights as lights_mod
+from . import cubemap, lights as lights_mod
 from .transport import capture_cubes, clip_planes
 
 __all__ = ["emissive_triangles", "emitter_direct", "SAMPLES"]
 
-# Shadow sample points per emissive object.
-SAMPLES = 8
+# Shadow sample points per emissive object (each drawn from both faces). The white box's
+# 0.5 m panel (8 triangles), direct light against Cycles: 8 points at the triangles'
+# centroids 1.9-2.1%; 16 spread over the triangles 1.1-1.5% (four seeds of the maps' turns),
+# 0.05 s more on a 0.4 s bake.
+SAMPLES = 16
 # Sample eyes sit this share of the scene's size off the emitter, on each side.
 EYE_LIFT = 1e-4
 
@@ -92,20 +95,43 @@ def emitter_direct(scene, renderer, shadow_size, shadows=True):
 
 def _samples(verts, radiance, count):
     """Up to ``count`` sample points on triangles ``verts (e, 3, 3)``, spread by emitted
-    power (area x radiance); with each its unit normal."""
+    power (area x radiance); with each its unit normal. Fewer triangles than ``count``
+    (a quad panel) share the points by power, spread inside each triangle (a Hammersley set
+    mapped onto it, area kept), not heaped at their centroids."""
     cross = np.cross(verts[:, 1] - verts[:, 0], verts[:, 2] - verts[:, 0])
     area = 0.5 * np.linalg.norm(cross, axis=1)
     power = area * radiance.sum(axis=1)
     if power.sum() <= 0:
         return np.zeros((0, 3)), np.zeros((0, 3))
-    centroids = verts.mean(axis=1)
     normals = cross / np.maximum(np.linalg.norm(cross, axis=1, keepdims=True), 1e-30)
-    if len(verts) <= count:
-        return centroids, normals
+    if len(verts) < count:
+        keep = power > 0
+        verts, normals, power = verts[keep], normals[keep], power[keep]
+        per = np.maximum(1, np.floor(count * power / power.sum()).astype(np.int64))
+        tri = np.repeat(np.arange(len(verts)), per)
+        first = np.repeat(np.cumsum(per) - per, per)
+        k = np.arange(len(tri)) - first
+        m = per[tri]
+        r, t = np.sqrt((k + 0.5) / m), (_radical_inverse(k) + 0.5 / m) % 1.0
+        b1, b2 = r * (1.0 - t), r * t  # the square onto the triangle, area kept
+        a, b, c = verts[tri, 0], verts[tri, 1], verts[tri, 2]
+        return a + b1[:, None] * (b - a) + b2[:, None] * (c - a), normals[tri]
+    centroids = verts.mean(axis=1)
     # Equal shares of the power along the cumulative sum: the triangles at each quantile.
     cum = np.cumsum(power) / power.sum()
     picks = np.searchsorted(cum, (np.arange(count) + 0.5) / count)
     return centroids[picks], normals[picks]
+
+
+def _radical_inverse(k):
+    """Van der Corput's base-2 radical inverse of integers ``k``: ``(k,)`` in [0, 1)."""
+    k = np.asarray(k, dtype=np.int64).copy()
+    out, scale = np.zeros(len(k)), 0.5
+    while k.any():
+        out += (k & 1) * scale
+        k >>= 1
+        scale *= 0.5
+    return out
 
 
 def _visibility(scene, renderer, size, verts, radiance, lit):
@@ -119,7 +145,8 @@ def _visibility(scene, renderer, size, verts, radiance, lit):
     eyes = np.concatenate([centres + lift * normals, centres - lift * normals])
     sides = np.concatenate([normals, -normals])
     near, far = clip_planes(scene.scale)
-    cap = capture_cubes(renderer, eyes, size, near, far, with_bary=False)
+    turns = cubemap.turns(len(eyes))  # each map its own way: see cubemap.turns
+    cap = capture_cubes(renderer, eyes, size, near, far, with_bary=False, turns=turns)
     pts, nrm = scene.points[lit], scene.normals[lit]
     ids = np.arange(s)[lit]
     for k, (eye, side) in enumerate(zip(eyes, sides)):
@@ -134,7 +161,7 @@ def _visibility(scene, renderer, size, verts, radiance, lit):
             continue
         v = lights_mod.shadow_visibility(
             pts[use], nrm[use], eye, cap.tid[k], cap.dist[k], cap.backface[k], scene.triangles, scene.points, ids[use],
-            scene.scale, reach=0,
+            scene.scale, reach=0, turn=turns[k],
         )
         num[ids[use]] += w[use] * v
         den[ids[use]] += w[use]

@@ -165,14 +165,16 @@ def unshadowed(light, points, normals):
     raise ValueError(f"unknown light kind {light.kind!r}")
 
 
-def shadow_visibility(points, normals, eye, face_tid, face_dist, face_back, triangles, vertices, point_ids, scale, reach=1):
+def shadow_visibility(points, normals, eye, face_tid, face_dist, face_back, triangles, vertices, point_ids, scale, reach=1,
+                      turn=None):
     """Whether each receiver sees ``eye``, from a depth cube map rendered at ``eye``.
 
     points, normals: ``(s, 3)``; face_tid: ``(6, n, n)`` triangle index seen per texel (-1:
     nothing); face_dist: ``(6, n, n)`` distance to it; face_back: ``(6, n, n)`` the texel
     sees a back face; triangles: ``(t, 3)`` indices into vertices ``(v, 3)``; point_ids:
     ``(s,)`` index of each receiver in the point arrays; scale: scene size; reach: how many
-    texels around the receiver's own are asked (0: its own only).
+    texels around the receiver's own are asked (0: its own only); turn: ``(3, 3)`` the cube
+    map's rotation, if it was drawn turned.
 
     The receiver is lifted off its surface by a quarter of a texel's footprint and looked up
     in the map (see :func:`_occluded`). Returns ``(s,)`` float64 in {0, 1}.
@@ -180,7 +182,7 @@ def shadow_visibility(points, normals, eye, face_tid, face_dist, face_back, tria
     if len(points) > POINT_CHUNK:
         return np.concatenate([
             shadow_visibility(points[sl], normals[sl], eye, face_tid, face_dist, face_back, triangles, vertices,
-                              point_ids[sl], scale, reach)
+                              point_ids[sl], scale, reach, turn)
             for sl in chunks(len(points))
         ])
     n = face_dist.shape[-1]
@@ -191,7 +193,8 @@ def shadow_visibility(points, normals, eye, face_tid, face_dist, face_back, tria
     rel2 = lifted - eye
     d2 = np.linalg.norm(rel2, axis=1)
     u = rel2 / np.maximum(d2, 1e-300)[:, None]
-    face, row, col, _, _ = cubemap.direction_to_texel(np.where(d2[:, None] > 0, rel2, 1.0), n)
+    local = rel2 if turn is None else rel2 @ turn  # the cube's own frame
+    face, row, col, _, _ = cubemap.direction_to_texel(np.where(d2[:, None] > 0, local, 1.0), n)
     cos = np.abs(np.einsum("sc,sc->s", normals, rel / np.maximum(d, 1e-300)[:, None]))
     maps = (face_tid, face_dist, face_back)
     origins = np.broadcast_to(eye, u.shape)

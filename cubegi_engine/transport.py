@@ -58,12 +58,13 @@ class CubeCapture:
         return self.tid.shape[-1]
 
 
-def capture_cubes(renderer, eyes, size, near, far, with_bary=True):
+def capture_cubes(renderer, eyes, size, near, far, with_bary=True, turns=None):
     """Render cube maps at ``eyes`` ``(k, 3)`` with ``renderer`` and return a CubeCapture.
     ``near``: one distance, or one per eye ``(k,)``. ``with_bary=False``: depth maps alone
-    (the barycentrics come back zero; shadow tests do not read them)."""
+    (the barycentrics come back zero; shadow tests do not read them). ``turns``: each
+    cube's rotation ``(k, 3, 3)`` (see :func:`cubemap.turns`)."""
     eyes = np.asarray(eyes, dtype=np.float64).reshape(-1, 3)
-    vps = cubemap.cube_view_projections_many(eyes, near, far)
+    vps = cubemap.cube_view_projections_many(eyes, near, far, turns)
     if with_bary:
         tid, bary, dist, back = renderer.render(vps, np.repeat(eyes, 6, axis=0), None, size)
     else:

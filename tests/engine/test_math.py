@@ -42,6 +42,26 @@ def test_face_frames_are_right_handed_cameras():
         assert np.linalg.det(view[:3, :3]) == pytest.approx(1.0)
 
 
+def test_turned_cubes_draw_each_direction_where_the_lookup_finds_it():
+    """A turned shadow cube: the face and texel the lookup picks for a world direction (in the
+    cube's own frame) are where that face's view-projection draws the point."""
+    turns = cubemap.turns(5, seed=3)
+    np.testing.assert_allclose(np.einsum("kji,kjl->kil", turns, turns), np.broadcast_to(np.eye(3), (5, 3, 3)), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(turns), 1.0)
+    assert not np.allclose(turns[0], turns[1])
+    eyes = np.random.default_rng(1).normal(size=(5, 3))
+    vps = cubemap.cube_view_projections_many(eyes, 0.01, 100.0, turns).reshape(5, 6, 4, 4)
+    dirs = np.random.default_rng(2).normal(size=(200, 3))
+    n = 32
+    for k in range(5):
+        face, row, col, _, _ = cubemap.direction_to_texel(dirs @ turns[k], n)
+        clip = np.einsum("sij,sj->si", vps[k, face], np.concatenate([eyes[k] + dirs, np.ones((200, 1))], axis=1))
+        ndc = clip[:, :2] / clip[:, 3:]
+        assert (clip[:, 3] > 0).all() and (np.abs(ndc) <= 1 + 1e-9).all()
+        np.testing.assert_array_equal(np.clip(((ndc[:, 0] + 1) * 0.5 * n).astype(int), 0, n - 1), col)
+        np.testing.assert_array_equal(np.clip(((ndc[:, 1] + 1) * 0.5 * n).astype(int), 0, n - 1), row)
+
+
 def test_constant_radiance_gives_its_value():
     c = np.array([0.3, 1.0, 2.5])
     coeffs = sh.project(np.tile(c, (len(DIRS), 1)), DIRS, SOLID)
@@ -227,3 +247,16 @@ def test_unique_per_row_keeps_each_new_id_once():
     out = _unique_per_row(ids, tried)
     assert [sorted(x for x in row if x >= 0) for row in out.tolist()] == [[5, 7], [1], []]
     assert (out[:, :1] >= -1).all() and out.shape[1] == 2  # columns that are -1 everywhere dropped
+
+
+def test_an_emitter_with_few_triangles_spreads_its_shadow_points_inside_them():
+    from cubegi.cubegi_engine import emitters
+
+    quad = np.array([[[0, 0, 0], [1, 0, 0], [1, 1, 0]], [[0, 0, 0], [1, 1, 0], [0, 1, 0]]], dtype=float)
+    radiance = np.array([[1.0, 1.0, 1.0], [3.0, 3.0, 3.0]])  # the second sends 3x the power
+    pts, nrm = emitters._samples(quad, radiance, 16)
+    assert len(pts) == 16 and len(np.unique(np.round(pts, 9), axis=0)) == 16
+    np.testing.assert_allclose(nrm, np.broadcast_to([0, 0, 1], (16, 3)))
+    first = pts[:, 0] >= pts[:, 1]  # the first triangle is x >= y
+    assert first.sum() == 4 and (~first).sum() == 12
+    assert (pts[:, :2] >= 0).all() and (pts[:, :2] <= 1).all()

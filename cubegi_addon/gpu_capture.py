@@ -22,6 +22,11 @@ from ..cubegi_engine.errors import BakeError
 
 # Largest atlas edge in texels; 2048^2 RGBA32F is 64 MiB.
 ATLAS_EDGE = 2048
+# Per-view culling: the triangles are uploaded in spatial order (a Morton curve through
+# their centroids) and cut into chunks of CULL_CHUNK; a view draws only the chunks whose
+# bounding box reaches into its frustum (a cube face sees about a sixth of the scene
+# around a probe). A scene of at most one chunk is drawn whole.
+CULL_CHUNK = 2048
 MAX_TRIANGLES = (1 << 24) - 1
 FAR_AWAY = 3.0e38
 
@@ -200,10 +205,16 @@ class GpuRenderer:
         lo, hi = (pts.min(axis=0), pts.max(axis=0)) if len(pts) else (np.zeros(3), np.ones(3))
         self.centre = 0.5 * (lo + hi)
         self.unit = max(float(np.max(hi - lo)), 1e-300)
-        self.corner_pos = ((pts - self.centre) / self.unit).astype(np.float32)[triangles].reshape(-1, 3)
+        unit_pts = ((pts - self.centre) / self.unit).astype(np.float32)
         t = len(triangles)
+        # Drawn in spatial order; each vertex carries its triangle's own index, so what a
+        # texel reports does not depend on the order.
+        self.order = _spatial_order(unit_pts[triangles].mean(axis=1)) if t > CULL_CHUNK else np.arange(t)
+        self.drawn = triangles[self.order]
+        self.corner_pos = unit_pts[self.drawn].reshape(-1, 3)
+        self.chunk_boxes = _chunk_boxes(self.corner_pos.reshape(-1, 3, 3), CULL_CHUNK) if t > CULL_CHUNK else None
         bary = np.tile(np.array([[0, 0], [1, 0], [0, 1]], dtype=np.float32), (t, 1))
-        tid = np.repeat(np.arange(t, dtype=np.float32), 3)
+        tid = np.repeat(self.order.astype(np.float32), 3)
         self.id_shader = _id_shader()
         self.id_batch = batch_for_shader(self.id_shader, "TRIS", {"pos": self.corner_pos, "bary": bary, "tid": tid})
         self._colour_shader = None
@@ -219,6 +230,28 @@ class GpuRenderer:
         to_world[:3, 3] = self.centre
         m = np.asarray(view_proj, dtype=np.float64) @ to_world
         return m / np.abs(m).max()
+
+    def _ranges(self, local_vps):
+        """Per view, the ``(first vertex, count)`` runs of chunks it may see (see CULL_CHUNK);
+        None where the scene is drawn whole."""
+        if self.chunk_boxes is None:
+            return None
+        seen = _boxes_in_frusta(self.chunk_boxes, local_vps)  # (v, c)
+        t = len(self.drawn)
+        out = []
+        for row in seen:
+            edges = np.diff(np.concatenate([[False], row, [False]]).astype(np.int8))
+            starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+            out.append([(3 * CULL_CHUNK * a, 3 * (min(CULL_CHUNK * b, t) - CULL_CHUNK * a)) for a, b in zip(starts, ends)])
+        return out
+
+    def _draw(self, batch, shader, ranges, k):
+        """Draw view ``k``'s share of ``batch`` (all of it where there is no culling)."""
+        if ranges is None:
+            batch.draw(shader)
+            return
+        for first, count in ranges[k]:
+            batch.draw_range(shader, elem_start=int(first), elem_count=int(count))
 
     def _draw_views(self, view_projs, size, draw_one, channels=4):
         """Draw every view into atlas tiles; yields ``(first_view, tiles (k, n, n, channels))``."""
@@ -258,10 +291,12 @@ class GpuRenderer:
         back = np.empty((v, size, size), dtype=bool)
         shader = self.id_shader if with_bary else _id_shader(False)
         batch = self.id_batch if with_bary else self._depth_batch()
+        local = [self._local(vp) for vp in view_projs]
+        ranges = self._ranges(local)
         shader.bind()
 
         def draw_one(k):
-            shader.uniform_float("view_proj", _column_major(self._local(view_projs[k])))
+            shader.uniform_float("view_proj", _column_major(local[k]))
             shader.uniform_float("eye", tuple(float(x) for x in (np.asarray(eyes[k]) - self.centre) / self.unit))
             if axes is None:
                 shader.uniform_float("axis", (0.0, 0.0, 1.0))
@@ -269,7 +304,7 @@ class GpuRenderer:
             else:
                 shader.uniform_float("axis", tuple(float(x) for x in axes[k]))
                 shader.uniform_float("ortho", 1.0)
-            batch.draw(shader)
+            self._draw(batch, shader, ranges, k)
 
         for first, tiles in self._draw_views(view_projs, size, draw_one, 4 if with_bary else 2):
             sl = slice(first, first + len(tiles))
@@ -289,7 +324,7 @@ class GpuRenderer:
     def _depth_batch(self):
         """The triangles for the depth-only shader (the same vertex layout, its own batch)."""
         if getattr(self, "depth_batch", None) is None:
-            tid = np.repeat(np.arange(len(self.triangles), dtype=np.float32), 3)
+            tid = np.repeat(self.order.astype(np.float32), 3)
             # The compiler drops the barycentrics this shader does not write: no such attribute.
             self.depth_batch = batch_for_shader(_id_shader(False), "TRIS", {"pos": self.corner_pos, "tid": tid})
         return self.depth_batch
@@ -298,17 +333,58 @@ class GpuRenderer:
         if self._colour_shader is None:
             self._colour_shader = _colour_shader()
         shader = self._colour_shader
-        colour = np.asarray(point_radiance, dtype=np.float32)[self.triangles].reshape(-1, 3)
+        colour = np.asarray(point_radiance, dtype=np.float32)[self.drawn].reshape(-1, 3)
         batch = batch_for_shader(shader, "TRIS", {"pos": self.corner_pos, "colour": colour})
         out = np.empty((len(view_projs), size, size, 3), dtype=np.float32)
+        local = [self._local(vp) for vp in view_projs]
+        ranges = self._ranges(local)
         shader.bind()
 
         def draw_one(k):
-            shader.uniform_float("view_proj", _column_major(self._local(view_projs[k])))
-            batch.draw(shader)
+            shader.uniform_float("view_proj", _column_major(local[k]))
+            self._draw(batch, shader, ranges, k)
 
         for first, tiles in self._draw_views(view_projs, size, draw_one):
             # Where nothing is drawn the clear colour's alpha (FAR_AWAY) marks sky: black.
             rgb = np.where(tiles[..., 3:4] == FAR_AWAY, 0.0, tiles[..., :3])
             out[first : first + len(tiles)] = rgb
         return out
+
+
+def _spatial_order(centres):
+    """An order of points ``(t, 3)`` along a Morton (Z-order) curve of a 1024^3 grid over
+    their box: neighbours in space end up near each other in the order."""
+    lo, hi = centres.min(axis=0), centres.max(axis=0)
+    q = ((centres - lo) / np.maximum(hi - lo, 1e-30) * 1023.0).astype(np.uint64)
+    code = np.zeros(len(centres), dtype=np.uint64)
+    for bit in range(10):
+        for axis in range(3):
+            code |= ((q[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
+    return np.argsort(code, kind="stable")
+
+
+def _chunk_boxes(corners, chunk):
+    """The 8 corners ``(c, 8, 4)`` (homogeneous) of the box of each run of ``chunk``
+    triangles ``corners (t, 3, 3)``."""
+    t = len(corners)
+    starts = np.arange(0, t, chunk)
+    lo = np.minimum.reduceat(corners.min(axis=1), starts, axis=0)
+    hi = np.maximum.reduceat(corners.max(axis=1), starts, axis=0)
+    pick = np.array([[i >> 0 & 1, i >> 1 & 1, i >> 2 & 1] for i in range(8)], dtype=bool)  # (8, 3)
+    xyz = np.where(pick[None], hi[:, None, :], lo[:, None, :]).astype(np.float64)
+    return np.concatenate([xyz, np.ones(xyz.shape[:2] + (1,))], axis=2)
+
+
+def _boxes_in_frusta(boxes, view_projs):
+    """``(v, c)`` bool: whether box ``c`` (its corners ``(c, 8, 4)``) may reach into view
+    ``v``'s clip volume. A box is left out only where all its corners lie beyond one and the
+    same clip plane (exact for a convex box: each plane is linear in homogeneous space)."""
+    vps = np.asarray(view_projs, dtype=np.float64)
+    step = max(1, 4_000_000 // (32 * len(boxes)))  # views at a time: clip coordinates of <= 32 MB
+    seen = np.empty((len(vps), len(boxes)), dtype=bool)
+    for first in range(0, len(vps), step):
+        clip = np.einsum("vij,ckj->vcki", vps[first : first + step], boxes)  # (v, c, 8, 4)
+        x, y, z, w = clip[..., 0], clip[..., 1], clip[..., 2], clip[..., 3]
+        out = (x > w).all(-1) | (x < -w).all(-1) | (y > w).all(-1) | (y < -w).all(-1) | (z > w).all(-1) | (z < -w).all(-1)
+        seen[first : first + step] = ~out
+    return seen

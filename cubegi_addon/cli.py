@@ -84,6 +84,11 @@ def _bake_options(p, demo=False):
         help="leave each vertex's near surroundings to the probes (no rays; see the README's accuracy section)",
     )
     p.add_argument(
+        "--keep-probes-in-place", action="store_true",
+        help="leave probes found inside geometry at their cell centres (the capture then leaves them out) instead of "
+        "moving them out",
+    )
+    p.add_argument(
         "--no-energy-conservation", action="store_true",
         help="leave each bounce's total as interpolated (for comparison; see the README)",
     )
@@ -119,7 +124,8 @@ def _forwarded(args):
         words += ["--tolerance", str(args.tolerance)]
     words += [flag for flag, on in (("--no-visibility", args.no_visibility), ("--no-tail", args.no_tail),
                                     ("--no-energy-conservation", args.no_energy_conservation),
-                                    ("--no-near-field", args.no_near_field)) if on]
+                                    ("--no-near-field", args.no_near_field),
+                                    ("--keep-probes-in-place", args.keep_probes_in_place)) if on]
     if args.reference:
         words += ["--reference", args.reference, "--reference-samples", str(args.reference_samples)]
     if getattr(args, "lit", None):
@@ -163,7 +169,7 @@ def _settings(args):
         settings = BakeSettings.preset(
             args.quality, visibility=not args.no_visibility, tolerance=args.tolerance, add_tail=not args.no_tail,
             conserve_energy=not args.no_energy_conservation, capture_triangles=args.capture_triangles or None,
-            near_field=not args.no_near_field, **given,
+            near_field=not args.no_near_field, move_probes=not args.keep_probes_in_place, **given,
         )
         settings.validate()
     except BakeError as exc:

@@ -29,7 +29,8 @@ def _settings_from(op, scene):
     return BakeSettings(
         cube_size=pick("cube_size"), bounces=pick("bounces"), cells=pick("cells"), visibility=pick("visibility"),
         tolerance=tolerance if tolerance > 0 else None, add_tail=pick("add_tail"),
-        capture_triangles=budget if budget > 0 else None, near_field=pick("near_field"), **prefs.capture_settings(),
+        capture_triangles=budget if budget > 0 else None, near_field=pick("near_field"), move_probes=pick("move_probes"),
+        **prefs.capture_settings(),
     )
 
 
@@ -182,6 +183,10 @@ class CUBEGI_OT_bake(_ModalJob, bpy.types.Operator):
     near_field: BoolProperty(
         name="Near Field", description="Gather each vertex's near surroundings by rays (default: the scene's setting)",
         default=BakeSettings.near_field,
+    )
+    move_probes: BoolProperty(
+        name="Move Probes Out", description="Move probes inside geometry out of it, within their cells (default: the "
+        "scene's setting)", default=BakeSettings.move_probes,
     )
     quality: EnumProperty(
         name="Quality", description="A preset for the grid cells, cube-map size and bounces not given (default: the "

@@ -56,6 +56,7 @@ class VIEW3D_PT_cubegi(_SidebarTab, bpy.types.Panel):
         col.prop(settings, "visibility")
         col.prop(settings, "capture_triangles")
         col.prop(settings, "near_field")
+        col.prop(settings, "move_probes")
         col = layout.column(heading="Bounces")
         col.prop(settings, "bounces")
         col.prop(settings, "tolerance")

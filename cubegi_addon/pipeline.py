@@ -249,7 +249,8 @@ def _report(settings, lit, grid, grid_source, collected, result, timings, refere
     return BakeReport(
         settings=settings.as_dict(lit=lit or "NONE"),
         grid={**grid_objects.grid_report(grid), "probes_inside_geometry": int((~result.probe_valid).sum()),
-              "probes_captured": int(result.capture.grid.count), "source": grid_source},
+              "probes_captured": int(result.capture.grid.count), "source": grid_source,
+              **_placement(result.placement)},
         points=len(arrays.points), triangles=len(arrays.triangles), lights=len(arrays.lights), sky=arrays.sky.tolist(),
         meshes_baked=[t.object_name for t in collected.targets], notes=collected.notes,
         direct_seconds=timings["direct"], direct_mean_light=area_weighted_mean(result.direct, areas).tolist(),
@@ -258,7 +259,7 @@ def _report(settings, lit, grid, grid_source, collected, result, timings, refere
         tail=solution.tail_report, timings=timings, attributes=names,
         warnings=[w for w in (solution.tail_report.warning,) if w], reference=reference_report,
         capture_reused=result.capture_reused, probes_recaptured=result.probes_recaptured,
-        left_out=list(result.direct_parts.left_out) + _left_out_of_capture(result.capture, grid),
+        left_out=list(result.direct_parts.left_out) + _left_out_of_capture(result.capture, grid, result.placement),
         capture_geometry=_capture_geometry(result.capture.proxy), near_field=_near_field(result.capture.transport.near),
     )
 
@@ -277,15 +278,26 @@ def _capture_geometry(proxy):
             "max_offset": proxy.max_offset()}
 
 
-def _left_out_of_capture(capture, grid):
+def _placement(placement):
+    if placement is None:
+        return {}
+    return {"probes_moved": placement.moved, "probes_left_inside": placement.left_out}
+
+
+def _left_out_of_capture(capture, grid, placement=None):
     out = []
     captured = capture.grid.count
-    if captured < grid.count:
+    inside = placement.left_out if placement is not None else 0
+    unused = grid.count - captured - inside
+    if unused > 0:
         out.append(
-            f"probes: {grid.count - captured} of {grid.count} light no vertex (none lies within a cell of them) and were "
-            f"not captured ({100 * (1 - captured / grid.count):.0f}% of the capture saved); a dynamic object in the scene "
+            f"probes: {unused} of {grid.count} light no vertex (none lies within a cell of them) and were "
+            f"not captured ({100 * unused / grid.count:.0f}% of the capture saved); a dynamic object in the scene "
             "keeps them all"
         )
+    if inside:
+        out.append(f"probes: {inside} sit inside geometry with no way out within their cells and were not captured")
+
     near = capture.transport.near
     if near is not None and near.skipped:
         out.append(f"near field: every vertex ({near.skipped}); the probes light their surroundings as seen from a cell away")

@@ -71,6 +71,12 @@ class CubeGISceneSettings(bpy.types.PropertyGroup):
         "furniture) by rays, instead of the probes' view of them from up to a cell away",
         default=BakeSettings.near_field,
     )
+    move_probes: BoolProperty(
+        name="Move Probes Out",
+        description="Move probes found inside geometry (walls, furniture) out of it, within their cells, before the "
+        "capture; a probe with no way out is left out. Off: every probe stays at its cell centre",
+        default=BakeSettings.move_probes,
+    )
     lit: EnumProperty(
         name="Lit Colour", description="Also write CubeGI_lit, the lit colour that glTF export carries as COLOR_0",
         items=LIT_ITEMS, default="NONE",

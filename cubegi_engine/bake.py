@@ -24,6 +24,7 @@ from .direct import DirectLight, direct_light
 from .errors import BakeError
 from .field import ProbeField
 from .grid import ProbeSubset, probes_used
+from .placement import Placement, place
 from .proxy import simplify
 from .records import Progress, Stage
 from .settings import BakeSettings
@@ -66,6 +67,7 @@ class BakeResult:
     capture_reused: bool = False
     probes_recaptured: int | None = None  # a patched capture: how many probes were drawn again
     shadows: dict = field(default_factory=dict)  # light name -> Shadow, when kept (moving objects)
+    placement: Placement | None = None  # probes moved out of geometry or left out before the capture
 
     @property
     def direct(self) -> np.ndarray:
@@ -130,18 +132,24 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
     ``capture``: a capture kept from an earlier bake; used if it is still valid for this
     scene, grid and settings (else a new one is taken). ``keep_shadows``: keep every
     light's depth maps of the scene in the result (moving objects are tested against them).
-    Probes that give no point a trilinear weight light nothing and are not captured (the
-    result's grid is then a :class:`~cubegi_engine.grid.ProbeSubset`); ``whole_field``
-    captures every probe, for a probe field that must light points anywhere in the grid
+    Probes that give no point a trilinear weight light nothing and are not captured, and
+    probes inside geometry are moved out of it or left out (``settings.move_probes``,
+    :mod:`cubegi_engine.placement`); the result's grid is then a
+    :class:`~cubegi_engine.grid.ProbeSubset`. ``whole_field`` captures every probe but the
+    ones inside geometry, for a probe field that must light points anywhere in the grid
     (dynamic objects).
     """
     settings = (settings or BakeSettings()).validate()
-    if not whole_field:
-        used = probes_used(grid, scene.points)
-        if not used.all():
-            grid = ProbeSubset(grid, used)
     t_start = time.perf_counter()
     timings = {}
+    used = np.ones(grid.count, dtype=bool) if whole_field else probes_used(grid, scene.points)
+    placement = None
+    if settings.move_probes:
+        placement = place(grid, scene.points, scene.triangles, used)
+        used = placement.keep
+        timings["placement"] = placement.seconds
+    if not used.all() or (placement is not None and placement.moved):
+        grid = ProbeSubset(grid, used, None if placement is None else placement.offsets)
     total = 3 + settings.bounces
 
     budget = settings.capture_triangles
@@ -190,7 +198,8 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
         coeffs = coeffs + solution.tail_coeffs
     probe_field = ProbeField(grid, coeffs, capture.probe_valid.copy(), parts.source_coeffs)
     timings["total"] = time.perf_counter() - t_start
-    return BakeResult(capture, parts, solution, probe_field, timings, reused, patched[1] if patched else None, shadows or {})
+    return BakeResult(capture, parts, solution, probe_field, timings, reused, patched[1] if patched else None, shadows or {},
+                      placement)
 
 
 def run(steps, progress=None):

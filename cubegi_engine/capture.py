@@ -145,6 +145,7 @@ def _same_sky(transport, scene) -> bool:
 
 def _same_grid(a, b) -> bool:
     if hasattr(a, "keep") or hasattr(b, "keep"):  # probe subsets
-        return hasattr(a, "keep") and hasattr(b, "keep") and np.array_equal(a.keep, b.keep) and _same_grid(a.grid, b.grid)
+        return (hasattr(a, "keep") and hasattr(b, "keep") and np.array_equal(a.keep, b.keep)
+                and np.array_equal(a.positions(), b.positions()) and _same_grid(a.grid, b.grid))
     ga, gb = getattr(a, "grids", (a,)), getattr(b, "grids", (b,))
     return len(ga) == len(gb) and all(x == y for x, y in zip(ga, gb))

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import sh
+from .grid import ProbeSubset
 
 __all__ = ["ProbeField"]
 
@@ -126,7 +127,10 @@ class ProbeField:
         if not hasattr(grid, "expand"):
             return self
         source = None if self.source_coeffs is None else grid.expand(self.source_coeffs)
-        return ProbeField(grid.grid, grid.expand(self.coeffs), grid.expand(self.valid, False), source)
+        whole = grid.grid
+        if grid.offsets is not None:  # moved probes keep their places
+            whole = ProbeSubset(grid.grid, np.ones(grid.grid.count, dtype=bool), grid.expand(grid.offsets, 0.0))
+        return ProbeField(whole, grid.expand(self.coeffs), grid.expand(self.valid, False), source)
 
     @property
     def nbytes(self) -> int:

@@ -156,22 +156,31 @@ class GridSet:
 
 class ProbeSubset:
     """The probes of ``grid`` (a ProbeGrid or GridSet) that ``keep`` ``(grid.count,)`` bool
-    names, numbered in their order: what a bake captures when the rest light no point.
-    A left-out probe takes no weight (a point whose probes are all left out gets none)."""
+    names, numbered in their order: what a bake captures when the rest light no point (or
+    sit inside geometry). A left-out probe takes no weight (a point whose probes are all
+    left out gets none). ``offsets`` ``(grid.count, 3)``: where a probe was moved from its
+    cell centre (out of geometry: :mod:`cubegi_engine.placement`); it still takes its
+    centre's trilinear weights."""
 
-    def __init__(self, grid, keep):
+    def __init__(self, grid, keep, offsets=None):
         self.grid = grid
         self.keep = np.flatnonzero(np.asarray(keep, dtype=bool))
         self.count = len(self.keep)
         self._number = np.full(grid.count, -1, dtype=np.int64)
         self._number[self.keep] = np.arange(self.count)
+        self.offsets = None if offsets is None or not np.any(offsets) else np.asarray(offsets, dtype=np.float64)[self.keep]
+
+    @property
+    def moved(self) -> int:
+        return 0 if self.offsets is None else int(np.count_nonzero(np.any(self.offsets != 0.0, axis=1)))
 
     @property
     def left_out(self) -> int:
         return int(self.grid.count - self.count)
 
     def positions(self):
-        return self.grid.positions()[self.keep]
+        pos = self.grid.positions()[self.keep]
+        return pos if self.offsets is None else pos + self.offsets
 
     def trilinear(self, points):
         index, weight = self.grid.trilinear(points)

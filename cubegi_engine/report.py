@@ -17,7 +17,7 @@ __all__ = ["BakeReport"]
 @dataclass
 class BakeReport:
     settings: dict
-    grid: dict  # resolution, lo, hi, probes, grids, probes_inside_geometry, source
+    grid: dict  # resolution, lo, hi, probes, grids, probes_inside_geometry, probes_moved, probes_left_inside, source
     points: int
     triangles: int
     lights: int
@@ -140,6 +140,8 @@ class BakeReport:
                 lines.append(
                     f"  {part:8s} rel. RMSE {100 * e['rel_rmse']:6.2f}%  bias {100 * e['rel_bias']:+6.2f}%  p95 {100 * e['p95_rel']:6.2f}%"
                 )
+        if self.grid.get("probes_moved"):
+            lines.append(f"probes: {self.grid['probes_moved']} found inside geometry were moved out of it, within their cells")
         near = self.near_field
         if near and near.get("points"):
             lines.append(

@@ -60,6 +60,10 @@ class BakeSettings:
     # Gather each point's near field (surfaces within a quarter of a cell) by rays, as a
     # final gather of every bounce (:mod:`cubegi_engine.nearfield`).
     near_field: bool = True
+    # Probes found inside geometry before the capture are moved out of it where their cell
+    # allows, else left out (:mod:`cubegi_engine.placement`); False: every probe stays at
+    # its cell centre (the capture still leaves out the ones inside).
+    move_probes: bool = True
 
     def validate(self) -> "BakeSettings":
         """Raise a :class:`BakeError` naming the first setting out of range; else self."""
@@ -95,5 +99,5 @@ class BakeSettings:
             "cube_size": self.cube_size, "bounces": self.bounces, "cells": self.cells, "visibility": self.visibility,
             "shadow_size": self.shadow_size, "tolerance": self.tolerance, "add_tail": self.add_tail,
             "conserve_energy": self.conserve_energy, "capture_triangles": self.capture_triangles,
-            "near_field": self.near_field, **extra,
+            "near_field": self.near_field, "move_probes": self.move_probes, **extra,
         }

@@ -185,7 +185,8 @@ def test_the_readmes_headless_recipe_gives_what_the_cli_gives(saved_scene, tmp_p
 def test_cli_quality_presets_set_what_is_not_given(saved_scene, tmp_path):
     """``--quality draft`` bakes with 4 cells along the longest side, 16^2 faces and 3
     bounces; an explicit option still wins; the default is the balanced preset, with the
-    near field (``--no-near-field`` turns it off)."""
+    near field (``--no-near-field`` turns it off) and probes moved out of geometry
+    (``--keep-probes-in-place`` turns that off)."""
     import json
 
     src, _ = saved_scene
@@ -194,6 +195,7 @@ def test_cli_quality_presets_set_what_is_not_given(saved_scene, tmp_path):
         "draft, 2 bounces": ["--quality", "draft", "--bounces", "2"],
         "default": [],
         "no near field": ["--no-near-field"],
+        "probes in place": ["--keep-probes-in-place"],
     }
     got = {}
     for name, extra in runs.items():
@@ -210,3 +212,5 @@ def test_cli_quality_presets_set_what_is_not_given(saved_scene, tmp_path):
     assert max(got["default"]["grid"]["resolution"]) == 8
     assert balanced["near_field"] is True and got["default"]["near_field"]["points"] > 0
     assert got["no near field"]["settings"]["near_field"] is False and got["no near field"]["near_field"] is None
+    assert balanced["move_probes"] is True and got["probes in place"]["settings"]["move_probes"] is False
+    assert got["probes in place"]["grid"].get("probes_moved") is None

@@ -25,23 +25,24 @@ def test_probes_no_vertex_uses_are_not_captured_and_change_nothing(empty_scene, 
     assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
     report = json.loads(bpy.context.scene.cubegi.last_report)
     probes, captured = report["grid"]["probes"], report["grid"]["probes_captured"]
+    inside = report["grid"]["probes_left_inside"]
     assert probes == 1000 and captured < 0.8 * probes, (captured, probes)
-    assert any(x.startswith(f"probes: {probes - captured} of {probes}") for x in report["left_out"])
+    assert any(x.startswith(f"probes: {probes - captured - inside} of {probes}") for x in report["left_out"])
     culled = _light(cubegi)
     # The grid object keeps the whole grid's probe light: left-out probes stored as invalid.
     stored = cubegi.cubegi_addon.grid_objects.stored_probe_light(grid_object)
     assert stored is not None and stored[0].shape == (probes, 9, 3) and stored[1].sum() <= captured
 
-    # A dynamic object anywhere needs the whole field: every probe is captured, and the
-    # static meshes' light is what it was.
+    # A dynamic object anywhere needs the whole field: every probe is captured (but the ones
+    # inside the blocks with no way out), and the static meshes' light is what it was.
     bpy.ops.mesh.primitive_cube_add(size=0.01, location=(0.0, 0.0, 0.3))
     speck = bpy.context.object
     speck.name = "Speck"
     speck.cubegi.dynamic = True
     assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
     report = json.loads(bpy.context.scene.cubegi.last_report)
-    assert report["grid"]["probes_captured"] == probes
-    assert not any(x.startswith("probes:") for x in report["left_out"])
+    assert report["grid"]["probes_captured"] == probes - report["grid"]["probes_left_inside"]
+    assert not any("light no vertex" in x for x in report["left_out"])
     whole = _light(cubegi)
     # Equal up to the tail solve's tolerance and the rasterization of each probe's views at
     # another place in the capture's atlas (a probe on the edge of being inside geometry can
@@ -72,3 +73,33 @@ def test_the_near_field_is_reported_and_dense_geometry_is_left_out_by_name(empty
     plain = _light(cubegi)
     peak = max(float(v.max()) for v in plain.values())
     assert max(float(np.abs(gathered[n] - plain[n]).max()) for n in plain) > 0.05 * peak
+
+
+def test_probes_inside_the_blocks_move_out_before_the_capture(empty_scene, cubegi):
+    """The Cornell box on a grid whose probes fall inside its two blocks: before the capture,
+    the ones that can leave their block within their cell are moved out (the report and its
+    summary say how many), the rest are left out, not drawn; the capture then finds fewer
+    probes inside geometry than with the probes kept in place. Every moved probe stands
+    outside both blocks, within its cell."""
+    scenes.cornell(light=True)
+    bpy.ops.cubegi.add_probe_grid()
+    bpy.context.object.cubegi.resolution = (8, 8, 8)
+    assert bpy.ops.cubegi.bake(move_probes=False, **SETTINGS) == {"FINISHED"}
+    still = json.loads(bpy.context.scene.cubegi.last_report)
+    assert "probes_moved" not in still["grid"] and still["grid"]["probes_inside_geometry"] >= 10
+    assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
+    report = json.loads(bpy.context.scene.cubegi.last_report)
+    moved, inside = report["grid"]["probes_moved"], report["grid"]["probes_left_inside"]
+    assert moved >= 5 and inside >= 1, report["grid"]
+    assert report["grid"]["probes_inside_geometry"] < still["grid"]["probes_inside_geometry"] - moved
+    assert report["grid"]["probes_captured"] == still["grid"]["probes_captured"] - inside
+    summary = cubegi.cubegi_engine.report.BakeReport.from_json(bpy.context.scene.cubegi.last_report).summary_lines()
+    assert any(f"probes: {moved} found inside geometry were moved out" in line for line in summary)
+    assert any(f"probes: {inside} sit inside geometry" in line for line in report["left_out"])
+    grid = cubegi.cubegi_addon.session.kept(bpy.context.scene).result.capture.grid
+    offsets = grid.offsets[np.any(grid.offsets != 0, axis=1)]
+    pos = grid.positions()[np.any(grid.offsets != 0, axis=1)]
+    assert len(pos) == moved and (np.abs(offsets) <= 0.45 * 0.25 + 1e-9).all()
+    for lo, hi in (((-0.67, 0.03, 0.02), (-0.13, 0.57, 1.17)), ((0.17, -0.57, 0.02), (0.73, -0.03, 0.57))):
+        assert not np.any(np.all((pos > lo) & (pos < hi), axis=1))
+    assert all(np.isfinite(v).all() for v in _light(cubegi).values())

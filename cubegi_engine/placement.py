@@ -1,0 +1,141 @@
+"""Probes inside geometry, found before the capture: moved out of it, or left out.
+
+Pure numpy; must not import bpy.
+
+A probe whose cube map would see back faces over much of the sphere sits inside a solid (a
+wall, a block, furniture) and lights nothing it should. The capture's own test finds that
+only after drawing it (:data:`cubegi_engine.transport.INSIDE_BACKFACE_SHARE`). Here the same
+question is asked first, cheaply: PROBE_RAYS rays from each probe (a Fibonacci sphere),
+traced against the triangles within PROBE_REACH cells (a voxel index, as the near field's).
+A probe is inside when more than INSIDE_SHARE of its rays meet a back face first.
+
+Such a probe is moved out, as RTXGI's probe relocation does: each back face one of its rays
+met is a way out (MARGIN cells beyond it, within MAX_SHIFT of the cell centre on every axis);
+each way out is asked again, and the probe goes to the one that leaves it outside with the
+most room to the nearest surface (at least MARGIN cells: a probe hugging a surface sees it
+as half its sphere). With no such way it is left out before the capture (it would be drawn
+and then thrown away). Where every probe reads as inside (a mesh whose normals all point
+the wrong way) none is moved or left out: the capture's test and the bake's note on back
+faces take over. The interpolation
+keeps the grid's trilinear weights (DDGI's choice); what the probe sees, and which points it
+can see, come from where it now stands. A probe deeper inside a solid than PROBE_REACH
+is not seen by this test; the capture's own test still leaves it out.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import sh
+from .nearfield import _VoxelIndex
+
+__all__ = ["Placement", "place", "trace", "inside", "PROBE_RAYS", "PROBE_REACH", "INSIDE_SHARE", "MAX_SHIFT", "MARGIN"]
+
+PROBE_RAYS = 64
+PROBE_REACH = 1.0  # in cell edges
+INSIDE_SHARE = 0.25  # as the capture's test
+MAX_SHIFT = 0.45  # of the cell edge, per axis
+MARGIN = 0.1  # of the cell edge, beyond the surface passed through
+WAYS_OUT = 8  # back faces tried per probe, nearest first
+
+
+@dataclass
+class Placement:
+    """What :func:`place` decided: ``keep (p,)`` bool (probes captured), ``offsets (p, 3)``
+    (each kept probe's move from its cell centre; zero for most), ``moved`` and
+    ``left_out`` counts, and the seconds it took."""
+
+    keep: np.ndarray
+    offsets: np.ndarray
+    moved: int
+    left_out: int
+    seconds: float = 0.0
+
+
+def _rays():
+    return sh.fibonacci_sphere(PROBE_RAYS)
+
+
+def trace(positions, index, cell, dirs=None):
+    """Rays from probes at ``positions (p, 3)`` among the triangles of ``index`` (a voxel
+    index), reaching ``cell (p,)`` x PROBE_REACH: ``(t (p, k) hit distance, inf where none;
+    back (p, k) the hit is a back face)`` for the ``k`` directions ``dirs`` (PROBE_RAYS)."""
+    dirs = _rays() if dirs is None else dirs
+    p = len(positions)
+    reach = PROBE_REACH * np.asarray(cell, dtype=np.float64)
+    # Two half-spaces make the whole sphere of candidates.
+    up = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (p, 3))
+    pairs = [index.candidates(positions, n, reach)[:2] for n in (up, -up)]
+    pair = np.unique(np.concatenate([pp * len(index.a) + tt for pp, tt in pairs]))
+    pair_p, pair_t = pair // len(index.a), pair % len(index.a)
+    rays = np.broadcast_to(dirs, (p,) + dirs.shape)
+    t, tri, _, front = index.trace(positions, up, rays, reach, np.zeros(p), pair_p, pair_t)
+    return t, (tri >= 0) & ~front
+
+
+def inside(t, back):
+    """``(p,)`` bool: probes whose rays (from :func:`trace`) meet back faces first more than
+    INSIDE_SHARE of the time."""
+    return back.mean(axis=1) > INSIDE_SHARE
+
+
+def place(grid, triangles_points, triangles, candidates=None) -> Placement:
+    """Decide, for the probes of ``grid`` (``candidates (p,)`` bool: the ones to ask; all by
+    default), which sit inside the geometry ``triangles`` over ``triangles_points``, which
+    of those move out and where (see the module docstring)."""
+    import time
+
+    t0 = time.perf_counter()
+    positions = grid.positions()
+    p = len(positions)
+    keep = np.ones(p, dtype=bool) if candidates is None else np.asarray(candidates, dtype=bool).copy()
+    offsets = np.zeros((p, 3))
+    if not len(triangles) or not keep.any():
+        return Placement(keep, offsets, 0, 0, time.perf_counter() - t0)
+    cell = grid.point_cell_edge(positions)
+    a, b, c = (np.asarray(triangles_points, dtype=np.float64)[triangles[:, k]] for k in range(3))
+    index = _VoxelIndex(a, b, c, float(np.min(cell)) * PROBE_REACH)
+    dirs = _rays()
+    asked = np.flatnonzero(keep)
+    t, back = trace(positions[asked], index, cell[asked], dirs)
+    within = inside(t, back)
+    stuck, t, back = asked[within], t[within], back[within]
+    keep[stuck] = False
+    if len(stuck):
+        # The ways out: through the WAYS_OUT nearest back faces its rays met, MARGIN beyond
+        # each, inside the cell.
+        tb = np.where(back, t, np.inf)
+        near = np.argsort(tb, axis=1)[:, :WAYS_OUT]
+        row = np.repeat(np.arange(len(stuck)), near.shape[1])
+        ray = near.ravel()
+        real = np.isfinite(tb[row, ray])
+        row, ray = row[real], ray[real]
+        probe = stuck[row]
+        step = (t[row, ray] + MARGIN * cell[probe])[:, None] * dirs[ray]
+        fits = np.all(np.abs(step) <= MAX_SHIFT * _cell_sizes(grid, positions[probe], cell[probe]), axis=1)
+        probe, step = probe[fits], step[fits]
+        if len(probe):
+            t2, back2 = trace(positions[probe] + step, index, cell[probe], dirs)
+            clear = np.where(inside(t2, back2), -np.inf, t2.min(axis=1))  # room to the nearest surface
+            # Per probe, the way out that leaves it the most room (clear of surfaces by at
+            # least MARGIN).
+            order = np.lexsort((-clear, probe))
+            first = np.ones(len(order), dtype=bool)
+            first[1:] = probe[order][1:] != probe[order][:-1]
+            best = order[first]
+            ok = clear[best] >= MARGIN * cell[probe[best]]
+            offsets[probe[best[ok]]] = step[best[ok]]
+            keep[probe[best[ok]]] = True
+    if not keep.any():  # every probe reads as inside (normals turned the wrong way): keep them
+        return Placement(np.asarray(candidates if candidates is not None else np.ones(p), dtype=bool).copy(),
+                         np.zeros((p, 3)), 0, 0, time.perf_counter() - t0)
+    moved = int(np.count_nonzero(np.any(offsets != 0.0, axis=1)))
+    return Placement(keep, offsets, moved, int(len(stuck) - moved), time.perf_counter() - t0)
+
+
+def _cell_sizes(grid, positions, edge):
+    """Per probe, its cell's edge lengths ``(k, 3)`` (a grid set: the cubic cell ``edge``)."""
+    size = getattr(grid, "cell_size", None)
+    if size is not None and not callable(size):
+        return np.broadcast_to(np.asarray(size, dtype=np.float64), (len(positions), 3))
+    return np.repeat(np.asarray(edge, dtype=np.float64)[:, None], 3, axis=1)

@@ -1,0 +1,70 @@
+"""Probes inside geometry, found before the capture: moved out within their cells, or left out."""
+
+import numpy as np
+
+from cubegi.cubegi_engine import placement
+from cubegi.cubegi_engine.grid import ProbeGrid, ProbeSubset
+
+
+def _box(lo, hi, inward=False):
+    """A closed box's 12 triangles (outward normals, or inward): ``(points (8, 3), triangles (12, 3))``."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    pts = np.array([[x, y, z] for z in (lo[2], hi[2]) for y in (lo[1], hi[1]) for x in (lo[0], hi[0])])
+    quads = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]  # outward
+    tris = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
+    return pts, (tris[:, ::-1] if inward else tris)
+
+
+def _grid():
+    return ProbeGrid((-1.5, -1.5, -1.5), (1.5, 1.5, 1.5), (3, 3, 3))  # unit cells, centre probe at the origin
+
+
+def test_a_probe_inside_a_small_block_moves_out_within_its_cell():
+    pts, tris = _box((-0.3, -0.25, -0.2), (0.3, 0.25, 0.2))
+    got = placement.place(_grid(), pts, tris)
+    centre = 13
+    assert got.moved == 1 and got.left_out == 0 and got.keep.all()
+    assert np.count_nonzero(np.any(got.offsets != 0, axis=1)) == 1
+    new = _grid().positions()[centre] + got.offsets[centre]
+    assert (np.abs(got.offsets[centre]) <= placement.MAX_SHIFT + 1e-12).all()
+    outside = np.any((new < [-0.3, -0.25, -0.2]) | (new > [0.3, 0.25, 0.2]))
+    assert outside, new
+    # Clear of the block's surface by about MARGIN of a cell (MARGIN along the ray it left by).
+    gap = np.max(np.maximum(np.abs(new) - [0.3, 0.25, 0.2], 0.0))
+    assert gap >= 0.5 * placement.MARGIN
+    # A subset of the grid carries the move: its probe stands there; weights are the cell's.
+    sub = ProbeSubset(_grid(), got.keep, got.offsets)
+    np.testing.assert_allclose(sub.positions()[centre], new)
+    assert sub.moved == 1
+    i0, w0 = _grid().trilinear(np.array([[0.1, 0.2, 0.3]]))
+    i1, w1 = sub.trilinear(np.array([[0.1, 0.2, 0.3]]))
+    np.testing.assert_array_equal(i0, i1)
+    np.testing.assert_allclose(w0, w1)
+
+
+def test_a_probe_deep_in_a_block_with_no_way_out_in_its_cell_is_left_out():
+    pts, tris = _box((-0.8, -0.8, -0.8), (0.8, 0.8, 0.8))
+    got = placement.place(_grid(), pts, tris)
+    assert got.moved == 0 and got.left_out == 1
+    assert not got.keep[13] and got.keep.sum() == 26
+
+
+def test_probes_in_the_open_or_in_a_room_stay_where_they_are():
+    pts, tris = _box((-1.4, -1.4, -1.4), (1.4, 1.4, 1.4), inward=True)  # a room around every probe
+    got = placement.place(_grid(), pts, tris)
+    assert got.moved == 0 and got.left_out == 0 and got.keep.all() and not got.offsets.any()
+    asked = np.zeros(27, dtype=bool)
+    asked[:5] = True  # only these are candidates (the rest light no point)
+    got = placement.place(_grid(), *_box((5, 5, 5), (6, 6, 6)), candidates=asked)
+    np.testing.assert_array_equal(got.keep, asked)
+
+
+def test_when_every_probe_reads_as_inside_none_is_moved_or_left_out():
+    # The room's normals turned outward (a mesh with flipped normals): every probe sees back faces.
+    pts, tris = _box((-1.4, -1.4, -1.4), (1.4, 1.4, 1.4), inward=False)
+    grid = ProbeGrid((-1.5, -1.5, -1.5), (1.5, 1.5, 1.5), (2, 2, 2))
+    t, back = placement.trace(grid.positions(), placement._VoxelIndex(*(pts[tris[:, k]] for k in range(3)), 1.5),
+                              np.full(8, 1.5))
+    assert placement.inside(t, back).all()
+    got = placement.place(grid, pts, tris)
+    assert got.keep.all() and got.moved == 0 and got.left_out == 0

@@ -220,7 +220,7 @@ def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS
     if not s or not len(tri) or not np.all(np.isfinite(reach)) or reach.max() <= 0:
         return NearField.empty(rays, seconds=time.perf_counter() - t0)
     a, b, c = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]
-    index = _VoxelIndex(a, b, c, float(reach.max()))
+    index = VoxelIndex(a, b, c, float(reach.max()))
     if s > 16 * SAMPLE:  # estimate the pairs first: a dense scene's would take too long
         sample = np.linspace(0, s - 1, SAMPLE).astype(np.int64)
         pp, _, _ = index.candidates(points[sample], normals[sample], reach[sample])
@@ -286,7 +286,7 @@ def resting(points, normals, triangles, scale, which):
         return np.zeros(len(which), dtype=bool)
     reach = np.full(len(which), 1e-3 * scale)
     # Coarse voxels (a 64th of the scene): few entries to sort, and few points to ask.
-    index = _VoxelIndex(points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]], scale / 64.0)
+    index = VoxelIndex(points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]], scale / 64.0)
     pp, _, _ = index.candidates(points[which], np.asarray(normals, dtype=np.float64)[which], reach, touching=True)
     out = np.zeros(len(which), dtype=bool)
     out[pp] = True
@@ -352,7 +352,7 @@ def _intersect(o, d, a, b, c, reach, start):
     return t, u, v, hit, front
 
 
-class _VoxelIndex:
+class VoxelIndex:
     """Triangles ``a, b, c`` listed in the voxels (edge ``voxel``) their boxes overlap."""
 
     def __init__(self, a, b, c, voxel):

@@ -16,24 +16,25 @@ most room to the nearest surface (at least MARGIN cells: a probe hugging a surfa
 as half its sphere). With no such way it is left out before the capture (it would be drawn
 and then thrown away). Where every probe reads as inside (a mesh whose normals all point
 the wrong way) none is moved or left out: the capture's test and the bake's note on back
-faces take over. The interpolation
-keeps the grid's trilinear weights (DDGI's choice); what the probe sees, and which points it
-can see, come from where it now stands. A probe deeper inside a solid than PROBE_REACH
-is not seen by this test; the capture's own test still leaves it out.
+faces take over. The interpolation keeps the grid's trilinear weights (DDGI's choice);
+what the probe sees, and which points it can see, come from where it now stands. A probe
+deeper inside a solid than PROBE_REACH is not seen by this test; the capture's own test
+still leaves it out.
 """
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from . import sh
-from .nearfield import _VoxelIndex
+from .nearfield import VoxelIndex
+from .transport import INSIDE_BACKFACE_SHARE as INSIDE_SHARE  # the capture's own test, asked first
 
 __all__ = ["Placement", "place", "trace", "inside", "PROBE_RAYS", "PROBE_REACH", "INSIDE_SHARE", "MAX_SHIFT", "MARGIN"]
 
 PROBE_RAYS = 64
 PROBE_REACH = 1.0  # in cell edges
-INSIDE_SHARE = 0.25  # as the capture's test
 MAX_SHIFT = 0.45  # of the cell edge, per axis
 MARGIN = 0.1  # of the cell edge, beyond the surface passed through
 WAYS_OUT = 8  # back faces tried per probe, nearest first
@@ -83,8 +84,6 @@ def place(grid, triangles_points, triangles, candidates=None) -> Placement:
     """Decide, for the probes of ``grid`` (``candidates (p,)`` bool: the ones to ask; all by
     default), which sit inside the geometry ``triangles`` over ``triangles_points``, which
     of those move out and where (see the module docstring)."""
-    import time
-
     t0 = time.perf_counter()
     positions = grid.positions()
     p = len(positions)
@@ -94,7 +93,7 @@ def place(grid, triangles_points, triangles, candidates=None) -> Placement:
         return Placement(keep, offsets, 0, 0, time.perf_counter() - t0)
     cell = grid.point_cell_edge(positions)
     a, b, c = (np.asarray(triangles_points, dtype=np.float64)[triangles[:, k]] for k in range(3))
-    index = _VoxelIndex(a, b, c, float(np.min(cell)) * PROBE_REACH)
+    index = VoxelIndex(a, b, c, float(np.min(cell)) * PROBE_REACH)
     dirs = _rays()
     asked = np.flatnonzero(keep)
     t, back = trace(positions[asked], index, cell[asked], dirs)

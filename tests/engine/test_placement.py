@@ -63,7 +63,7 @@ def test_when_every_probe_reads_as_inside_none_is_moved_or_left_out():
     # The room's normals turned outward (a mesh with flipped normals): every probe sees back faces.
     pts, tris = _box((-1.4, -1.4, -1.4), (1.4, 1.4, 1.4), inward=False)
     grid = ProbeGrid((-1.5, -1.5, -1.5), (1.5, 1.5, 1.5), (2, 2, 2))
-    t, back = placement.trace(grid.positions(), placement._VoxelIndex(*(pts[tris[:, k]] for k in range(3)), 1.5),
+    t, back = placement.trace(grid.positions(), placement.VoxelIndex(*(pts[tris[:, k]] for k in range(3)), 1.5),
                               np.full(8, 1.5))
     assert placement.inside(t, back).all()
     got = placement.place(grid, pts, tris)

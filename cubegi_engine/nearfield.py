@@ -60,6 +60,11 @@ GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 SLACK, COORD_SLACK, BARY_SLACK = 1e-5, 4e-6, 1e-5
 # Hits fade out over this last share of the reach.
 FADE = 0.25
+# A hit on a triangle with a corner closed in (openness below OPENNESS_CLOSED: a floor point
+# under a block) and one in the open (above OPENNESS_OPEN) casts OPENNESS_RAYS rays of its
+# own to weigh its corners' light (see _gap_darkening; 0: off); OPENNESS_FLOOR keeps the
+# ratio of two closed points near 1.
+OPENNESS_RAYS, OPENNESS_CLOSED, OPENNESS_OPEN, OPENNESS_FLOOR = 16, 0.3, 0.6, 0.05
 # Per point, the ray pattern's turn: 2 pi frac(position / reach . TURN_HASH).
 TURN_HASH = np.array([7.548776662, 5.698402910, 4.370125427])
 
@@ -261,6 +266,12 @@ def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS
     # Hits fade out over the last FADE of the reach (their direction goes back to the
     # probes by as much): no step in the light where a surface passes out of reach.
     fade = np.clip((rch[:, None] - best) / (FADE * rch[:, None]), 0.0, 1.0)  # (c, rays); 0 where no hit
+    if OPENNESS_RAYS:
+        openness = np.ones(s)
+        openness[cast] = 1.0 - fade.mean(axis=1)
+        hit_at = at[point] + best[point, ray][:, None] * dirs[point, ray]
+        weight = _gap_darkening(index, weight, corners, openness, hit_at, hit_tri[point, ray], hit_front[point, ray],
+                                rch[point], turn[point])
     weight *= (hit_front[point, ray] * fade[point, ray])[:, None] / rays  # a back face occludes and sends nothing
     # What the probes' diffuse light loses: their radiance in the hit directions, averaged
     # as the rays average, plus the hit share of the pattern's own quadrature error (so a
@@ -329,6 +340,41 @@ def _uncover(index, weight, corners, hidden, tri, reach):
     kept = weight[mixed] * ~hidden[corners[mixed]]
     out = weight.copy()
     out[mixed] = kept / np.maximum(kept.sum(axis=1, keepdims=True), np.where(free, 1e-2, 0.5)[:, None])
+    return out
+
+
+def _gap_darkening(index, weight, corners, openness, at, tri, front, reach, turn):
+    """Barycentric ``weight (h, 3)`` of hits at ``at (h, 3)`` on triangles ``tri``, each
+    corner's share scaled by how open the hit point is against how open the corner is
+    (``openness (s,)``: the share of a point's view with nothing within its reach), at most
+    1. A triangle whose corners' light was gathered in the open but whose hit point lies in a
+    gap (a floor under a block standing 2 cm above it: the corners a floor cell away outside
+    the block, the hit point under it) sends only the share of that light the gap lets in.
+    Only hits on front faces of triangles with a corner closed in and one in the open
+    (OPENNESS_CLOSED, OPENNESS_OPEN), with something over them along their normal within
+    reach, are asked (OPENNESS_RAYS rays each, about the hit triangle's normal)."""
+    open_c = openness[corners]  # (h, 3)
+    ask = np.flatnonzero(front & (open_c.min(axis=1) < OPENNESS_CLOSED) & (open_c.max(axis=1) > OPENNESS_OPEN))
+    if not len(ask):
+        return weight
+    # In a gap: something over the hit point along its normal, within reach (a floor beside a
+    # wall is open overhead: its corners' light stands).
+    up, r = index.unit[tri[ask]], reach[ask]
+    slack = SLACK * r + COORD_SLACK * np.abs(at[ask]).max(axis=1)
+    pair_p, pair_t, _ = index.candidates(at[ask], up, r)
+    t, _, _, _ = index.trace(at[ask], up, up[:, None, :], r, slack, pair_p, pair_t)
+    gap = np.isfinite(t[:, 0])
+    if not gap.any():
+        return weight
+    keep = np.flatnonzero(gap)
+    ask, up, r, slack = ask[keep], up[keep], r[keep], slack[keep]
+    pair_p, pair_t, _ = index.candidates(at[ask], up, r)
+    dirs = _directions(up, OPENNESS_RAYS, turn[ask])
+    best, _, _, _ = index.trace(at[ask], up, dirs, r, slack, pair_p, pair_t)
+    open_hit = 1.0 - np.clip((r[:, None] - best) / (FADE * r[:, None]), 0.0, 1.0).mean(axis=1)
+    out = weight.copy()
+    ratio = np.minimum(1.0, (open_hit[:, None] + OPENNESS_FLOOR) / (open_c[ask] + OPENNESS_FLOOR))
+    out[ask] *= ratio
     return out
 
 

@@ -241,3 +241,36 @@ def test_resting_finds_a_face_lying_on_another_surface():
     # 4: on the ground, facing down: rests. 5: the same. 6: past the ground's edge. 7: facing up (same way), 1 mm above.
     assert got.tolist() == [True, True, False, False]
     assert not nearfield.resting(pts, normals, ground[1], 2.0, np.arange(4)).any()  # the ground's own points
+
+
+def test_a_hit_in_a_gap_takes_only_what_the_gap_lets_in(monkeypatch):
+    """A coarse floor cell (1 m) half under a plate standing 2 cm above it, and a point on
+    the plate's underside looking down: its rays land on the floor under the plate, between
+    corners in the open (x = 0) and corners under the plate (x = 1). Barycentric weights
+    alone give the hit points much of the open corners' light; the openness of the hit
+    points (closed in by the plate) against the open corners' takes nearly all of it away.
+    A point in the open, beside the plate, keeps its weights."""
+    floor = (np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=float), np.array([[0, 1, 2], [0, 2, 3]]))
+    plate = (np.array([[0.5, -0.5, 0.02], [1.5, -0.5, 0.02], [1.5, 1.5, 0.02], [0.5, 1.5, 0.02]]),
+             np.array([[0, 2, 1], [0, 3, 2]]))  # facing down, over the floor's half x > 0.5
+    under = (np.array([[0.75, 0.5, 0.02], [0.2, 0.5, 0.001]]), np.zeros((0, 3), dtype=int))
+    pts, tris = _scene(floor, plate, under)
+    normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    normals[4:9] = [0.0, 0.0, -1.0]  # the plate's corners and the point under it look down
+    watched, beside = 8, 9
+
+    def open_corner_weight(rays):
+        monkeypatch.setattr(nearfield, "OPENNESS_RAYS", rays)
+        near = nearfield.build(pts, normals, 0.1, tris)
+        out = {}
+        for p in (watched, beside):
+            rows = np.flatnonzero(near.rows == p)
+            hits = np.isin(near.hit_row, rows)
+            w = near.hit_weight[hits] * np.isin(near.hit_corner[hits], [0, 3])  # the corners at x = 0
+            out[p] = (w.sum(), near.hit_weight[hits].sum())
+        return out
+
+    plain, weighed = open_corner_weight(0), open_corner_weight(16)
+    assert plain[watched][0] > 0.2 * plain[watched][1]  # barycentric: the open corners carry a fifth or more
+    assert weighed[watched][0] < 0.2 * plain[watched][0]  # in the gap: little of it
+    assert weighed[beside] == pytest.approx(plain[beside])  # nothing over the hit points: as before

@@ -195,7 +195,7 @@ class GpuRenderer:
     same texels, and distances come back in world units.
     """
 
-    def __init__(self, points, triangles):
+    def __init__(self, points, triangles, drawn=None):
         ensure_gpu()
         triangles = np.asarray(triangles)
         if len(triangles) > MAX_TRIANGLES:
@@ -206,10 +206,11 @@ class GpuRenderer:
         self.centre = 0.5 * (lo + hi)
         self.unit = max(float(np.max(hi - lo)), 1e-300)
         unit_pts = ((pts - self.centre) / self.unit).astype(np.float32)
-        t = len(triangles)
+        drawn = np.arange(len(triangles)) if drawn is None else np.asarray(drawn, dtype=np.int64)
+        t = len(drawn)
         # Drawn in spatial order; each vertex carries its triangle's own index, so what a
-        # texel reports does not depend on the order.
-        self.order = _spatial_order(unit_pts[triangles].mean(axis=1)) if t > CULL_CHUNK else np.arange(t)
+        # texel reports does not depend on the order (nor on triangles left out).
+        self.order = drawn[_spatial_order(unit_pts[triangles[drawn]].mean(axis=1))] if t > CULL_CHUNK else drawn
         self.drawn = triangles[self.order]
         self.corner_pos = unit_pts[self.drawn].reshape(-1, 3)
         self.chunk_boxes = _chunk_boxes(self.corner_pos.reshape(-1, 3, 3), CULL_CHUNK) if t > CULL_CHUNK else None
@@ -219,9 +220,10 @@ class GpuRenderer:
         self.id_batch = batch_for_shader(self.id_shader, "TRIS", {"pos": self.corner_pos, "bary": bary, "tid": tid})
         self._colour_shader = None
 
-    def with_geometry(self, points, triangles):
-        """A renderer of other triangles (the probes' simplified copy of the scene)."""
-        return GpuRenderer(points, triangles)
+    def with_geometry(self, points, triangles, drawn=None):
+        """A renderer of other triangles (the probes' simplified copy of the scene), drawing
+        those ``drawn`` (indices; all by default)."""
+        return GpuRenderer(points, triangles, drawn)
 
     def _local(self, view_proj):
         """A world view-projection as one for unit-frame positions, scaled to entries <= 1

@@ -306,6 +306,14 @@ def _left_out_of_capture(capture, grid, placement=None):
             f"near field: {near.crowded:,} vertices in dense, folded geometry (hundreds of triangles within {near.reach:.3g}); "
             "the probes light their surroundings"
         )
+    if capture.small_objects:
+        names = [name for name, _ in capture.fingerprint.objects]
+        listed = ", ".join(names[k] for k in capture.small_objects[:5] if k < len(names))
+        more = f" and {len(capture.small_objects) - 5} more" if len(capture.small_objects) > 5 else ""
+        out.append(
+            f"capture geometry: {len(capture.small_objects)} objects smaller than a texel from every probe ({listed}{more}) "
+            "were not drawn by the probes; they still receive light and cast shadows"
+        )
     proxy = capture.proxy
     if proxy is not None:
         saved = 1.0 - len(proxy.triangles) / max(proxy.source_triangles, 1)

@@ -43,15 +43,16 @@ class Renderer(Protocol):
     for orthographic views; inf for nothing) and a back-face flag.
     ``render_colour(view_projs, size, point_radiance (s, 3))`` draws the scene coloured by
     per-point radiance (back faces black) and returns ``(v, n, n, 3)``.
-    ``with_geometry(points, triangles)``: a renderer of other triangles (a simplified copy
-    of the scene for the probes).
+    ``with_geometry(points, triangles, drawn=None)``: a renderer of other triangles (a
+    simplified copy of the scene for the probes); ``drawn``: the indices of the triangles it
+    draws (the rest are left out), each still reported by its own index.
     """
 
     def render(self, view_projs, eyes, axes, size, with_bary=True): ...
 
     def render_colour(self, view_projs, size, point_radiance): ...
 
-    def with_geometry(self, points, triangles): ...
+    def with_geometry(self, points, triangles, drawn=None): ...
 
 
 @dataclass
@@ -168,12 +169,21 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
         check_memory(grid.count, settings.cube_size, len(scene.points))
         t = time.perf_counter()
         proxy = simplify(scene, budget)
-        drawer = renderer if proxy is None else renderer.with_geometry(proxy.points, proxy.triangles)
+        shown = (scene.points, scene.triangles, _triangle_object(scene)) if proxy is None else (
+            proxy.points, proxy.triangles, proxy.triangle_object)
+        small = small_objects(shown[0], shown[1], shown[2], grid.positions(), settings.cube_size)
+        if small.any() and small[shown[2]].all():  # nothing would be left to draw
+            small[:] = False
+        if proxy is None and not small.any():
+            drawer = renderer
+        else:
+            drawer = renderer.with_geometry(shown[0], shown[1], None if not small.any() else np.flatnonzero(~small[shown[2]]))
         timings["simplify"] = time.perf_counter() - t
         drawn = f" ({len(proxy.triangles):,} of {len(scene.triangles):,} triangles)" if proxy is not None else ""
         yield Progress(Stage.CAPTURE, 0, total, f"capturing {grid.count} probes at {settings.cube_size}x{settings.cube_size}{drawn}")
         capture = ProbeCapture.take(scene, grid, drawer, settings.cube_size, settings.visibility, proxy, budget,
                                     settings.near_field)
+        capture.small_objects = tuple(int(k) for k in np.flatnonzero(small))
         timings["capture"], timings["tables"] = capture.capture_seconds, capture.tables_seconds
     transport = capture.transport
     timings["near_field"] = transport.near.seconds if transport.near is not None and not reused else 0.0  # part of "tables"
@@ -200,6 +210,43 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
     timings["total"] = time.perf_counter() - t_start
     return BakeResult(capture, parts, solution, probe_field, timings, reused, patched[1] if patched else None, shadows or {},
                       placement)
+
+
+# An object is left out of the capture where from every probe it spans less than this many
+# texels (it still receives light, and lights others through the direct light's shadows).
+SMALL_OBJECT_TEXELS = 1.0
+
+
+def _triangle_object(scene):
+    owner = scene.point_object if scene.point_object is not None else np.zeros(len(scene.points), dtype=np.int64)
+    return np.asarray(owner, dtype=np.int64)[np.asarray(scene.triangles)[:, 0]] if len(scene.triangles) else np.zeros(0, np.int64)
+
+
+def small_objects(points, triangles, triangle_object, probes, cube_size) -> np.ndarray:
+    """``(objects,)`` bool: the objects (``triangle_object (t,)`` per triangle of ``triangles``
+    over ``points``) that span less than SMALL_OBJECT_TEXELS texels of a ``cube_size`` cube
+    map from every one of ``probes (p, 3)``: their bounding sphere's angular diameter from
+    the nearest probe, against a texel's angle at a face's centre (the largest)."""
+    if triangle_object is None or not len(triangles) or not len(probes):
+        return np.zeros(0 if triangle_object is None else int(np.max(triangle_object, initial=-1)) + 1, dtype=bool)
+    owner = np.asarray(triangle_object, dtype=np.int64)
+    count = int(owner.max()) + 1
+    corners = np.asarray(points, dtype=np.float64)[np.asarray(triangles)]  # (t, 3, 3)
+    lo = np.full((count, 3), np.inf)
+    hi = np.full((count, 3), -np.inf)
+    np.minimum.at(lo, owner, corners.min(axis=1))
+    np.maximum.at(hi, owner, corners.max(axis=1))
+    used = np.isfinite(lo[:, 0])
+    centre = np.where(used[:, None], 0.5 * (lo + hi), 0.0)
+    radius = np.where(used, 0.5 * np.linalg.norm(np.where(used[:, None], hi - lo, 0.0), axis=1), 0.0)
+    probes = np.asarray(probes, dtype=np.float64)
+    nearest = np.full(count, np.inf)
+    for first in range(0, len(probes), 256):  # (objects, 256) distances at a time
+        d = np.linalg.norm(centre[:, None, :] - probes[None, first : first + 256], axis=2)
+        nearest = np.minimum(nearest, d.min(axis=1))
+    gap = nearest - radius
+    texel = 2.0 / float(cube_size)  # radians subtended by a texel at a face's centre
+    return used & (gap > 0) & (2.0 * radius < SMALL_OBJECT_TEXELS * texel * gap)
 
 
 def run(steps, progress=None):

@@ -34,6 +34,7 @@ class ProbeCapture:
     proxy: object = None  # the CaptureProxy drawn instead of the scene's triangles, if any
     budget: int | None = None  # the capture-triangle budget it was taken with
     near_field: bool = True  # whether the tables gather each point's near field
+    small_objects: tuple = ()  # objects left out of the capture: under a texel from every probe
 
     @classmethod
     def take(cls, scene, grid, renderer, cube_size: int, visibility: bool = True, proxy=None, budget=None,

@@ -103,3 +103,31 @@ def test_probes_inside_the_blocks_move_out_before_the_capture(empty_scene, cubeg
     for lo, hi in (((-0.67, 0.03, 0.02), (-0.13, 0.57, 1.17)), ((0.17, -0.57, 0.02), (0.73, -0.03, 0.57))):
         assert not np.any(np.all((pos > lo) & (pos < hi), axis=1))
     assert all(np.isfinite(v).all() for v in _light(cubegi).values())
+
+
+def test_an_object_smaller_than_a_texel_from_every_probe_is_not_drawn_by_the_probes(empty_scene, cubegi):
+    """A 1 cm cube at a corner of the Cornell box's 8x8x8 cells (0.22 m from the nearest
+    probe, where a 16^2 texel spans 2.7 cm): the probes do not draw it (no texel sees its
+    triangles), the report names it, and it still gets its own light from the room."""
+    scenes.cornell(light=True)
+    bpy.ops.mesh.primitive_cube_add(size=0.01, location=(0.0, 0.0, 1.0))
+    bpy.context.object.name = "Speck"
+    assert bpy.ops.cubegi.bake(cells=8, **SETTINGS) == {"FINISHED"}
+    report = json.loads(bpy.context.scene.cubegi.last_report)
+    (line,) = [x for x in report["left_out"] if x.startswith("capture geometry: 1 objects smaller than a texel")]
+    assert "Speck" in line
+    kept = cubegi.cubegi_addon.session.kept(bpy.context.scene)
+    arrays, capture = kept.arrays, kept.result.capture
+    speck = [name for name, _ in capture.fingerprint.objects].index("Speck")
+    assert capture.small_objects == (speck,)
+    speck_triangles = np.flatnonzero(arrays.point_object[arrays.triangles[:, 0]] == speck)
+    assert not np.isin(capture.cubes.tid, speck_triangles).any()
+    light = cubegi.cubegi_addon.attributes.read(bpy.data.objects["Speck"].data, "CubeGI_total")
+    assert np.isfinite(light).all() and light.mean() > 0
+    # A bigger one is drawn as before.
+    bpy.data.objects["Speck"].scale = (20.0, 20.0, 20.0)
+    assert bpy.ops.cubegi.bake(cells=8, **SETTINGS) == {"FINISHED"}
+    report = json.loads(bpy.context.scene.cubegi.last_report)
+    assert not any(x.startswith("capture geometry: 1 objects smaller") for x in report["left_out"])
+    capture = cubegi.cubegi_addon.session.kept(bpy.context.scene).result.capture
+    assert capture.small_objects == () and np.isin(capture.cubes.tid, speck_triangles).any()

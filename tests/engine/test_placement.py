@@ -68,3 +68,18 @@ def test_when_every_probe_reads_as_inside_none_is_moved_or_left_out():
     assert placement.inside(t, back).all()
     got = placement.place(grid, pts, tris)
     assert got.keep.all() and got.moved == 0 and got.left_out == 0
+
+
+def test_objects_under_a_texel_from_every_probe_are_small():
+    from cubegi.cubegi_engine.bake import small_objects
+
+    cube = _box((-0.005, -0.005, -0.005), (0.005, 0.005, 0.005))
+    pts = np.concatenate([cube[0] + [1.0, 0.0, 0.0], cube[0] * 10 + [1.0, 0.0, 0.0], cube[0] + [0.02, 0.0, 0.0]])
+    tris = np.concatenate([cube[1], cube[1] + 8, cube[1] + 16])
+    owner = np.repeat([0, 1, 2], 12)
+    probes = np.zeros((1, 3))
+    # 16^2: a texel spans 0.125 rad. 1.7 cm at 1 m: small; 17 cm at 1 m: not; 1.7 cm at 2 cm: not.
+    assert small_objects(pts, tris, owner, probes, 16).tolist() == [True, False, False]
+    # 256^2: a texel spans 0.0078 rad: the 1.7 cm cube at 1 m spans two.
+    assert small_objects(pts, tris, owner, probes, 256).tolist() == [False, False, False]
+    assert small_objects(pts, tris, None, probes, 16).tolist() == []

@@ -5,7 +5,8 @@ A grid object is an Empty with ``Object.cubegi.is_probe_grid``; its cube (displa
 scaled and placed) is the grid's box, ``Object.cubegi.resolution`` its probes along X, Y, Z.
 A bake stores each grid object's probe light as hidden ID properties
 (``_cubegi_probe_light``: ``p * 9 * 3`` SH radiance coefficients; ``_cubegi_probe_valid``:
-``p`` flags, 0 for a probe found inside geometry), saved with the file.
+``p`` flags, 0 for a probe found inside geometry; ``_cubegi_probe_offset``: ``p * 3``, where
+probes were moved out of geometry, if any was), saved with the file.
 """
 
 import bpy
@@ -16,6 +17,7 @@ from ..cubegi_engine.grid import GridSet, ProbeGrid, fit_bounds
 
 LIGHT_KEY = "_cubegi_probe_light"
 VALID_KEY = "_cubegi_probe_valid"
+OFFSET_KEY = "_cubegi_probe_offset"  # p * 3: where each probe was moved (out of geometry), if any was
 # A grid fitted to the scene has at most this many probes (see fit_bounds).
 MAX_FITTED_PROBES = 4096
 # A fitted grid's box is the scene's box grown by this share of its size on every side.
@@ -135,7 +137,10 @@ def _padded(lo, hi, scale):
 
 
 def grids_of(grid):
-    """The ProbeGrids of a ProbeGrid or GridSet, and each one's first probe index."""
+    """The ProbeGrids of a ProbeGrid or GridSet (or of the whole grid under a probe subset
+    that keeps every probe), and each one's first probe index."""
+    if hasattr(grid, "keep"):
+        grid = grid.grid
     if isinstance(grid, GridSet):
         return grid.grids, tuple(int(o) for o in grid.offsets)
     return (grid,), (0,)
@@ -151,14 +156,20 @@ def grid_report(grid):
 def store_probe_light(objects, probe_field):
     """Keep each grid object's share of a bake's probe field (grids in ``objects`` order)."""
     grids, offsets = grids_of(probe_field.grid)
+    moved = getattr(probe_field.grid, "offsets", None)  # a whole field's moved probes, if any
     for ob, g, start in zip(objects, grids, offsets):
         ob[LIGHT_KEY] = np.asarray(probe_field.coeffs[start : start + g.count], dtype=np.float64).ravel().tolist()
         ob[VALID_KEY] = [int(v) for v in probe_field.valid[start : start + g.count]]
+        mine = None if moved is None else moved[start : start + g.count]
+        if mine is not None and np.any(mine):
+            ob[OFFSET_KEY] = np.asarray(mine, dtype=np.float64).ravel().tolist()
+        elif OFFSET_KEY in ob:
+            del ob[OFFSET_KEY]
 
 
 def forget_probe_light(ob):
     """Drop a grid object's stored probe light."""
-    for key in (LIGHT_KEY, VALID_KEY):
+    for key in (LIGHT_KEY, VALID_KEY, OFFSET_KEY):
         if key in ob:
             del ob[key]
 
@@ -174,3 +185,11 @@ def stored_probe_light(ob):
     if coeffs.size != count * 27 or valid.size != count:
         return None
     return coeffs.reshape(count, 9, 3), valid
+
+
+def stored_probe_offsets(ob):
+    """``(p, 3)``: where the last bake moved each probe of the grid object (out of
+    geometry), zeros for the rest; zeros if it moved none or the resolution changed."""
+    count = int(np.prod(ob.cubegi.resolution))
+    moved = np.array(ob[OFFSET_KEY], dtype=np.float64) if OFFSET_KEY in ob else np.zeros(0)
+    return moved.reshape(count, 3) if moved.size == count * 3 else np.zeros((count, 3))

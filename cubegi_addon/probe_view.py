@@ -48,7 +48,7 @@ def _geometry(ob):
         return cached[1]
     stored = grid_objects.stored_probe_light(ob)
     grid = grid_objects.probe_grid(ob)
-    positions = grid.positions()
+    positions = grid.positions() + grid_objects.stored_probe_offsets(ob)  # where the bake's probes stood
     valid = stored[1] if stored is not None else np.ones(len(positions), dtype=bool)
     parts = []
     for mask, colour in ((valid, PROBE_COLOUR), (~valid, INSIDE_COLOUR)):

@@ -103,6 +103,16 @@ def test_probes_inside_the_blocks_move_out_before_the_capture(empty_scene, cubeg
     for lo, hi in (((-0.67, 0.03, 0.02), (-0.13, 0.57, 1.17)), ((0.17, -0.57, 0.02), (0.73, -0.03, 0.57))):
         assert not np.any(np.all((pos > lo) & (pos < hi), axis=1))
     assert all(np.isfinite(v).all() for v in _light(cubegi).values())
+    # The grid object keeps where its probes stood (the viewport draws them there), and
+    # forgets it after a bake that moved none.
+    grid_objects = cubegi.cubegi_addon.grid_objects
+    (grid_ob,) = grid_objects.probe_grid_objects(bpy.context.scene)
+    stored = grid_objects.stored_probe_offsets(grid_ob)
+    assert np.count_nonzero(np.any(stored != 0, axis=1)) == moved
+    np.testing.assert_allclose(stored[grid.keep], grid.offsets)
+    assert grid_objects.stored_probe_light(grid_ob) is not None
+    assert bpy.ops.cubegi.bake(move_probes=False, **SETTINGS) == {"FINISHED"}
+    assert not grid_objects.stored_probe_offsets(grid_ob).any()
 
 
 def test_an_object_smaller_than_a_texel_from_every_probe_is_not_drawn_by_the_probes(empty_scene, cubegi):

@@ -274,3 +274,20 @@ def test_a_hit_in_a_gap_takes_only_what_the_gap_lets_in(monkeypatch):
     assert plain[watched][0] > 0.2 * plain[watched][1]  # barycentric: the open corners carry a fifth or more
     assert weighed[watched][0] < 0.2 * plain[watched][0]  # in the gap: little of it
     assert weighed[beside] == pytest.approx(plain[beside])  # nothing over the hit points: as before
+
+
+def test_the_segment_search_finds_every_triangle_whose_box_meets_the_segment():
+    rng = np.random.default_rng(5)
+    centres = rng.random((400, 3)) * 4.0
+    a, b, c = (centres + rng.normal(scale=0.15, size=(400, 3)) for _ in range(3))
+    index = nearfield.VoxelIndex(a, b, c, 0.3)
+    starts = rng.random((300, 3)) * 4.0
+    dirs = rng.normal(size=(300, 3))
+    ends = starts + 0.3 * dirs / np.linalg.norm(dirs, axis=1, keepdims=True)  # one voxel edge long
+    pp, tt = index.segment_candidates(starts, ends)
+    got = set(zip(pp.tolist(), tt.tolist()))
+    lo, hi = np.minimum(starts, ends), np.maximum(starts, ends)
+    tlo, thi = np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
+    meet = np.all((lo[:, None] <= thi[None]) & (hi[:, None] >= tlo[None]), axis=2)
+    want = set(zip(*[x.tolist() for x in np.nonzero(meet)]))
+    assert got == want and len(want) > 50

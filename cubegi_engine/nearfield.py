@@ -60,6 +60,10 @@ GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 SLACK, COORD_SLACK, BARY_SLACK = 1e-5, 4e-6, 1e-5
 # Hits fade out over this last share of the reach.
 FADE = 0.25
+# A covered point counts as hidden from the near field's hits (its light stands for no
+# surface) where at least this share of its view is closed in within reach, or where it
+# lies on another surface (see resting).
+HIDDEN_SHARE = 0.5
 # A hit on a triangle with a corner closed in (openness below OPENNESS_CLOSED: a floor point
 # under a block) and one in the open (above OPENNESS_OPEN) casts OPENNESS_RAYS rays of its
 # own to weigh its corners' light (see _gap_darkening; 0: off); OPENNESS_FLOOR keeps the
@@ -261,14 +265,23 @@ def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS
     uv = np.clip(hit_uv[point, ray], 0.0, 1.0)
     weight = np.stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], axis=1)
     corners = tri[hit_tri[point, ray]]
-    if hidden is not None:
-        weight = _uncover(index, weight, corners, np.asarray(hidden, dtype=bool), hit_tri[point, ray], rch[point])
     # Hits fade out over the last FADE of the reach (their direction goes back to the
     # probes by as much): no step in the light where a surface passes out of reach.
     fade = np.clip((rch[:, None] - best) / (FADE * rch[:, None]), 0.0, 1.0)  # (c, rays); 0 where no hit
+    openness = np.ones(s)
+    openness[cast] = 1.0 - fade.mean(axis=1)
+    if hidden is not None:
+        # Hidden: covered (no probe light) and closed in or lying on another surface (under a
+        # wall standing on it, a block's underside). A covered point open to its own view (a
+        # thick wall's outer face: no probe is outside) has light of its own (the sky's, the
+        # sun's), and a ray that lands beside it takes it.
+        hidden = np.asarray(hidden, dtype=bool).copy()
+        ask = np.flatnonzero(hidden & (openness >= 1.0 - HIDDEN_SHARE))
+        if len(ask):
+            scale = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+            hidden[ask] = resting(points, normals, tri, scale, ask)
+        weight = _uncover(index, weight, corners, hidden, hit_tri[point, ray], rch[point])
     if OPENNESS_RAYS:
-        openness = np.ones(s)
-        openness[cast] = 1.0 - fade.mean(axis=1)
         hit_at = at[point] + best[point, ray][:, None] * dirs[point, ray]
         weight = _gap_darkening(index, weight, corners, openness, hit_at, hit_tri[point, ray], hit_front[point, ray],
                                 rch[point], turn[point])

@@ -198,22 +198,30 @@ def test_a_surface_passing_out_of_reach_fades(reach):
 
 def test_a_corner_hidden_under_a_wall_lends_no_darkness_to_the_floor_beside_it():
     """A floor triangle strip from x = -1 to 0 whose corners at x = 0 stand under a wall
-    (hidden: no probe sees them, so their light is dark): rays from the wall's foot land on
-    the open floor beside it and take its lit corners' light; under a plate 2 cm above the
-    floor (covered), a hit near the hidden corners stays dark."""
+    (covered: no probe sees them, so their light is dark; hidden, as the wall's underside
+    lies on them): rays from the wall's foot land on the open floor beside it and take its
+    lit corners' light; under a plate 2 cm above the floor (covered), a hit near the hidden
+    corners stays dark. Covered corners that lie open keep their own light."""
     floor = np.array([[-1.0, -1, 0], [0.0, -1, 0], [0.0, 1, 0], [-1.0, 1, 0]])
     floor_tris = np.array([[0, 1, 2], [0, 2, 3]])
     foot = np.array([[-0.01, 0.0, 0.0]])  # on the wall's face, facing -x
-    pts = np.concatenate([floor, foot])
-    normals = np.concatenate([np.tile([0.0, 0.0, 1.0], (4, 1)), [[-1.0, 0.0, 0.0]]])
-    hidden = np.array([False, True, True, False, False])
-    radiance = np.array([[1.0] * 3, [0.0] * 3, [0.0] * 3, [1.0] * 3, [0.0] * 3])
+    # The wall's underside, lying on the floor over the hidden corners (facing down).
+    under = np.array([[-0.01, -1.2, 0.0], [0.3, -1.2, 0.0], [0.3, 1.2, 0.0], [-0.01, 1.2, 0.0]])
+    pts = np.concatenate([floor, foot, under])
+    normals = np.concatenate([np.tile([0.0, 0.0, 1.0], (4, 1)), [[-1.0, 0.0, 0.0]], np.tile([0.0, 0.0, -1.0], (4, 1))])
+    floor_tris = np.concatenate([floor_tris, np.array([[0, 2, 1], [0, 3, 2]]) + 5])
+    hidden = np.array([False, True, True, False, False, True, True, True, True])
+    radiance = np.array([[1.0] * 3, [0.0] * 3, [0.0] * 3, [1.0] * 3] + [[0.0] * 3] * 5)
     near = nearfield.build(pts, normals, 0.3, floor_tris, rays=64, hidden=hidden)
     row = near.rows.tolist().index(4)
     # Half the foot's rays land on the floor; each takes the lit corners' light, 1.
     assert abs(near.gather(radiance)[row, 0] - 0.5) < 0.05
     near_plain = nearfield.build(pts, normals, 0.3, floor_tris, rays=64)
     assert near_plain.gather(radiance)[near_plain.rows.tolist().index(4), 0] < 0.2  # barycentric: mostly the dark corner
+    # Without the wall's underside the covered corners lie open (a thick wall's outer face,
+    # which no probe sees but the sun lights): their own light counts, as barycentric.
+    near_open = nearfield.build(pts[:5], normals[:5], 0.3, floor_tris[:2], rays=64, hidden=hidden[:5])
+    assert near_open.gather(radiance[:5])[near_open.rows.tolist().index(4), 0] < 0.2
 
     plate = _quad(-0.2, 0.2, 0.02, up=False)
     centre = np.array([[0.0, 0.0, 0.02]])  # the plate's middle, facing down

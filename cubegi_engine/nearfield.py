@@ -481,6 +481,21 @@ class VoxelIndex:
         d = self.dims
         return (np.clip(iz, 0, d[2] - 1) * d[1] + np.clip(iy, 0, d[1] - 1)) * d[0] + np.clip(ix, 0, d[0] - 1)
 
+    def _voxels(self, pt, key):
+        """The points ``pt`` and the slots (indices into :attr:`keys`) of their voxel ``key``s
+        that hold triangles; empty voxels dropped."""
+        slot = np.minimum(np.searchsorted(self.keys, key), len(self.keys) - 1)
+        found = self.keys[slot] == key
+        return pt[found], slot[found]
+
+    def _listed(self, pt, slot):
+        """Every (point, triangle) pair of points ``pt`` and the triangles listed in their
+        voxels ``slot`` (indices into :attr:`keys`), one pair per listing."""
+        count = self.end[slot] - self.start[slot]
+        pp = np.repeat(pt, count)
+        tt = self.tri[np.repeat(self.start[slot], count) + np.arange(len(pp)) - np.repeat(np.cumsum(count) - count, count)]
+        return pp, tt
+
     def segment_candidates(self, starts, ends):
         """(segment, triangle) pairs: the triangles whose boxes meet the box of each segment
         ``starts``..``ends`` (``(m, 3)`` each, no longer than a voxel's edge: at most 2 x 2 x 2
@@ -498,13 +513,8 @@ class VoxelIndex:
             use = np.all(idx <= last[sl, None, :], axis=2)
             key = np.where(use, self._key(idx[..., 0], idx[..., 1], idx[..., 2]), -1)
             pt, col = np.nonzero(key >= 0)
-            key = key[pt, col]
-            slot = np.minimum(np.searchsorted(self.keys, key), len(self.keys) - 1)
-            found = self.keys[slot] == key
-            pt, slot = pt[found], slot[found]
-            count = self.end[slot] - self.start[slot]
-            pp = np.repeat(pt, count)
-            tt = self.tri[np.repeat(self.start[slot], count) + np.arange(len(pp)) - np.repeat(np.cumsum(count) - count, count)]
+            pt, slot = self._voxels(pt, key[pt, col])
+            pp, tt = self._listed(pt, slot)
             pp += at
             keep = np.all((lo[pp] <= self.hi[tt]) & (hi[pp] >= self.lo[tt]), axis=1)
             pair = np.unique(pp[keep] * len(self.a) + tt[keep])  # a triangle in several voxels, once
@@ -537,18 +547,13 @@ class VoxelIndex:
             new = key >= 0
             new[:, 1:] &= key[:, 1:] != key[:, :-1]
             pt, col = np.nonzero(new)
-            key = key[pt, col]
-            slot = np.minimum(np.searchsorted(self.keys, key), len(self.keys) - 1)
-            found = self.keys[slot] == key
-            pt, slot = pt[found], slot[found]
+            pt, slot = self._voxels(pt, key[pt, col])
             count = self.end[slot] - self.start[slot]
             # Points with more triangles than MAX_NEARBY listed around them are left out
             # before their pairs are made (dense, folded geometry).
             many = np.bincount(pt, count, minlength=len(idx)) > MAX_NEARBY
             crowded[lo : lo + POINT_CHUNK] = many
-            pt, slot, count = pt[~many[pt]], slot[~many[pt]], count[~many[pt]]
-            pp = np.repeat(pt, count)
-            tt = self.tri[np.repeat(self.start[slot], count) + np.arange(len(pp)) - np.repeat(np.cumsum(count) - count, count)]
+            pp, tt = self._listed(pt[~many[pt]], slot[~many[pt]])
             pp += lo
             # Cheapest tests first: the boxes, then the plane, then a corner in front.
             x, r = points[pp], reach[pp][:, None]

@@ -296,7 +296,8 @@ def _left_out_of_capture(capture, grid, placement=None):
             "keeps them all"
         )
     if inside:
-        out.append(f"probes: {inside} sit inside geometry with no way out within their cells and were not captured")
+        out.append(f"probes: {inside} {'sit' if inside > 1 else 'sits'} inside geometry with no way out within "
+                   f"{'their cells' if inside > 1 else 'its cell'} and {'were' if inside > 1 else 'was'} not captured")
 
     near = capture.transport.near
     if near is not None and near.skipped:
@@ -310,9 +311,11 @@ def _left_out_of_capture(capture, grid, placement=None):
         names = [name for name, _ in capture.fingerprint.objects]
         listed = ", ".join(names[k] for k in capture.small_objects[:5] if k < len(names))
         more = f" and {len(capture.small_objects) - 5} more" if len(capture.small_objects) > 5 else ""
+        n = len(capture.small_objects)
         out.append(
-            f"capture geometry: {len(capture.small_objects)} objects smaller than a texel from every probe ({listed}{more}) "
-            "were not drawn by the probes; they still receive light and cast shadows"
+            f"capture geometry: {n} object{'s' if n > 1 else ''} smaller than a texel from every probe ({listed}{more}) "
+            f"{'were' if n > 1 else 'was'} not drawn by the probes; {'they' if n > 1 else 'it'} still receive{'' if n > 1 else 's'} "
+            "light and cast{} shadows".format("" if n > 1 else "s")
         )
     proxy = capture.proxy
     if proxy is not None:

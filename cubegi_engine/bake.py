@@ -169,7 +169,7 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
         check_memory(grid.count, settings.cube_size, len(scene.points))
         t = time.perf_counter()
         proxy = simplify(scene, budget)
-        shown = (scene.points, scene.triangles, _triangle_object(scene)) if proxy is None else (
+        shown = (scene.points, scene.triangles, scene.triangle_object()) if proxy is None else (
             proxy.points, proxy.triangles, proxy.triangle_object)
         small = small_objects(shown[0], shown[1], shown[2], grid.positions(), settings.cube_size)
         if small.any() and small[shown[2]].all():  # nothing would be left to draw
@@ -215,11 +215,6 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
 # An object is left out of the capture where from every probe it spans less than this many
 # texels (it still receives light, and lights others through the direct light's shadows).
 SMALL_OBJECT_TEXELS = 1.0
-
-
-def _triangle_object(scene):
-    owner = scene.point_object if scene.point_object is not None else np.zeros(len(scene.points), dtype=np.int64)
-    return np.asarray(owner, dtype=np.int64)[np.asarray(scene.triangles)[:, 0]] if len(scene.triangles) else np.zeros(0, np.int64)
 
 
 def small_objects(points, triangles, triangle_object, probes, cube_size) -> np.ndarray:

@@ -79,7 +79,7 @@ def emitter_direct(scene, renderer, shadow_size, shadows=True):
     for k in range(len(ids)):
         out += _two_sided_ff(lifted, scene.normals, verts[k])[:, None] * radiance[k]
     if shadows:
-        owner = scene.point_object[scene.triangles[ids, 0]] if scene.point_object is not None else np.zeros(len(ids), dtype=np.int64)
+        owner = scene.triangle_object()[ids]
         vis = np.zeros(s)
         weight = np.zeros(s)
         lit = np.any(out > 0, axis=1)

@@ -276,7 +276,6 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     # are all inside the room: their light would leak out).
     ahead = np.einsum("skc,sc->sk", probe_pos[index] - points[:, None, :], normals) > 0
     fallback = weight * valid * ahead
-    fallback_total = fallback.sum(axis=1, keepdims=True)
     w = np.where(total > 1e-9, w, fallback)
     w = w / np.maximum(w.sum(axis=1, keepdims=True), 1e-300)  # a point with no probe at all keeps zeros
     dark = (total[:, 0] <= 1e-9) & covered.any(axis=1)

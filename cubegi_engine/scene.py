@@ -80,6 +80,13 @@ class SceneArrays:
         p = self.points[self.triangles]
         return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
 
+    def triangle_object(self) -> np.ndarray:
+        """Which object each triangle belongs to (its first corner's), ``(t,)`` int64; all 0
+        without objects."""
+        if self.point_object is None or not len(self.triangles):
+            return np.zeros(len(self.triangles), dtype=np.int64)
+        return np.asarray(self.point_object, dtype=np.int64)[self.triangles[:, 0]]
+
     def point_areas(self) -> np.ndarray:
         """Each point's share of the surface: a third of its triangles' areas, ``(s,)``."""
         area = self.triangle_areas()

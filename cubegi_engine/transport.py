@@ -135,7 +135,7 @@ class Transport:
         self.seen_from_behind = None
         self.triangle_object = None
         if scene.point_object is not None:
-            self.triangle_object = scene.point_object[scene.triangles[:, 0]] if proxy is None else proxy.triangle_object
+            self.triangle_object = scene.triangle_object() if proxy is None else proxy.triangle_object
             count = int(scene.point_object.max()) + 1
             self.seen_from_behind = _seen_from_behind(self.triangle_object, count, tid, back, solid, self.probe_valid)
 

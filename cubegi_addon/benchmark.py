@@ -107,7 +107,11 @@ def run_scene(scene_name, config, cache_dir, log=print):
                                        grid=res, cube_size=cube, bounces=bounces, add_tail=tail, near_field=False))
     # The default a new user gets (no options: the fitted grid), the one before the near field
     # and the one with its probes inside geometry left in place.
-    for which, kw in (("before", {"near_field": False}), ("probes in place", {"move_probes": False}), ("after", {})):
+    # Where the scene has a sky, also the default with the sky per vertex (an option).
+    variants = [("before", {"near_field": False}), ("probes in place", {"move_probes": False}), ("after", {})]
+    if np.any(scene_data.collect(bpy.context).arrays.sky > 0):
+        variants.append(("sky per vertex", {"sky_per_vertex": True}))
+    for which, kw in variants:
         records.append(_cubegi_run(scene_name, objects, ref, areas, {"default": which}, log, repeat=config.get("default_repeats", 1), **kw))
     for k, samples in enumerate(config["cycles_samples"]):
         baked, seconds = reference.bake_reference(bpy.context, objects, samples=samples, seed=1 + k)

@@ -71,7 +71,7 @@ def state_of(context):
             return emitter_direct(replace(arrays, emission=emission), _renderer(kept), settings.area_shadow_size)
 
         def sky():
-            return unit_sky_direct(arrays, _renderer(kept), kept.result.capture.transport)
+            return unit_sky_direct(arrays, _renderer(kept), kept.result.capture.transport, settings.sky_per_vertex)
 
         kept.light = relight.from_bake(kept.result, arrays, draw, settings.add_tail, settings.conserve_energy, emitters, sky)
     return kept

@@ -30,6 +30,7 @@ def _settings_from(op, scene):
         cube_size=pick("cube_size"), bounces=pick("bounces"), cells=pick("cells"), visibility=pick("visibility"),
         tolerance=tolerance if tolerance > 0 else None, add_tail=pick("add_tail"),
         capture_triangles=budget if budget > 0 else None, near_field=pick("near_field"), move_probes=pick("move_probes"),
+        sky_per_vertex=pick("sky_per_vertex"),
         **prefs.capture_settings(),
     )
 
@@ -187,6 +188,10 @@ class CUBEGI_OT_bake(_ModalJob, bpy.types.Operator):
     move_probes: BoolProperty(
         name="Move Probes Out", description="Move probes inside geometry out of it, within their cells (default: the "
         "scene's setting)", default=BakeSettings.move_probes,
+    )
+    sky_per_vertex: BoolProperty(
+        name="Sky per Vertex", description="Shadow the sky at every vertex along its own lines of sight (default: the "
+        "scene's setting)", default=BakeSettings.sky_per_vertex,
     )
     quality: EnumProperty(
         name="Quality", description="A preset for the grid cells, cube-map size and bounces not given (default: the "

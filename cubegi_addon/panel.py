@@ -57,6 +57,7 @@ class VIEW3D_PT_cubegi(_SidebarTab, bpy.types.Panel):
         col.prop(settings, "capture_triangles")
         col.prop(settings, "near_field")
         col.prop(settings, "move_probes")
+        col.prop(settings, "sky_per_vertex")
         col = layout.column(heading="Bounces")
         col.prop(settings, "bounces")
         col.prop(settings, "tolerance")

@@ -77,6 +77,13 @@ class CubeGISceneSettings(bpy.types.PropertyGroup):
         "capture; a probe with no way out is left out. Off: every probe stays at its cell centre",
         default=BakeSettings.move_probes,
     )
+    sky_per_vertex: BoolProperty(
+        name="Sky per Vertex",
+        description="Shadow the sky at every vertex along 256 lines of sight of its own, instead of through the "
+        "probes: the sky's contact shadows and open edges exact to a few per cent, at several times a small bake's "
+        "time (it grows with vertices x directions)",
+        default=BakeSettings.sky_per_vertex,
+    )
     lit: EnumProperty(
         name="Lit Colour", description="Also write CubeGI_lit, the lit colour that glTF export carries as COLOR_0",
         items=LIT_ITEMS, default="NONE",

@@ -158,13 +158,14 @@ def markdown(records, meta=None):
         lines += [
             "",
             "What each part of the default buys: the default without the near field (before), with its probes inside "
-            "geometry left at their cell centres (probes in place: the capture then leaves them out), and the default.",
+            "geometry left at their cell centres (probes in place: the capture then leaves them out), the default, and, "
+            "where the scene has a sky, the default with the sky's direct light per vertex (sky per vertex, an option).",
             "",
             "| scene | default | time | indirect error | direct error | speed-up over Cycles |",
             "|---|---|---|---|---|---|",
         ]
         for scene, d in sorted(table.items()):
-            for which in ("before", "probes in place", "after"):
+            for which in ("before", "probes in place", "after", "sky per vertex"):
                 if which in d:
                     x = d[which]
                     lines.append(

@@ -237,23 +237,32 @@ def direct_light(scene, renderer, settings, transport, landing=None, shadows=Non
         parts[EMISSION] = scene.zero_dark_points_inplace(emitter_direct(scene, renderer, settings.area_shadow_size))
     if np.any(scene.sky > 0):
         coeffs = coeffs + transport.sky_coefficients(scene.sky)  # what the probes see of it (the field)
-        parts[SKY] = scene.sky[None, :] * unit_sky_direct(scene, renderer, transport)
+        parts[SKY] = scene.sky[None, :] * unit_sky_direct(scene, renderer, transport, settings.sky_per_vertex)
     return DirectLight(parts, coeffs, factor, light_seconds, time.perf_counter() - t, left_out)
 
 
-def unit_sky_direct(scene, renderer, transport) -> np.ndarray:
+def unit_sky_direct(scene, renderer, transport, per_vertex=False) -> np.ndarray:
     """Diffuse light ``(s, 3)`` of a sky of unit mean radiance (its pattern, if any): what
     the probes see of it (:meth:`Transport.seen_light`), and for the vertices no probe
     lights and nothing close encloses (the outer face of a thick wall: every probe is inside
-    the room) the sky along their own lines of sight (:func:`sky_direct`)."""
+    the room) the sky along their own lines of sight (:func:`sky_direct`). ``per_vertex``:
+    every vertex a probe lights with any sky takes it along its own lines of sight too,
+    SKY_PER_VERTEX_DIRECTIONS of them, drawn at SKY_PER_VERTEX_MAP_SIZE."""
     light = transport.seen_light(transport.sky_coefficients(np.ones(3)))
     alone = transport.covered.copy()
     if transport.near is not None:
         alone &= ~transport.near.enclosed(len(alone))
     if alone.any():  # not the underside of a block standing on the ground
         alone[alone] = ~nearfield.resting(scene.points, scene.normals, scene.triangles, scene.scale, np.flatnonzero(alone))
+    if per_vertex:
+        # The probes' own sky: a vertex whose probes see none (under a roof) has none.
+        alone |= ~transport.covered & (transport.interpolate(transport.sky_coefficients(np.ones(3))).max(axis=1) > 0)
     if alone.any():
-        light[alone] = sky_direct(scene, renderer, np.flatnonzero(alone))
+        which = np.flatnonzero(alone)
+        if per_vertex:
+            light[which] = sky_direct(scene, renderer, which, SKY_PER_VERTEX_DIRECTIONS, SKY_PER_VERTEX_MAP_SIZE)
+        else:
+            light[which] = sky_direct(scene, renderer, which)
     return light
 
 
@@ -261,35 +270,46 @@ def unit_sky_direct(scene, renderer, transport) -> np.ndarray:
 # directions (a Fibonacci sphere), each an orthographic depth map of this edge, as a sun's.
 SKY_DIRECTIONS = 64
 SKY_MAP_SIZE = 256
+# The same for every vertex (``BakeSettings.sky_per_vertex``): on the sunlit courtyard of
+# the benchmark, direct error 3.5% through the probes; 64 / 128 / 256 / 512 directions at
+# 256: 4.3 / 2.6 / 1.8 / 1.5%; 256 directions at 128 / 384: 2.5 / 1.6%.
+SKY_PER_VERTEX_DIRECTIONS = 256
+SKY_PER_VERTEX_MAP_SIZE = 256
+# Sky depth maps drawn and read back at a time.
+SKY_MAPS_AT_ONCE = 32
 
 
-def sky_direct(scene, renderer, which) -> np.ndarray:
+def sky_direct(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY_MAP_SIZE) -> np.ndarray:
     """Diffuse light ``(k, 3)`` of a sky of unit mean radiance (its pattern, if any) at the
     points ``which (k,)``, with the scene's shadows: the unoccluded sky for each normal (exact
     for a uniform sky; the pattern's 9 SH coefficients otherwise) times the share of it the
-    point sees, measured along SKY_DIRECTIONS directions, each an orthographic depth map
-    drawn with the sun's machinery, weighted by the sky's radiance and the cosine."""
-    dirs = sh.fibonacci_sphere(SKY_DIRECTIONS)  # towards the sky
+    point sees, measured along ``directions`` directions, each an orthographic depth map of
+    ``size`` drawn with the sun's machinery, weighted by the sky's radiance and the cosine."""
+    dirs = sh.fibonacci_sphere(directions)  # towards the sky
     pattern = _sky_pattern(scene, dirs)  # (k, 3)
     lo, hi = scene.bounds()
     centre, radius = 0.5 * (lo + hi), 0.5 * scene.scale * SUN_BOX_MARGIN
     eyes = centre + dirs * radius * SUN_EYE_DISTANCE
     vps = np.stack([cubemap.orthographic(radius, SUN_NEAR * radius, SUN_FAR * radius)
                     @ cubemap.look_matrix(e, -d, cubemap.any_perpendicular(d)) for e, d in zip(eyes, dirs)])
-    tid, _, dist, back = renderer.render(vps, eyes, -dirs, SKY_MAP_SIZE, with_bary=False)
     pts, nrm = scene.points[which], scene.normals[which]
     seen = np.zeros((len(which), 3))
     facing = np.zeros((len(which), 3))
-    for k, d in enumerate(dirs):
-        cos = nrm @ d
-        on = np.flatnonzero(cos > 0)
-        if not len(on):
-            continue
-        vis = lights_mod.ortho_visibility(pts[on], nrm[on], vps[k], -d, eyes[k], tid[k], dist[k], back[k],
-                                          scene.triangles, scene.points, which[on], radius, scene.scale)
-        w = cos[on, None] * pattern[k][None, :]
-        seen[on] += w * vis[:, None]
-        facing[on] += w
+    for first in range(0, len(dirs), SKY_MAPS_AT_ONCE):  # (a few hundred MB of maps at once, not more)
+        tid, _, dist, back = renderer.render(vps[first : first + SKY_MAPS_AT_ONCE], eyes[first : first + SKY_MAPS_AT_ONCE],
+                                             -dirs[first : first + SKY_MAPS_AT_ONCE], size, with_bary=False)
+        for j in range(len(tid)):
+            k = first + j
+            d = dirs[k]
+            cos = nrm @ d
+            on = np.flatnonzero(cos > 0)
+            if not len(on):
+                continue
+            vis = lights_mod.ortho_visibility(pts[on], nrm[on], vps[k], -d, eyes[k], tid[j], dist[j], back[j],
+                                              scene.triangles, scene.points, which[on], radius, scene.scale)
+            w = cos[on, None] * pattern[k][None, :]
+            seen[on] += w * vis[:, None]
+            facing[on] += w
     open_sky = np.ones((len(which), 3))
     if getattr(scene, "sky_map", None) is not None:  # the pattern's SH, as diffuse light per normal
         n = 16

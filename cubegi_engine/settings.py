@@ -64,6 +64,11 @@ class BakeSettings:
     # allows, else left out (:mod:`cubegi_engine.placement`); False: every probe stays at
     # its cell centre (the capture still leaves out the ones inside).
     move_probes: bool = True
+    # The sky's direct light per vertex, along SKY_PER_VERTEX_DIRECTIONS lines of sight of
+    # its own (:func:`cubegi_engine.direct.sky_direct`), instead of through the probes: the
+    # sky's shadows exact to within a few per cent, at a cost that grows with vertices x
+    # directions (see README, *Accuracy against Cycles*).
+    sky_per_vertex: bool = False
 
     def validate(self) -> "BakeSettings":
         """Raise a :class:`BakeError` naming the first setting out of range; else self."""
@@ -99,5 +104,6 @@ class BakeSettings:
             "cube_size": self.cube_size, "bounces": self.bounces, "cells": self.cells, "visibility": self.visibility,
             "shadow_size": self.shadow_size, "tolerance": self.tolerance, "add_tail": self.add_tail,
             "conserve_energy": self.conserve_energy, "capture_triangles": self.capture_triangles,
-            "near_field": self.near_field, "move_probes": self.move_probes, **extra,
+            "near_field": self.near_field, "move_probes": self.move_probes, "sky_per_vertex": self.sky_per_vertex,
+            **extra,
         }

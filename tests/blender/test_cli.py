@@ -186,7 +186,8 @@ def test_cli_quality_presets_set_what_is_not_given(saved_scene, tmp_path):
     """``--quality draft`` bakes with 4 cells along the longest side, 16^2 faces and 3
     bounces; an explicit option still wins; the default is the balanced preset, with the
     near field (``--no-near-field`` turns it off) and probes moved out of geometry
-    (``--keep-probes-in-place`` turns that off)."""
+    (``--keep-probes-in-place`` turns that off), the sky through the probes
+    (``--sky-per-vertex``: along each vertex's own lines of sight)."""
     import json
 
     src, _ = saved_scene
@@ -196,6 +197,7 @@ def test_cli_quality_presets_set_what_is_not_given(saved_scene, tmp_path):
         "default": [],
         "no near field": ["--no-near-field"],
         "probes in place": ["--keep-probes-in-place"],
+        "sky per vertex": ["--sky-per-vertex"],
     }
     got = {}
     for name, extra in runs.items():
@@ -214,3 +216,4 @@ def test_cli_quality_presets_set_what_is_not_given(saved_scene, tmp_path):
     assert got["no near field"]["settings"]["near_field"] is False and got["no near field"]["near_field"] is None
     assert balanced["move_probes"] is True and got["probes in place"]["settings"]["move_probes"] is False
     assert got["probes in place"]["grid"].get("probes_moved") is None
+    assert balanced["sky_per_vertex"] is False and got["sky per vertex"]["settings"]["sky_per_vertex"] is True

@@ -130,10 +130,12 @@ def test_world_colour_and_material_edits_equal_a_full_bake(empty_scene, cubegi):
         assert np.abs(updated[key] - full[key]).max() < 3e-2 * max(v.max() for v in full.values()), key
 
 
-def test_an_environment_image_updates_with_its_strength_and_refuses_a_new_image(empty_scene, cubegi):
-    """The sky of an environment image: a strength edit is a weight (equal to a full bake);
-    new pixels change the probes' tables, so Update refuses with the reason and writes
-    nothing."""
+@pytest.mark.parametrize("per_vertex", [False, True], ids=["probe-sky", "sky-per-vertex"])
+def test_an_environment_image_updates_with_its_strength_and_refuses_a_new_image(empty_scene, cubegi, per_vertex):
+    """The sky of an environment image: a strength edit is a weight (equal to a full bake
+    with the same settings; with the sky per vertex, baked dark and then lit, so that the
+    update draws the sky's own lines of sight); new pixels change the probes' tables, so
+    Update refuses with the reason and writes nothing."""
     from cubegi.cubegi_addon.bench_scenes import courtyard
 
     courtyard()
@@ -145,7 +147,9 @@ def test_an_environment_image_updates_with_its_strength_and_refuses_a_new_image(
     env = tree.nodes.new("ShaderNodeTexEnvironment")
     env.image = image
     tree.links.new(env.outputs["Color"], tree.nodes["Background"].inputs["Color"])
-    settings = dict(grid=(4, 4, 2), cube_size=16, bounces=3)
+    settings = dict(grid=(4, 4, 2), cube_size=16, bounces=3, sky_per_vertex=per_vertex)
+    if per_vertex:  # baked dark: the update draws the sky's own lines of sight
+        tree.nodes["Background"].inputs["Strength"].default_value = 0.0
     assert bpy.ops.cubegi.bake(**settings) == {"FINISHED"}
     tree.nodes["Background"].inputs["Strength"].default_value = 2.0
     report = cubegi.cubegi_addon.live.update(bpy.context)

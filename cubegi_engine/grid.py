@@ -222,15 +222,23 @@ def fit_bounds(lo, hi, spacing=None, max_probes=4096):
     return tuple(int(r) for r in res)
 
 
-def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals, index, weight, cover=None):
+# How far behind a point's tangent plane (in cells) a probe may stand and still light it.
+BEHIND = 0.1
+
+
+def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals, index, weight, cover=None, keep_behind=False):
     """Trilinear weights with probes that cannot see a point, or are invalid, left out.
 
     A probe is kept for a point if the point, lifted off its surface along the normal by a
     tenth of the smallest cell edge, is no farther from the probe than the first surface the
-    probe's cube map records in that direction (the depth test of a shadow map). This stops
-    light leaking through walls thinner than a cell. If every probe of a point is left out,
-    the point keeps its plain trilinear weights over the valid probes in front of its
-    surface (none: no probe light).
+    probe's cube map records in that direction (the depth test of a shadow map), and the
+    probe stands no more than BEHIND cells behind the point's tangent plane. This stops
+    light leaking through walls thinner than a cell, and round convex edges (a probe just
+    above a block's sunlit top would light the block's sides with it). If every probe of a
+    point is left out, the point keeps its plain trilinear weights over the valid probes in
+    front of its surface; with none, it gets no probe light (a block's underside below the
+    lowest probes: the near field lights it), or, with ``keep_behind``, the probes behind
+    its plane that see it.
 
     probe_pos: ``(p, 3)``; probe_dist: ``(p, 6, n, n)`` distance to the first surface (inf
     where the probe sees sky); probe_valid: ``(p,)`` bool; points, normals: ``(s, 3)``;
@@ -251,7 +259,8 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
             return None if cover is None else (*cover[:4], cover[4][sl], *cover[5:])
 
         return np.concatenate([
-            visibility_weights(grid, probe_pos, probe_dist, probe_valid, points[sl], normals[sl], index[sl], weight[sl], part(sl))
+            visibility_weights(grid, probe_pos, probe_dist, probe_valid, points[sl], normals[sl], index[sl], weight[sl], part(sl),
+                               keep_behind)
             for sl in chunks(len(points))
         ])
     n = probe_dist.shape[-1]
@@ -269,13 +278,19 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
         covered = _covered(cover, probe_pos[index], points, normals, index, face, row, col, n, cell)
         visible &= ~covered
     valid = probe_valid[index]
-    w = weight * (visible & valid)
+    # A probe more than BEHIND cells behind the point's tangent plane sees its hemisphere from
+    # the far side: at a convex edge nothing hides it.
+    height = np.einsum("skc,sc->sk", probe_pos[index] - points[:, None, :], normals)
+    seen_by = weight * (visible & valid)
+    w = seen_by * (height >= -BEHIND * cell)
     total = w.sum(axis=1, keepdims=True)
     # A point no probe sees takes the valid probes in front of its surface (a vertex in a
     # corner too tight for the grid); none behind it (the outer face of a wall, whose probes
     # are all inside the room: their light would leak out).
-    ahead = np.einsum("skc,sc->sk", probe_pos[index] - points[:, None, :], normals) > 0
+    ahead = height > 0
     fallback = weight * valid * ahead
+    if keep_behind:
+        fallback = np.where(fallback.sum(axis=1, keepdims=True) > 1e-9, fallback, seen_by)
     w = np.where(total > 1e-9, w, fallback)
     w = w / np.maximum(w.sum(axis=1, keepdims=True), 1e-300)  # a point with no probe at all keeps zeros
     dark = (total[:, 0] <= 1e-9) & covered.any(axis=1)

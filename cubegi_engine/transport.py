@@ -143,8 +143,11 @@ class Transport:
         index, weight = grid.trilinear(scene.points)
         # (s,) points with no probe of their grid at all (its probes around them all lie in a
         # finer grid's box): a grid-placement problem the bake notes. (Points covered by
-        # another object, dark by the visibility test below, are not counted.)
-        self.no_probe = ~np.any(weight > 0, axis=1)
+        # another object, dark by the visibility test below, are not counted; nor are points
+        # whose probes were all left out for lying inside geometry: a floor under a block.)
+        whole = getattr(grid, "grid", None)  # a ProbeSubset's grid
+        self.no_probe = ~np.any((weight if whole is None else whole.trilinear(scene.points)[1]) > 0, axis=1)
+        spare = None  # (rows, weights of the probes behind them), for points the near field leaves dark
         if visibility:
             dist = capture.dist.reshape(p, 6, n, n)
             cover = None
@@ -154,9 +157,13 @@ class Transport:
                 normals = np.cross(vertices[triangles[:, 1]] - p0, vertices[triangles[:, 2]] - p0)
                 cover = (capture.tid.reshape(p, 6, n, n), triangles, self.triangle_object, vertices, scene.point_object,
                          normals, edge_neighbours(triangles))
-            weight = visibility_weights(
-                grid, positions, dist, self.probe_valid, scene.points, scene.normals, index, weight, cover
-            )
+            seen = visibility_weights(grid, positions, dist, self.probe_valid, scene.points, scene.normals, index, weight, cover)
+            alone = np.flatnonzero(~seen.any(axis=1) & weight.any(axis=1))
+            if len(alone):
+                part = None if cover is None else (*cover[:4], cover[4][alone], *cover[5:])
+                spare = (alone, visibility_weights(grid, positions, dist, self.probe_valid, scene.points[alone],
+                                                   scene.normals[alone], index[alone], weight[alone], part, keep_behind=True))
+            weight = seen
         elif not self.probe_valid.all():
             w = weight * self.probe_valid[index]
             total = w.sum(axis=1, keepdims=True)
@@ -175,6 +182,14 @@ class Transport:
         if near_field:
             reach = NEAR_REACH * grid.point_cell_edge(scene.points)
             self.near = nearfield.build(scene.points, scene.normals, reach, scene.triangles, hidden=self.covered)
+        if spare is not None:
+            # A point only probes behind its plane see (a block's underside below the lowest
+            # probes) is lit by its near field; where it has none (off, or left out), by them.
+            rows, w = spare
+            keep = ~np.isin(rows, self.near.rows) if self.near is not None else np.ones(len(rows), dtype=bool)
+            rows, w = rows[keep], w[keep]
+            self.point_weights[rows] = (w[:, :, None] * basis[rows][:, None, :]).reshape(len(rows), COEFFS_PER_POINT)
+            self.covered[rows] = np.abs(self.point_weights[rows]).max(axis=1) < 1e-6
 
     def gather_project_matrix(self):
         """``K (9p, s)`` float32: the probes' SH coefficients from per-point radiance (one

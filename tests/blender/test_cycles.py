@@ -223,10 +223,10 @@ def test_a_large_point_light_casts_soft_shadows_as_cycles(empty_scene, cubegi):
 def test_the_near_field_brings_contacts_and_corners_to_cycles(empty_scene, cubegi):
     """The probes see the box's edges and the blocks, standing 2 cm above the floor, from up
     to a cell away; rays from each vertex see what is next to it. Measured at the default
-    8x8x8 grid, 16^2, 256 samples: the scene's indirect rel. RMSE 15.0% without the near
-    field, 11.1% with it. The blocks' undersides: +15% too bright without, +25% with (their
-    rims' rays land on floor triangles half under the block: a coarse floor cannot say
-    where its light ends)."""
+    8x8x8 grid, 16^2, 256 samples: the scene's indirect rel. RMSE 14.9% without the near
+    field, 10.0% with it. The blocks' undersides: +14% too bright without (lit by the probes
+    above them, behind their plane: no other probe sees them), -12% with (the near field
+    alone; the probes behind them are left out)."""
     scenes.cornell(light=True)
     obs = [ob for ob in bpy.context.scene.objects if ob.type == "MESH"]
     attributes, scene_data = cubegi.cubegi_addon.attributes, cubegi.cubegi_addon.scene_data
@@ -247,7 +247,7 @@ def test_the_near_field_brings_contacts_and_corners_to_cycles(empty_scene, cubeg
     print(got)
     (rmse_off, under_off), (rmse_on, under_on) = got[False], got[True]
     assert rmse_on < 0.8 * rmse_off, got
-    assert abs(under_off) < 0.3 and abs(under_on) < 0.35, got
+    assert abs(under_off) < 0.3 and abs(under_on) < 0.2, got
 
 
 def _against_cycles(cubegi, obs, part, layer, samples=32):

@@ -132,6 +132,29 @@ def test_grid_positions_and_trilinear_weights():
     assert idx[0, np.argmax(w[0])] == 0 and idx[1, np.argmax(w[1])] == 41
 
 
+def test_probes_behind_a_points_plane_light_it_only_where_no_probe_in_front_can():
+    """A 2x2x2 grid of unit cells; nothing drawn (every probe sees every point). A point
+    facing up between the layers takes only the upper probes; a point facing up above all
+    of them (a block's top) takes the ones it stands over only with ``keep_behind``, else
+    none; a point facing sideways keeps the probes on its side."""
+    g = grid.ProbeGrid((0, 0, 0), (2, 2, 2), (2, 2, 2))  # probes at 0.5 and 1.5
+    pos = g.positions()
+    pts = np.array([[1.0, 1.0, 0.8], [1.0, 1.0, 1.9], [1.0, 1.0, 1.0]])
+    nrm = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+    index, weight = g.trilinear(pts)
+    dist = np.full((8, 6, 4, 4), np.inf)
+    valid = np.ones(8, dtype=bool)
+    w = grid.visibility_weights(g, pos, dist, valid, pts, nrm, index, weight)
+    above = pos[index][..., 2] > 1.0
+    right = pos[index][..., 0] > 1.0
+    np.testing.assert_allclose(w[0], np.where(above[0], 0.25, 0.0))
+    assert not w[1].any()  # all eight stand more than a tenth of a cell below its plane
+    np.testing.assert_allclose(w[2], np.where(right[2], 0.25, 0.0))
+    kept = grid.visibility_weights(g, pos, dist, valid, pts, nrm, index, weight, keep_behind=True)
+    np.testing.assert_allclose(kept[1], weight[1])
+    np.testing.assert_allclose(kept[[0, 2]], w[[0, 2]])
+
+
 def test_single_probe_grid_and_bad_grids():
     g = grid.ProbeGrid((0, 0, 0), (1, 1, 1), (1, 1, 1))
     idx, w = g.trilinear(np.random.default_rng(0).random((10, 3)))

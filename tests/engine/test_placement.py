@@ -42,6 +42,18 @@ def test_a_probe_inside_a_small_block_moves_out_within_its_cell():
     np.testing.assert_allclose(w0, w1)
 
 
+def test_a_probe_inside_a_thin_wall_stops_where_it_has_the_most_room():
+    """A 4 cm slab through the grid's centre probe, in an open cell: the probe leaves through
+    a face and goes on to the farthest stop (BEYOND) in its cell, not a tenth of a cell from
+    the wall it was inside (where the wall fills half of what it sees)."""
+    pts, tris = _box((-0.02, -1.4, -1.4), (0.02, 1.4, 1.4))
+    got = placement.place(_grid(), pts, tris)
+    assert got.moved >= 1 and got.keep[13]
+    x = abs(got.offsets[13][0])
+    assert x - 0.02 > placement.MARGIN + 0.15, got.offsets[13]  # beyond the first stop
+    assert np.all(np.abs(got.offsets[13]) <= placement.MAX_SHIFT + 1e-12)
+
+
 def test_a_probe_deep_in_a_block_with_no_way_out_in_its_cell_is_left_out():
     pts, tris = _box((-0.8, -0.8, -0.8), (0.8, 0.8, 0.8))
     got = placement.place(_grid(), pts, tris)

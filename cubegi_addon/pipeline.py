@@ -292,8 +292,8 @@ def _left_out_of_capture(capture, grid, placement=None):
     if unused > 0:
         out.append(
             f"probes: {unused} of {grid.count} light no vertex (none lies within a cell of them) and were "
-            f"not captured ({100 * unused / grid.count:.0f}% of the capture saved); a dynamic object in the scene "
-            "keeps them all"
+            f"not captured ({100 * unused / grid.count:.0f}% of the capture saved; a scene with a dynamic object "
+            "captures them all)"
         )
     if inside:
         out.append(f"probes: {inside} {'sit' if inside > 1 else 'sits'} inside geometry with no way out within "

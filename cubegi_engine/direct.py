@@ -254,9 +254,8 @@ def unit_sky_direct(scene, renderer, transport, per_vertex=False) -> np.ndarray:
         alone &= ~transport.near.enclosed(len(alone))
     if alone.any():  # not the underside of a block standing on the ground
         alone[alone] = ~nearfield.resting(scene.points, scene.normals, scene.triangles, scene.scale, np.flatnonzero(alone))
-    if per_vertex:
-        # The probes' own sky: a vertex whose probes see none (under a roof) has none.
-        alone |= ~transport.covered & (transport.interpolate(transport.sky_coefficients(np.ones(3))).max(axis=1) > 0)
+    if per_vertex:  # every vertex its probes give any sky (one under a roof has none)
+        alone |= ~transport.covered & (light.max(axis=1) > 0)
     if alone.any():
         which = np.flatnonzero(alone)
         if per_vertex:

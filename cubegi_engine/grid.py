@@ -293,7 +293,7 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
         fallback = np.where(fallback.sum(axis=1, keepdims=True) > 1e-9, fallback, seen_by)
     w = np.where(total > 1e-9, w, fallback)
     w = w / np.maximum(w.sum(axis=1, keepdims=True), 1e-300)  # a point with no probe at all keeps zeros
-    dark = (total[:, 0] <= 1e-9) & covered.any(axis=1)
+    dark = (seen_by.sum(axis=1) <= 1e-9) & covered.any(axis=1)  # no probe, on either side, sees it
     w[dark] = 0.0
     return w
 

@@ -184,10 +184,14 @@ class Transport:
             self.near = nearfield.build(scene.points, scene.normals, reach, scene.triangles, hidden=self.covered)
         if spare is not None:
             # A point only probes behind its plane see (a block's underside below the lowest
-            # probes) is lit by its near field; where it has none (off, or left out), by them.
+            # probes) is lit by its near field where that encloses at least half its view (the
+            # probes' light in the few open directions comes out too bright); elsewhere (a
+            # sofa's underside well above the floor, no near field) by them. Cornell box at 12
+            # cells: 7.1% (at least half), 7.9% (three quarters), 9.2% (always by them).
             rows, w = spare
-            keep = ~np.isin(rows, self.near.rows) if self.near is not None else np.ones(len(rows), dtype=bool)
-            rows, w = rows[keep], w[keep]
+            if self.near is not None:
+                keep = ~self.near.enclosed(len(scene.points))[rows]
+                rows, w = rows[keep], w[keep]
             self.point_weights[rows] = (w[:, :, None] * basis[rows][:, None, :]).reshape(len(rows), COEFFS_PER_POINT)
             self.covered[rows] = np.abs(self.point_weights[rows]).max(axis=1) < 1e-6
 

@@ -313,3 +313,30 @@ def test_a_thick_walled_rooms_outer_faces_get_the_sky(empty_scene, cubegi):
     assert bpy.ops.cubegi.bake(bounces=2, cube_size=16) == {"FINISHED"}
     err = _against_cycles(cubegi, obs, "DIRECT", "CubeGI_direct")
     assert abs(err["rel_bias"]) < 0.02 and err["rel_rmse"] < 0.05, err
+
+
+def test_a_raised_blocks_underside_below_the_lowest_probes_gets_its_light(empty_scene, cubegi):
+    """A 1.8 x 0.8 m block standing 12 cm above the floor of a closed 4 x 3 x 2.6 m room lit
+    by a lamp: the underside's probes all stand above it (behind its plane), and the near
+    field's rays (reach a quarter of a cell) cover little of its view, so those probes light
+    it (they see it through the gap). Measured against Cycles at 128 samples: the
+    underside's indirect light +2% (it was black when probes behind a vertex were always
+    left out)."""
+    attributes, scene_data = cubegi.cubegi_addon.attributes, cubegi.cubegi_addon.scene_data
+    v, f = scenes.box_mesh((-2.0, -1.5, 0.0), (2.0, 1.5, 2.6), (16, 12, 10), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("Plaster", (0.78, 0.76, 0.72)))
+    v, f = scenes.box_mesh((-1.8, 0.2, 0.12), (0.0, 1.0, 0.47), (9, 4, 2), inward=False)
+    scenes.mesh_object("Sofa", v, f, scenes.material("Fabric", (0.35, 0.22, 0.18)))
+    scenes.add_light("POINT", (1.1, -0.7, 1.9), 150.0, shadow_soft_size=0.1)
+    scenes.set_world((0.0, 0.0, 0.0))
+    obs = [bpy.data.objects["Room"], bpy.data.objects["Sofa"]]
+    assert bpy.ops.cubegi.bake(bounces=4) == {"FINISHED"}
+    ref, _ = cubegi.cubegi_addon.reference.bake_reference(bpy.context, obs[1:], passes=("INDIRECT",), samples=128)
+    sofa = obs[1]
+    nz = np.array([vv.normal.z for vv in sofa.data.vertices])
+    under = nz < -0.9
+    a = scene_data.vertex_areas(sofa)[under]
+    ours = attributes.read(sofa.data, "CubeGI")[under].mean(axis=1) @ a
+    theirs = ref["INDIRECT"]["Sofa"][under].mean(axis=1) @ a
+    print(ours / theirs - 1.0)
+    assert abs(ours / theirs - 1.0) < 0.25, (ours, theirs)

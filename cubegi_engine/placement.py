@@ -106,38 +106,55 @@ def place(grid, triangles_points, triangles, candidates=None) -> Placement:
     stuck, t, back = asked[within], t[within], back[within]
     keep[stuck] = False
     if len(stuck):
-        # The ways out: through the WAYS_OUT nearest back faces its rays met, each of BEYOND
-        # beyond it, inside the cell.
+        # The ways out: through the WAYS_OUT nearest back faces its rays met, the first of
+        # BEYOND beyond each; then, along the way that leaves the most room, the farther ones.
         tb = np.where(back, t, np.inf)
         near = np.argsort(tb, axis=1)[:, :WAYS_OUT]
         row = np.repeat(np.arange(len(stuck)), near.shape[1])
         ray = near.ravel()
         real = np.isfinite(tb[row, ray])
         row, ray = row[real], ray[real]
-        k = len(BEYOND)
-        row, ray = np.repeat(row, k), np.repeat(ray, k)
-        m = np.tile(np.asarray(BEYOND), len(row) // k)
-        probe = stuck[row]
-        step = (t[row, ray] + m * cell[probe])[:, None] * dirs[ray]
-        fits = np.all(np.abs(step) <= MAX_SHIFT * _cell_sizes(grid, positions[probe], cell[probe]), axis=1)
-        probe, step = probe[fits], step[fits]
-        if len(probe):
+        sizes = _cell_sizes(grid, positions, cell)
+
+        def stops(row, ray, beyond):
+            """The stops ``beyond`` (cells) past each way's back face that stay in the cell,
+            and the room each leaves: ``(row, ray, step, clear)``."""
+            probe = stuck[row]
+            step = (t[row, ray] + beyond * cell[probe])[:, None] * dirs[ray]
+            fits = np.all(np.abs(step) <= MAX_SHIFT * sizes[probe], axis=1)
+            row, ray, probe, step = row[fits], ray[fits], probe[fits], step[fits]
+            if not len(row):
+                return row, ray, step, np.zeros(0)
             t2, back2 = trace(positions[probe] + step, index, cell[probe], dirs)
-            clear = np.where(inside(t2, back2), -np.inf, t2.min(axis=1))  # room to the nearest surface
-            # Per probe, the way out that leaves it the most room (clear of surfaces by at
-            # least MARGIN).
-            order = np.lexsort((-clear, probe))
-            first = np.ones(len(order), dtype=bool)
-            first[1:] = probe[order][1:] != probe[order][:-1]
-            best = order[first]
-            ok = clear[best] >= MARGIN * cell[probe[best]]
-            offsets[probe[best[ok]]] = step[best[ok]]
-            keep[probe[best[ok]]] = True
+            return row, ray, step, np.where(inside(t2, back2), -np.inf, t2.min(axis=1))  # room to the nearest surface
+
+        found = stops(row, ray, np.full(len(row), BEYOND[0]))
+        best = _most_room(found[0], found[3])
+        # Farther along the best way; for a probe no first stop leaves room, along every way.
+        stuck_here = found[3][best] < MARGIN * cell[stuck[found[0][best]]]
+        retry = np.isin(row, found[0][best][stuck_here]) | ~np.isin(row, found[0])
+        ways = (np.concatenate([found[0][best][~stuck_here], row[retry]]), np.concatenate([found[1][best][~stuck_here], ray[retry]]))
+        k = len(BEYOND) - 1
+        farther = stops(np.repeat(ways[0], k), np.repeat(ways[1], k), np.tile(np.asarray(BEYOND[1:]), len(ways[0])))
+        row, _, step, clear = (np.concatenate([x[best], y]) for x, y in zip(found, farther))
+        best = _most_room(row, clear)
+        probe = stuck[row[best]]
+        ok = clear[best] >= MARGIN * cell[probe]  # clear of surfaces by at least MARGIN
+        offsets[probe[ok]] = step[best[ok]]
+        keep[probe[ok]] = True
     if not keep.any():  # every probe reads as inside (normals turned the wrong way): keep them
         return Placement(np.asarray(candidates if candidates is not None else np.ones(p), dtype=bool).copy(),
                          np.zeros((p, 3)), 0, 0, time.perf_counter() - t0)
     moved = int(np.count_nonzero(np.any(offsets != 0.0, axis=1)))
     return Placement(keep, offsets, moved, int(len(stuck) - moved), time.perf_counter() - t0)
+
+
+def _most_room(row, clear):
+    """Indices of the candidate with the most ``clear`` room per ``row`` (a probe)."""
+    order = np.lexsort((-clear, row))
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = row[order][1:] != row[order][:-1]
+    return order[first]
 
 
 def _cell_sizes(grid, positions, edge):

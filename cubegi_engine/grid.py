@@ -226,7 +226,7 @@ def fit_bounds(lo, hi, spacing=None, max_probes=4096):
 BEHIND = 0.1
 
 
-def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals, index, weight, cover=None, keep_behind=False):
+def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals, index, weight, cover=None, both=False):
     """Trilinear weights with probes that cannot see a point, or are invalid, left out.
 
     A probe is kept for a point if the point, lifted off its surface along the normal by a
@@ -237,8 +237,8 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     above a block's sunlit top would light the block's sides with it). If every probe of a
     point is left out, the point keeps its plain trilinear weights over the valid probes in
     front of its surface; with none, it gets no probe light (a block's underside below the
-    lowest probes: the near field lights it), or, with ``keep_behind``, the probes behind
-    its plane that see it.
+    lowest probes: the near field lights it). With ``both``, also the weights where such a
+    point keeps the probes behind its plane that see it: ``(weights, kept behind)``.
 
     probe_pos: ``(p, 3)``; probe_dist: ``(p, 6, n, n)`` distance to the first surface (inf
     where the probe sees sky); probe_valid: ``(p,)`` bool; points, normals: ``(s, 3)``;
@@ -258,11 +258,11 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
         def part(sl):  # the cover's point_object is per point
             return None if cover is None else (*cover[:4], cover[4][sl], *cover[5:])
 
-        return np.concatenate([
-            visibility_weights(grid, probe_pos, probe_dist, probe_valid, points[sl], normals[sl], index[sl], weight[sl], part(sl),
-                               keep_behind)
-            for sl in chunks(len(points))
-        ])
+        parts = [visibility_weights(grid, probe_pos, probe_dist, probe_valid, points[sl], normals[sl], index[sl], weight[sl],
+                                    part(sl), both) for sl in chunks(len(points))]
+        if both:
+            return tuple(np.concatenate(p) for p in zip(*parts))
+        return np.concatenate(parts)
     n = probe_dist.shape[-1]
     cell = grid.point_cell_edge(points)[:, None]  # (s, 1)
     q = points[:, None, :] + 0.1 * cell[..., None] * normals[:, None, :]  # (s, 1, 3)
@@ -289,13 +289,17 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     # are all inside the room: their light would leak out).
     ahead = height > 0
     fallback = weight * valid * ahead
-    if keep_behind:
-        fallback = np.where(fallback.sum(axis=1, keepdims=True) > 1e-9, fallback, seen_by)
-    w = np.where(total > 1e-9, w, fallback)
-    w = w / np.maximum(w.sum(axis=1, keepdims=True), 1e-300)  # a point with no probe at all keeps zeros
     dark = (seen_by.sum(axis=1) <= 1e-9) & covered.any(axis=1)  # no probe, on either side, sees it
-    w[dark] = 0.0
-    return w
+
+    def settled(fallback):
+        out = np.where(total > 1e-9, w, fallback)
+        out = out / np.maximum(out.sum(axis=1, keepdims=True), 1e-300)  # a point with no probe at all keeps zeros
+        out[dark] = 0.0
+        return out
+
+    if not both:
+        return settled(fallback)
+    return settled(fallback), settled(np.where(fallback.sum(axis=1, keepdims=True) > 1e-9, fallback, seen_by))
 
 
 # How many edges away from a seen triangle the cover test looks for the one the ray crosses,

@@ -215,11 +215,13 @@ class NearField:
         return out
 
 
-def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS, hidden=None):
+def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS, hidden=None, lit_if_open=None):
     """The near field of ``points``/``normals`` ``(s, 3)`` among ``triangles (t, 3)``
     (indices into points), rays reaching ``reach`` (one length, or ``(s,)``). ``hidden``:
     ``(s,)`` bool, points covered by another object (their light is no sample of the
-    surface around them; a hit takes its triangle's other corners where it can)."""
+    surface around them; a hit takes its triangle's other corners where it can).
+    ``lit_if_open``: ``(s,)`` bool, covered points that the probes light after all where
+    their near field does not close them in (see ``Transport``): hidden only where closed in."""
     t0 = time.perf_counter()
     points = np.asarray(points, dtype=np.float64)
     normals = np.asarray(normals, dtype=np.float64)
@@ -276,7 +278,10 @@ def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS
         # thick wall's outer face: no probe is outside) has light of its own (the sky's, the
         # sun's), and a ray that lands beside it takes it.
         hidden = np.asarray(hidden, dtype=bool).copy()
-        ask = np.flatnonzero(hidden & (openness >= 1.0 - HIDDEN_SHARE))
+        open_ = openness >= 1.0 - HIDDEN_SHARE
+        if lit_if_open is not None:
+            hidden &= ~(open_ & lit_if_open)
+        ask = np.flatnonzero(hidden & open_)
         if len(ask):
             scale = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
             hidden[ask] = resting(points, normals, tri, scale, ask)

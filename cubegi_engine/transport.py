@@ -157,12 +157,11 @@ class Transport:
                 normals = np.cross(vertices[triangles[:, 1]] - p0, vertices[triangles[:, 2]] - p0)
                 cover = (capture.tid.reshape(p, 6, n, n), triangles, self.triangle_object, vertices, scene.point_object,
                          normals, edge_neighbours(triangles))
-            seen = visibility_weights(grid, positions, dist, self.probe_valid, scene.points, scene.normals, index, weight, cover)
-            alone = np.flatnonzero(~seen.any(axis=1) & weight.any(axis=1))
+            seen, behind = visibility_weights(grid, positions, dist, self.probe_valid, scene.points, scene.normals, index,
+                                              weight, cover, both=True)
+            alone = np.flatnonzero(~seen.any(axis=1) & behind.any(axis=1))
             if len(alone):
-                part = None if cover is None else (*cover[:4], cover[4][alone], *cover[5:])
-                spare = (alone, visibility_weights(grid, positions, dist, self.probe_valid, scene.points[alone],
-                                                   scene.normals[alone], index[alone], weight[alone], part, keep_behind=True))
+                spare = (alone, behind[alone])
             weight = seen
         elif not self.probe_valid.all():
             w = weight * self.probe_valid[index]
@@ -181,7 +180,12 @@ class Transport:
         self.near = None
         if near_field:
             reach = NEAR_REACH * grid.point_cell_edge(scene.points)
-            self.near = nearfield.build(scene.points, scene.normals, reach, scene.triangles, hidden=self.covered)
+            lit_if_open = None
+            if spare is not None:
+                lit_if_open = np.zeros(len(scene.points), dtype=bool)
+                lit_if_open[spare[0]] = True
+            self.near = nearfield.build(scene.points, scene.normals, reach, scene.triangles, hidden=self.covered,
+                                        lit_if_open=lit_if_open)
         if spare is not None:
             # A point only probes behind its plane see (a block's underside below the lowest
             # probes) is lit by its near field where that encloses at least half its view (the

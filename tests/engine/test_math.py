@@ -135,7 +135,7 @@ def test_grid_positions_and_trilinear_weights():
 def test_probes_behind_a_points_plane_light_it_only_where_no_probe_in_front_can():
     """A 2x2x2 grid of unit cells; nothing drawn (every probe sees every point). A point
     facing up between the layers takes only the upper probes; a point facing up above all
-    of them (a block's top) takes the ones it stands over only with ``keep_behind``, else
+    of them (a block's top) takes the ones it stands over only in the second weights of ``both``, else
     none; a point facing sideways keeps the probes on its side."""
     g = grid.ProbeGrid((0, 0, 0), (2, 2, 2), (2, 2, 2))  # probes at 0.5 and 1.5
     pos = g.positions()
@@ -150,7 +150,8 @@ def test_probes_behind_a_points_plane_light_it_only_where_no_probe_in_front_can(
     np.testing.assert_allclose(w[0], np.where(above[0], 0.25, 0.0))
     assert not w[1].any()  # all eight stand more than a tenth of a cell below its plane
     np.testing.assert_allclose(w[2], np.where(right[2], 0.25, 0.0))
-    kept = grid.visibility_weights(g, pos, dist, valid, pts, nrm, index, weight, keep_behind=True)
+    strict, kept = grid.visibility_weights(g, pos, dist, valid, pts, nrm, index, weight, both=True)
+    np.testing.assert_array_equal(strict, w)
     np.testing.assert_allclose(kept[1], weight[1])
     np.testing.assert_allclose(kept[[0, 2]], w[[0, 2]])
 

@@ -91,12 +91,14 @@ def run_scene(scene_name, config, cache_dir, log=print):
     """All runs of one scene: a list of records."""
     SCENES[scene_name]()
     objects = _meshes()
-    areas = np.concatenate([scene_data.vertex_areas(ob) for ob in objects])
     ref = cached_reference(cache_dir, scene_name, config["reference_samples"], objects, log)
     lo, hi = grid_objects.world_bounds(objects)
     records = []
     # A first bake compiles the shaders; it is not timed.
     bpy.ops.cubegi.bake(bounces=1, cube_size=8, grid=(2, 2, 2))
+    kept = session.kept(bpy.context.scene)
+    scored = scene_data.scored_areas(kept.targets, kept.arrays)  # black vertices left out: Cycles gives them no light
+    areas = np.concatenate([scored[ob.name] for ob in objects])
     for cells, cube, (bounces, tail) in itertools.product(config["cells_along_longest"], config["cube_sizes"], config["bounces"]):
         res = fit_bounds(lo, hi, spacing=float(np.max(hi - lo)) / cells, max_probes=1 << 14)
         settings = {"grid": "x".join(map(str, res)), "cube": cube, "bounces": bounces, "tail": tail}

@@ -149,7 +149,8 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
         steps_total = 3 + settings.bounces
         yield Progress(Stage.REFERENCE, steps_total, steps_total + 1, f"Cycles reference at {reference_samples} samples")
         ref_layers, ref_seconds = reference.reference_layers(context, collected.targets, reference_samples)
-        reference_report = _reference_report(collected.targets, layers_per_target, ref_layers, reference_samples, ref_seconds, cubegi_seconds)
+        reference_report = _reference_report(collected.targets, arrays, layers_per_target, ref_layers, reference_samples, ref_seconds,
+                                             cubegi_seconds)
         for layers, ref in zip(layers_per_target, ref_layers):
             layers.update(ref)
 
@@ -328,8 +329,9 @@ def _left_out_of_capture(capture, grid, placement=None):
     return out
 
 
-def _reference_report(targets, ours, theirs, samples, ref_seconds, cubegi_seconds):
-    areas = np.concatenate([scene_data.vertex_areas(bpy.data.objects[t.object_name]) for t in targets])
+def _reference_report(targets, arrays, ours, theirs, samples, ref_seconds, cubegi_seconds):
+    scored = scene_data.scored_areas(targets, arrays)  # black vertices left out: Cycles gives them no light
+    areas = np.concatenate([scored[t.object_name] for t in targets])
 
     def stack(layers, name):
         return np.concatenate([layer[name] for layer in layers])

@@ -685,3 +685,19 @@ def vertex_areas(ob):
     p = co[tri]
     area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
     return np.bincount(tri.ravel(), np.repeat(area / 3.0, 3), minlength=len(mesh.vertices))
+
+
+def scored_areas(targets, arrays):
+    """Per target (by object name), each vertex's area (:func:`vertex_areas`), zero where its
+    material is black: Cycles' Diffuse bake reports no light there (a black surface has no
+    diffuse closure), so comparisons with it leave those vertices out."""
+    import bpy
+
+    from .attributes import vertex_values
+
+    out = {}
+    for target in targets:
+        areas = vertex_areas(bpy.data.objects[target.object_name])
+        albedo = vertex_values(target, arrays.albedo)
+        out[target.object_name] = np.where(albedo.max(axis=1) > 0.0, areas, 0.0)
+    return out

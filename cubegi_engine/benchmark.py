@@ -117,7 +117,8 @@ def markdown(records, meta=None):
     lines += [
         "Errors are per vertex, weighted by area, against the scene's high-sample Cycles reference: "
         "relative RMSE, relative mean bias and the 95th percentile of the relative error "
-        "(see `cubegi_engine/metrics.py`). Cycles' indirect time is its indirect pass alone.",
+        "(see `cubegi_engine/metrics.py`); vertices of black materials are left out (Cycles' Diffuse bake "
+        "reports no light on them). Cycles' indirect time is its indirect pass alone.",
         "",
     ]
     for part in PARTS:

@@ -340,3 +340,25 @@ def test_a_raised_blocks_underside_below_the_lowest_probes_gets_its_light(empty_
     theirs = ref["INDIRECT"]["Sofa"][under].mean(axis=1) @ a
     print(ours / theirs - 1.0)
     assert abs(ours / theirs - 1.0) < 0.25, (ours, theirs)
+
+
+def test_the_reference_report_leaves_black_vertices_out(empty_scene, cubegi):
+    """Cycles' Diffuse bake reports no light on a black material (no diffuse closure); CubeGI
+    reports the light that reaches it. The report's errors leave those vertices out."""
+    from cubegi.cubegi_addon import attributes, bench_scenes, pipeline, scene_data
+
+    bench_scenes.white_box()  # its emissive panel is black
+    report = pipeline.bake(bpy.context, reference_samples=16)
+    panel = bpy.data.objects["Panel"].data
+    assert np.all(attributes.read(panel, attributes.REF_INDIRECT) == 0.0)
+    assert attributes.read(panel, attributes.INDIRECT).mean() > 0.1
+    obs = [o for o in bpy.context.scene.objects if o.type == "MESH"]
+    ours = np.concatenate([attributes.read(o.data, attributes.INDIRECT) for o in obs])
+    theirs = np.concatenate([attributes.read(o.data, attributes.REF_INDIRECT) for o in obs])
+    areas = np.concatenate([scene_data.vertex_areas(o) for o in obs])
+    black = np.concatenate([np.full(len(o.data.vertices), o.name == "Panel") for o in obs])
+    kept = metrics.errors(ours[~black], theirs[~black], areas[~black])
+    everything = metrics.errors(ours, theirs, areas)
+    got = report.reference["errors"]["indirect"]
+    assert got["rel_rmse"] == pytest.approx(kept["rel_rmse"], rel=1e-6)
+    assert everything["rel_rmse"] > got["rel_rmse"] + 0.01, (everything, got)

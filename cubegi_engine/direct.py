@@ -257,11 +257,8 @@ def unit_sky_direct(scene, renderer, transport, per_vertex=False) -> np.ndarray:
     if per_vertex:  # every vertex its probes give any sky (one under a roof has none)
         alone |= ~transport.covered & (light.max(axis=1) > 0)
     if alone.any():
-        which = np.flatnonzero(alone)
-        if per_vertex:
-            light[which] = sky_direct(scene, renderer, which, SKY_PER_VERTEX_DIRECTIONS, SKY_PER_VERTEX_MAP_SIZE)
-        else:
-            light[which] = sky_direct(scene, renderer, which)
+        sampling = (SKY_PER_VERTEX_DIRECTIONS, SKY_PER_VERTEX_MAP_SIZE) if per_vertex else (SKY_DIRECTIONS, SKY_MAP_SIZE)
+        light[alone] = sky_direct(scene, renderer, np.flatnonzero(alone), *sampling)
     return light
 
 

@@ -141,3 +141,31 @@ def test_an_object_smaller_than_a_texel_from_every_probe_is_not_drawn_by_the_pro
     assert not any(x.startswith("capture geometry: 1 object smaller") for x in report["left_out"])
     capture = cubegi.cubegi_addon.session.kept(bpy.context.scene).result.capture
     assert capture.small_objects == () and np.isin(capture.cubes.tid, speck_triangles).any()
+
+
+def test_a_floor_whose_probes_were_all_left_out_is_covered_not_missing_a_grid(empty_scene, cubegi):
+    """A 2 x 2 x 1 m block standing 2 cm above a floor, on a grid whose probes under it lie
+    deep in the block and are left out before the capture: the floor under the block is
+    covered (no probe light), as with the probes kept in place, and the report does not
+    send the user to add a probe grid there."""
+    white = scenes.material("White", (0.8, 0.8, 0.8))
+    v, f = scenes.grid_patch((-3.0, -3.0, 0.0), (6.0, 0.0, 0.0), (0.0, 6.0, 0.0), 24, 24)
+    scenes.mesh_object("Floor", v, f, white)
+    v, f = scenes.box_mesh((-1.0, -1.0, 0.02), (1.0, 1.0, 1.02), (8, 8, 4), inward=False)
+    scenes.mesh_object("Block", v, f, white)
+    scenes.add_light("SUN", (0.0, 0.0, 5.0), 3.0, rotation=(0.5, 0.2, 0.0))
+    scenes.set_world((0.3, 0.4, 0.6))
+    got = {}
+    for move in (True, False):
+        cubegi.cubegi_addon.session.forget()
+        assert bpy.ops.cubegi.bake(grid=(6, 6, 3), move_probes=move, **SETTINGS) == {"FINISHED"}
+        report = json.loads(bpy.context.scene.cubegi.last_report)
+        floor = bpy.data.objects["Floor"].data
+        co = np.array([vv.co for vv in floor.vertices])
+        under = np.all(np.abs(co[:, :2]) < 0.6, axis=1)
+        got[move] = cubegi.cubegi_addon.attributes.read(floor, "CubeGI")[under]
+        assert not any("get no probe light" in n for n in report["scene"]["notes"]), report["scene"]["notes"]
+        if move:
+            assert report["grid"]["probes_left_inside"] > 0
+    np.testing.assert_allclose(got[True], got[False], atol=1e-3)
+    assert got[True].max() < 0.05

@@ -107,7 +107,8 @@ class NearField:
     back face): the hits. ``reach``: the longest ray; ``pairs``: (point, triangle) pairs
     tested; ``crowded``: points left out for too many candidates; ``skipped``: why the
     whole near field was left out ("" where it was not); ``share``: ``(m,)`` the
-    cosine-weighted share of each row's view its hits cover.
+    cosine-weighted share of each row's view its hits cover; ``hidden``: the covered points
+    counted as hidden from the hits (closed in, or resting on another surface), or None.
     """
 
     rows: np.ndarray
@@ -122,6 +123,7 @@ class NearField:
     skipped: str = ""
     seconds: float = 0.0
     share: np.ndarray = None
+    hidden: np.ndarray = None
 
     def enclosed(self, count, at_least=0.5):
         """``(count,)`` bool: points whose near surroundings cover at least ``at_least`` of
@@ -130,6 +132,27 @@ class NearField:
         if self.count and self.share is not None:
             out[self.rows] = self.share >= at_least
         return out
+
+    def replaced_rows(self, other):
+        """This near field with the rows of ``other`` (of the same points) put in place of
+        its own rows for those points (its reach, pairs and crowded points stay this one's:
+        what a report says of the near field)."""
+        if not other.count:
+            return self
+        drop = np.isin(self.rows, other.rows)
+        keep_rows = np.flatnonzero(~drop)
+        renumber = np.full(self.count, -1, dtype=np.int64)
+        renumber[keep_rows] = np.arange(len(keep_rows))
+        hits = renumber[self.hit_row] >= 0
+        n = len(keep_rows)
+        share = None if self.share is None else np.concatenate([self.share[keep_rows], other.share])
+        return NearField(
+            np.concatenate([self.rows[keep_rows], other.rows]), np.concatenate([self.open_basis[keep_rows], other.open_basis]),
+            np.concatenate([renumber[self.hit_row[hits]], other.hit_row + n]), np.concatenate([self.hit_corner[hits], other.hit_corner]),
+            np.concatenate([self.hit_weight[hits], other.hit_weight]), self.rays, self.reach,
+            self.pairs, self.crowded, self.skipped, self.seconds + other.seconds, share,
+            self.hidden,
+        )
 
     @classmethod
     def empty(cls, rays, reason="", seconds=0.0):
@@ -215,31 +238,39 @@ class NearField:
         return out
 
 
-def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS, hidden=None, lit_if_open=None):
+def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS, hidden=None, lit_if_open=None, which=None,
+          hidden_as_given=False):
     """The near field of ``points``/``normals`` ``(s, 3)`` among ``triangles (t, 3)``
     (indices into points), rays reaching ``reach`` (one length, or ``(s,)``). ``hidden``:
     ``(s,)`` bool, points covered by another object (their light is no sample of the
     surface around them; a hit takes its triangle's other corners where it can).
     ``lit_if_open``: ``(s,)`` bool, covered points that the probes light after all where
-    their near field does not close them in (see ``Transport``): hidden only where closed in."""
+    their near field does not close them in (see ``Transport``): hidden only where closed in.
+    ``which``: ``(s,)`` bool, the points that cast rays (all by default). ``hidden_as_given``:
+    ``hidden`` is already the hidden set (a near field's :attr:`NearField.hidden`), not the
+    covered points to decide it from."""
     t0 = time.perf_counter()
     points = np.asarray(points, dtype=np.float64)
     normals = np.asarray(normals, dtype=np.float64)
     s = len(points)
     reach = np.broadcast_to(np.asarray(reach, dtype=np.float64), (s,)).copy()
     tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
-    if not s or not len(tri) or not np.all(np.isfinite(reach)) or reach.max() <= 0:
+    asked = np.arange(s) if which is None else np.flatnonzero(which)
+    if not len(asked) or not len(tri) or not np.all(np.isfinite(reach[asked])) or reach[asked].max() <= 0:
         return NearField.empty(rays, seconds=time.perf_counter() - t0)
     a, b, c = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]
-    index = VoxelIndex(a, b, c, float(reach.max()))
-    if s > 16 * SAMPLE:  # estimate the pairs first: a dense scene's would take too long
-        sample = np.linspace(0, s - 1, SAMPLE).astype(np.int64)
+    index = VoxelIndex(a, b, c, float(reach[asked].max()))
+    if len(asked) > 16 * SAMPLE:  # estimate the pairs first: a dense scene's would take too long
+        sample = asked[np.linspace(0, len(asked) - 1, SAMPLE).astype(np.int64)]
         pp, _, _ = index.candidates(points[sample], normals[sample], reach[sample])
-        estimate = int(len(pp) * s / SAMPLE)
+        estimate = int(len(pp) * len(asked) / SAMPLE)
         if estimate > max_pairs:
             return NearField.empty(rays, f"about {estimate:,} candidate pairs of points and triangles, more than {max_pairs:,}",
                                    time.perf_counter() - t0)
-    pair_p, pair_t, crowded = index.candidates(points, normals, reach)
+    pair_p, pair_t, some = index.candidates(points[asked], normals[asked], reach[asked])
+    pair_p = asked[pair_p]
+    crowded = np.zeros(s, dtype=bool)
+    crowded[asked] = some
     crowded |= np.bincount(pair_p, minlength=s) > MAX_CANDIDATES
     if crowded.any():
         keep = ~crowded[pair_p]
@@ -272,7 +303,10 @@ def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS
     fade = np.clip((rch[:, None] - best) / (FADE * rch[:, None]), 0.0, 1.0)  # (c, rays); 0 where no hit
     openness = np.ones(s)
     openness[cast] = 1.0 - fade.mean(axis=1)
-    if hidden is not None:
+    if hidden is not None and hidden_as_given:
+        hidden = np.asarray(hidden, dtype=bool)
+        weight = _uncover(index, weight, corners, hidden, hit_tri[point, ray], rch[point])
+    elif hidden is not None:
         # Hidden: covered (no probe light) and closed in or lying on another surface (under a
         # wall standing on it, a block's underside). A covered point open to its own view (a
         # thick wall's outer face: no probe is outside) has light of its own (the sky's, the
@@ -300,7 +334,8 @@ def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS
     pattern_error = sh.diffuse_basis(normals[rows]) - y.mean(axis=1)
     open_basis = np.einsum("mk,mkj->mj", hit_mask, y) / rays + share[:, None] * pattern_error
     return NearField(rows.astype(np.int64), open_basis, hit_row.astype(np.int64).ravel(), corners, weight,
-                     rays, float(reach.max()), len(pair_p), int(crowded.sum()), "", time.perf_counter() - t0, share)
+                     rays, float(reach.max()), len(pair_p), int(crowded.sum()), "", time.perf_counter() - t0, share,
+                     None if hidden is None else np.flatnonzero(hidden))
 
 
 def resting(points, normals, triangles, scale, which):

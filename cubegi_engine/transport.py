@@ -30,6 +30,10 @@ from .geometry import edge_neighbours
 from .grid import visibility_weights
 from .nearfield import NEAR_REACH
 
+# A covered point in the open (see Transport._light_under) casts rays this many cells long,
+# and is lit through the gap where at least this share of them meets what covers it.
+UNDER_REACH, UNDER_SHARE = 1.0, 0.5
+
 __all__ = ["CubeCapture", "capture_cubes", "clip_planes", "Transport", "reference_coefficients", "COEFFS_PER_POINT"]
 
 # A point interpolates 8 probes (the corners of its cell) x 9 SH coefficients.
@@ -157,6 +161,7 @@ class Transport:
                 normals = np.cross(vertices[triangles[:, 1]] - p0, vertices[triangles[:, 2]] - p0)
                 cover = (capture.tid.reshape(p, 6, n, n), triangles, self.triangle_object, vertices, scene.point_object,
                          normals, edge_neighbours(triangles))
+            trilinear_weight = weight
             seen, behind = visibility_weights(grid, positions, dist, self.probe_valid, scene.points, scene.normals, index,
                                               weight, cover, both=True)
             alone = np.flatnonzero(~seen.any(axis=1) & behind.any(axis=1))
@@ -198,6 +203,50 @@ class Transport:
                 rows, w = rows[keep], w[keep]
             self.point_weights[rows] = (w[:, :, None] * basis[rows][:, None, :]).reshape(len(rows), COEFFS_PER_POINT)
             self.covered[rows] = np.abs(self.point_weights[rows]).max(axis=1) < 1e-6
+        if self.near is not None and visibility and self.covered.any():
+            self._light_under(scene, grid, index, trilinear_weight, basis, positions)
+
+    def _light_under(self, scene, grid, index, weight, basis, positions):
+        """Covered points in the open (the floor under a sofa: every probe's view of it is
+        cut by the sofa, but its near field does not close it in and it rests on nothing)
+        take the valid probes in front of them, and rays of UNDER_REACH cells: the rays
+        find the sofa's underside, the probes' light is kept for the few directions that
+        leave under its edge."""
+        if self.near.hidden is None:  # no near field (left out): nothing says what rests on what
+            return
+        s = len(scene.points)
+        open_ = self.covered & ~self.near.enclosed(s)
+        open_[self.near.hidden] = False  # closed in, or resting on a surface (the near field asked)
+        open_ = np.flatnonzero(open_)
+        if not len(open_):
+            return
+        ahead = np.einsum("skc,sc->sk", positions[index[open_]] - scene.points[open_, None, :], scene.normals[open_]) > 0
+        w = weight[open_] * self.probe_valid[index[open_]] * ahead
+        total = w.sum(axis=1, keepdims=True)
+        lit = total[:, 0] > 1e-9
+        open_, w = open_[lit], w[lit] / total[lit]
+        if not len(open_):
+            return
+        reach = UNDER_REACH * grid.point_cell_edge(scene.points)
+        hidden = np.zeros(s, dtype=bool)
+        hidden[self.near.hidden] = True
+
+        def rays(rows):
+            which = np.zeros(s, dtype=bool)
+            which[rows] = True
+            return nearfield.build(scene.points, scene.normals, reach, scene.triangles, hidden=hidden, which=which,
+                                   hidden_as_given=True)
+
+        far = rays(open_)
+        under = np.isin(open_, far.rows[far.share >= UNDER_SHARE]) if far.count else np.zeros(len(open_), dtype=bool)
+        if not under.any():
+            return
+        if not under.all():
+            far = rays(open_[under])
+        open_, w = open_[under], w[under]
+        self.near = self.near.replaced_rows(far)
+        self.point_weights[open_] = (w[:, :, None] * basis[open_][:, None, :]).reshape(len(open_), COEFFS_PER_POINT)
+        self.covered[open_] = False
 
     def gather_project_matrix(self):
         """``K (9p, s)`` float32: the probes' SH coefficients from per-point radiance (one

@@ -299,3 +299,30 @@ def test_the_segment_search_finds_every_triangle_whose_box_meets_the_segment():
     meet = np.all((lo[:, None] <= thi[None]) & (hi[:, None] >= tlo[None]), axis=2)
     want = set(zip(*[x.tolist() for x in np.nonzero(meet)]))
     assert got == want and len(want) > 50
+
+
+def test_longer_rays_for_some_points_replace_their_rows():
+    """Two points under a plate 0.3 high: with a reach of 0.1 neither meets it; rays of 1.0
+    cast by the second alone (``which``) find it, and replacing the rows gives that point
+    the plate's light while the first keeps its own (none)."""
+    plate = _quad(-2, 2, 0.3, up=False)
+    points = (np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0]]), np.zeros((0, 3), dtype=int))
+    floor = _quad(-2, 2, -0.001)
+    pts, tris = _scene(points, plate, floor)
+    normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    short = nearfield.build(pts, normals, 0.1, tris)
+    assert 0 not in short.rows and 1 not in short.rows
+    which = np.zeros(len(pts), dtype=bool)
+    which[1] = True
+    far = nearfield.build(pts, normals, 1.0, tris, which=which)
+    assert far.rows.tolist() == [1] and far.share[0] > 0.8
+    both = short.replaced_rows(far)
+    assert 1 in both.rows and 0 not in both.rows
+    radiance = np.zeros((len(pts), 3))
+    radiance[2:6] = 1.0  # the plate
+    gathered = both.gather(radiance)
+    row = int(np.flatnonzero(both.rows == 1)[0])
+    assert np.allclose(gathered[row], far.share[0], atol=0.05)
+    # Replacing rows a field already has: the old ones go.
+    again = far.replaced_rows(far)
+    assert again.rows.tolist() == [1] and np.allclose(again.gather(radiance), far.gather(radiance))

@@ -303,22 +303,20 @@ def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS
     fade = np.clip((rch[:, None] - best) / (FADE * rch[:, None]), 0.0, 1.0)  # (c, rays); 0 where no hit
     openness = np.ones(s)
     openness[cast] = 1.0 - fade.mean(axis=1)
-    if hidden is not None and hidden_as_given:
-        hidden = np.asarray(hidden, dtype=bool)
-        weight = _uncover(index, weight, corners, hidden, hit_tri[point, ray], rch[point])
-    elif hidden is not None:
+    if hidden is not None:
         # Hidden: covered (no probe light) and closed in or lying on another surface (under a
         # wall standing on it, a block's underside). A covered point open to its own view (a
         # thick wall's outer face: no probe is outside) has light of its own (the sky's, the
         # sun's), and a ray that lands beside it takes it.
         hidden = np.asarray(hidden, dtype=bool).copy()
-        open_ = openness >= 1.0 - HIDDEN_SHARE
-        if lit_if_open is not None:
-            hidden &= ~(open_ & lit_if_open)
-        ask = np.flatnonzero(hidden & open_)
-        if len(ask):
-            scale = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
-            hidden[ask] = resting(points, normals, tri, scale, ask)
+        if not hidden_as_given:
+            open_ = openness >= 1.0 - HIDDEN_SHARE
+            if lit_if_open is not None:
+                hidden &= ~(open_ & lit_if_open)
+            ask = np.flatnonzero(hidden & open_)
+            if len(ask):
+                scale = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+                hidden[ask] = resting(points, normals, tri, scale, ask)
         weight = _uncover(index, weight, corners, hidden, hit_tri[point, ray], rch[point])
     if OPENNESS_RAYS:
         hit_at = at[point] + best[point, ray][:, None] * dirs[point, ray]

@@ -111,7 +111,7 @@ def run_scene(scene_name, config, cache_dir, log=print):
     # and the one with its probes inside geometry left in place.
     # Where the scene has a sky, also the default with the sky per vertex (an option).
     variants = [("before", {"near_field": False}), ("probes in place", {"move_probes": False}), ("after", {})]
-    if np.any(scene_data.collect(bpy.context).arrays.sky > 0):
+    if np.any(kept.arrays.sky > 0):
         variants.append(("sky per vertex", {"sky_per_vertex": True}))
     for which, kw in variants:
         records.append(_cubegi_run(scene_name, objects, ref, areas, {"default": which}, log, repeat=config.get("default_repeats", 1), **kw))

@@ -15,7 +15,7 @@ import numpy as np
 from . import cubemap
 from .geometry import POINT_CHUNK, chunks, cut_triangles
 
-__all__ = ["ProbeGrid", "GridSet", "ProbeSubset", "fit_bounds", "visibility_weights", "probes_used"]
+__all__ = ["ProbeGrid", "GridSet", "ProbeSubset", "fit_bounds", "visibility_weights", "probes_in_front", "probes_used"]
 
 
 @dataclass(frozen=True)
@@ -226,6 +226,14 @@ def fit_bounds(lo, hi, spacing=None, max_probes=4096):
 BEHIND = 0.1
 
 
+def probes_in_front(probe_pos, probe_valid, points, normals, index, weight):
+    """``(s, 8)``: the weights ``weight`` of each point's valid probes in front of its
+    tangent plane, whether they see it or not, normalised (zeros where there is none)."""
+    height = np.einsum("skc,sc->sk", probe_pos[index] - points[:, None, :], normals)
+    w = weight * probe_valid[index] * (height > 0)
+    return w / np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
+
+
 def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals, index, weight, cover=None, both=False):
     """Trilinear weights with probes that cannot see a point, or are invalid, left out.
 
@@ -287,8 +295,7 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     # A point no probe sees takes the valid probes in front of its surface (a vertex in a
     # corner too tight for the grid); none behind it (the outer face of a wall, whose probes
     # are all inside the room: their light would leak out).
-    ahead = height > 0
-    fallback = weight * valid * ahead
+    fallback = weight * valid * (height > 0)
     dark = (seen_by.sum(axis=1) <= 1e-9) & covered.any(axis=1)  # no probe, on either side, sees it
 
     def settled(fallback):

@@ -27,7 +27,7 @@ import numpy as np
 
 from . import cubemap, nearfield, sh
 from .geometry import edge_neighbours
-from .grid import visibility_weights
+from .grid import probes_in_front, visibility_weights
 from .nearfield import NEAR_REACH
 
 # A covered point in the open (see Transport._light_under) casts rays this many cells long,
@@ -220,11 +220,9 @@ class Transport:
         open_ = np.flatnonzero(open_)
         if not len(open_):
             return
-        ahead = np.einsum("skc,sc->sk", positions[index[open_]] - scene.points[open_, None, :], scene.normals[open_]) > 0
-        w = weight[open_] * self.probe_valid[index[open_]] * ahead
-        total = w.sum(axis=1, keepdims=True)
-        lit = total[:, 0] > 1e-9
-        open_, w = open_[lit], w[lit] / total[lit]
+        w = probes_in_front(positions, self.probe_valid, scene.points[open_], scene.normals[open_], index[open_], weight[open_])
+        lit = w.any(axis=1)
+        open_, w = open_[lit], w[lit]
         if not len(open_):
             return
         reach = UNDER_REACH * grid.point_cell_edge(scene.points)

@@ -295,7 +295,7 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     # A point no probe sees takes the valid probes in front of its surface (a vertex in a
     # corner too tight for the grid); none behind it (the outer face of a wall, whose probes
     # are all inside the room: their light would leak out).
-    fallback = weight * valid * (height > 0)
+    fallback = probes_in_front(probe_pos, probe_valid, points, normals, index, weight)
     dark = (seen_by.sum(axis=1) <= 1e-9) & covered.any(axis=1)  # no probe, on either side, sees it
 
     def settled(fallback):

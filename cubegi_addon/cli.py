@@ -230,14 +230,14 @@ def _save_json(report):
 
 
 def _blender():
-    """bpy, with the add-on registered (a file's probe grids and settings are read through
-    its properties)."""
-    import importlib
-
+    """bpy, with the extension registered (a file's probe grids and settings are read
+    through its properties) until the process ends."""
     import bpy
 
+    from ..cubegi_engine.__main__ import load_extension
+
     if not hasattr(bpy.types.Scene, "cubegi"):
-        importlib.import_module(__package__).register()
+        load_extension()
     return bpy
 
 

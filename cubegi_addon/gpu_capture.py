@@ -19,6 +19,7 @@ import numpy as np
 from gpu_extras.batch import batch_for_shader
 
 from ..cubegi_engine.errors import BakeError
+from . import compat
 
 # Largest atlas edge in texels; 2048^2 RGBA32F is 64 MiB.
 ATLAS_EDGE = 2048
@@ -177,11 +178,10 @@ def read_texture(texture, width, height, channels=4):
     """A float texture (RGBA32F, RG32F) to a ``(height, width, channels)`` float32 array (row
     0 = bottom).
 
-    ``np.asarray`` of a ``gpu`` buffer comes back with its strides reversed; a Fortran-order
-    ravel of that view is the buffer's memory in order.
+    The buffer's strides are declared differently across versions (see
+    :func:`.compat.gpu_buffer_array`).
     """
-    buf = texture.read()
-    return np.asarray(buf, dtype=np.float32).ravel(order="F").reshape(height, width, channels)
+    return compat.gpu_buffer_array(texture.read(), (height, width, channels))
 
 
 class GpuRenderer:
@@ -326,9 +326,10 @@ class GpuRenderer:
     def _depth_batch(self):
         """The triangles for the depth-only shader (the same vertex layout, its own batch)."""
         if getattr(self, "depth_batch", None) is None:
-            tid = np.repeat(self.order.astype(np.float32), 3)
-            # The compiler drops the barycentrics this shader does not write: no such attribute.
-            self.depth_batch = batch_for_shader(_id_shader(False), "TRIS", {"pos": self.corner_pos, "tid": tid})
+            shader = _id_shader(False)
+            columns = {"pos": self.corner_pos, "tid": np.repeat(self.order.astype(np.float32), 3)}
+            columns["bary"] = np.zeros((len(self.corner_pos), 2), dtype=np.float32)
+            self.depth_batch = batch_for_shader(shader, "TRIS", compat.shader_columns(shader, columns))
         return self.depth_batch
 
     def render_colour(self, view_projs, size, point_radiance):

@@ -9,6 +9,7 @@ the same object as ``cubegi.cubegi_engine``. Scripts and tests outside the packa
 as ``cubegi.cubegi_engine.*`` and ``cubegi.cubegi_addon.*``.
 """
 
+import atexit
 import importlib.util
 import os
 import sys
@@ -40,7 +41,21 @@ def load_extension(register=True):
     if register and not getattr(module, "_registered", False):
         module.register()
         module._registered = True
+        atexit.register(_unregister_at_exit, module)
     return module
+
+
+def _unregister_at_exit(module):
+    """Unregister before Python ends, as Blender itself disables every add-on on quitting
+    (``bpy.utils._on_exit()``; with the ``bpy`` module, from bpy's own ``atexit`` hook, for
+    the add-ons it enabled). This loader registers the package itself, so it unregisters it
+    too. Left registered, the handlers and classes keep the ``bpy`` module alive past the
+    interpreter's end; on 4.5 LTS bpy's teardown then runs in C++ static destructors and the
+    process crashes (a draw handler freed without an interpreter, status 139) or hangs (its
+    audio thread's condition variable destroyed while waited on)."""
+    if getattr(module, "_registered", False):
+        module.unregister()
+        module._registered = False
 
 
 if __name__ == "__main__":

@@ -189,7 +189,7 @@ def test_probes_store_their_light_and_draw_as_spheres_shaded_with_it(box):
             gpu.matrix.load_matrix(view)
             gpu.matrix.load_projection_matrix(proj)
             probe_view.draw(bpy.context.scene)
-        pixels = np.asarray(fb.read_color(0, 0, 16, 16, 4, 0, "FLOAT")).ravel(order="F").reshape(16, 16, 4)
+        pixels = np.asarray(fb.read_color(0, 0, 16, 16, 4, 0, "FLOAT")).ravel(order="K").reshape(16, 16, 4)
     off.free()
     centre = pixels[6:10, 6:10, :3].reshape(-1, 3).mean(axis=0)
     np.testing.assert_allclose(centre, np.minimum(expected, 1.0), rtol=0.05, atol=1e-3)

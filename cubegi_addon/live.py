@@ -22,6 +22,7 @@ from ..cubegi_engine import relight
 from ..cubegi_engine.direct import light_direct, unit_sky_direct
 from ..cubegi_engine.emitters import emitter_direct
 from ..cubegi_engine.errors import BakeError
+from ..cubegi_engine.lights import light_keys
 from ..cubegi_engine.scene import same_sky_map
 from . import attributes, dynamic, grid_objects, probe_view, scene_data, session
 from .gpu_capture import GpuRenderer
@@ -147,18 +148,16 @@ def _same_lights(arrays, lights, sky):
     before = arrays.lights
     if len(before) != len(lights) or not np.array_equal(np.asarray(arrays.sky), np.asarray(sky)):
         return False
-    return all(a.name == b.name and _same_place(a, b) and np.array_equal(a.colour, b.colour) for a, b in zip(before, lights))
+    return all(a.key == b.key and _same_place(a, b) and np.array_equal(a.colour, b.colour) for a, b in zip(before, lights))
 
 
 def _update_lights(state, lights, sky, report):
     """Apply the lights and sky to ``state``; returns whether a light was drawn again."""
     drawn = False
-    wanted = {}
-    for k, light in enumerate(lights):
-        wanted[relight.light_key(light, k)] = light
-    for key in [k for k in state.sources if k.startswith("light:") and k not in wanted]:
+    wanted = dict(zip(light_keys(lights), lights))
+    for key in [k for k, s in state.sources.items() if s.light is not None and k not in wanted]:
+        report.changed.append(f"{state.sources[key].light.name} removed")
         state.remove(key)
-        report.changed.append(f"{key[6:]} removed")
     for key, light in wanted.items():
         src = state.sources.get(key)
         colour = np.asarray(light.colour, dtype=np.float64)
@@ -166,11 +165,11 @@ def _update_lights(state, lights, sky, report):
             if not np.array_equal(src.weight, colour):
                 state.set_weight(key, colour)
                 src.light = light
-                report.changed.append(f"{key[6:]} power or colour")
+                report.changed.append(f"{light.name} power or colour")
             continue
         state.set_light(key, light)
         drawn = True
-        report.changed.append(f"{key[6:]} {'placed' if src is None else 'moved or reshaped'}")
+        report.changed.append(f"{light.name} {'placed' if src is None else 'moved or reshaped'}")
     sky = np.asarray(sky, dtype=np.float64)
     src = state.sources.get(relight.SKY)
     if np.any(sky > 0) and src is None:

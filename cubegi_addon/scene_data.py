@@ -391,14 +391,15 @@ def _mapped(node):
     return vector is not None and vector.is_linked
 
 
-def _light(ob_eval, matrix):
+def _light(ob_eval, matrix, key):
     data = ob_eval.data
     m = np.array(matrix, dtype=np.float64)
     pos = m[:3, 3].copy()
     direction = -m[:3, 2]
     direction = direction / max(np.linalg.norm(direction), 1e-300)
     colour = np.asarray(data.color[:3], dtype=np.float64) * float(data.energy)
-    common = dict(colour=colour, position=pos, direction=direction, casts_shadow=bool(data.use_shadow), name=ob_eval.name)
+    common = dict(colour=colour, position=pos, direction=direction, casts_shadow=bool(data.use_shadow), name=ob_eval.name,
+                  key=key)
     if data.type == "POINT":
         return Light("POINT", radius=float(data.shadow_soft_size), **common)
     if data.type == "SPOT":
@@ -507,8 +508,20 @@ def _rendered_instances(context, depsgraph):
         yield inst, ob, original, top
 
 
+def light_key(inst):
+    """A light's identity for as long as the file is open: its object's ``session_uid``
+    (names change and can be shared), and for an instance also the instancing object's and
+    the instance's place in it (``persistent_id``): a lamp collection instanced four times
+    is four lights."""
+    key = f"light:{inst.object.original.session_uid}"
+    if inst.is_instance and inst.parent is not None:
+        path = ".".join(str(i) for i in inst.persistent_id)
+        key += f"@{inst.parent.original.session_uid}:{path}"
+    return key
+
+
 def _add_light(inst, ob, lights, notes):
-    light = _light(ob, inst.matrix_world)
+    light = _light(ob, inst.matrix_world, light_key(inst))
     problem = _light_problem(light) if light is not None else None
     if problem:
         notes.append(f"light {ob.name}: {problem}; skipped")

@@ -61,8 +61,9 @@ SHARED_EYES, MIN_SHARED_EDGE = 32, 32
 
 @dataclass
 class DirectLight:
-    """Direct light per source: ``parts`` maps a source key (``"light:<name>"`` for each
-    light in scene order, ``"emission"``, ``"sky"``) to its ``(s, 3)`` light.
+    """Direct light per source: ``parts`` maps a source key (each light's, from
+    :func:`~cubegi_engine.lights.light_keys`, in scene order; ``"emission"``; ``"sky"``) to
+    its ``(s, 3)`` light.
 
     source_coeffs: ``(p, 9, 3)`` float32 SH radiance the probes see of the emitters and the
     sky (the start of the probe field); emitter_energy_factor: ``(3,)`` (ones: emitters'
@@ -82,10 +83,6 @@ class DirectLight:
         for value in self.parts.values():
             out += value
         return scene.zero_dark_points_inplace(out)
-
-
-def light_key(light) -> str:
-    return f"light:{light.name}"
 
 
 @dataclass
@@ -220,13 +217,12 @@ def direct_light(scene, renderer, settings, transport, landing=None, shadows=Non
     parts, left_out = {}, []
     reach = [float(lights_mod.unshadowed(light, scene.points, scene.normals).max(initial=0.0)) for light in scene.lights]
     brightest = max(reach, default=0.0)
-    for k, light in enumerate(scene.lights):
+    for k, (key, light) in enumerate(zip(lights_mod.light_keys(scene.lights), scene.lights)):
         if reach[k] <= LIGHT_LEFT_OUT * brightest:  # no shadow map drawn for it
             why = "reaches no surface" if reach[k] <= 0.0 else f"below {LIGHT_LEFT_OUT:g} of the brightest light everywhere"
             left_out.append(f"light {light.name or k}: {why}")
             continue
-        key = light_key(light)
-        parts[key if key not in parts else f"{key}#{k}"] = light_direct(scene, renderer, settings, light, shadows)
+        parts[key] = light_direct(scene, renderer, settings, light, shadows)
     light_seconds = time.perf_counter() - t
     t = time.perf_counter()
     coeffs = np.zeros((transport.probe_count, 9, 3), dtype=np.float32)

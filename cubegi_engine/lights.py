@@ -37,6 +37,9 @@ class Light:
     spot, area; W/m^2 for sun). direction: unit vector the light faces (local -Z).
     polygon: ``(k, 3)`` world corners of an area light, counter-clockwise seen from the side
     it lights. samples: ``(m, 3)`` points on the light from which shadows are rendered.
+    name: what notes and reports call it. key: its identity among the scene's lights,
+    assigned once by the scene reader (each instance of a light its own; see
+    :func:`light_keys`), the key of its direct light and of its source in relighting.
     """
 
     kind: str
@@ -51,6 +54,18 @@ class Light:
     casts_shadow: bool = True
     name: str = ""
     samples: np.ndarray = field(default=None)
+    key: str = ""
+
+
+def light_keys(lights):
+    """Each light's source key, in order: its own :attr:`Light.key`, or ``"light:#k"`` by
+    position for a light made without one. Two lights never share a key: instances of one
+    lamp are as many lights (ValueError if a reader gave two lights one key)."""
+    keys = [light.key or f"light:#{k}" for k, light in enumerate(lights)]
+    if len(set(keys)) != len(keys):
+        shared = sorted({k for k in keys if keys.count(k) > 1})
+        raise ValueError(f"two lights share the key {shared[0]!r}")
+    return keys
 
 
 def area_polygon(shape, size_x, size_y):

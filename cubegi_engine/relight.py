@@ -33,6 +33,7 @@ import numpy as np
 from . import sh
 from .convergence import gmres
 from .errors import BakeError
+from .lights import light_keys
 from .solve import ENERGY_FACTOR_RANGE
 
 __all__ = ["BounceOperator", "Source", "SceneLight", "from_bake", "MAX_OPERATOR_ELEMENTS", "SKY", "EMISSION"]
@@ -434,10 +435,6 @@ class SceneLight:
         return tuple(np.asarray(a, dtype=np.float32).reshape(-1, 9, 3) for a in (total, own))
 
 
-def light_key(light, index=0):
-    return f"light:{light.name}" if light.name else f"light:#{index}"
-
-
 def from_bake(result, scene, light_direct, add_tail=True, conserve_energy=True, emitter_light=None, sky_light=None):
     """A solved :class:`SceneLight` of a finished bake: its capture, and its lights',
     emitters' and sky's direct light (no drawing). ``light_direct``, ``emitter_light``,
@@ -448,8 +445,8 @@ def from_bake(result, scene, light_direct, add_tail=True, conserve_energy=True, 
     op = BounceOperator(transport, albedo, landing, scene.point_areas())
     state = SceneLight(scene, transport, light_direct, op, len(result.solution.bounces), add_tail, emitter_light, sky_light)
     parts = result.direct_parts.parts
-    for k, light in enumerate(scene.lights):
-        state.set_light(light_key(light, k), light, parts.get(f"light:{light.name}"))
+    for key, light in zip(light_keys(scene.lights), scene.lights):
+        state.set_light(key, light, parts.get(key))
     if np.any(scene.sky > 0):
         state.set_sky(scene.sky, parts.get(SKY))
     state.set_emission(scene.emission, parts.get(EMISSION))

@@ -1,12 +1,12 @@
 #!/usr/bin/env bash
-# Set-up shared by the demo and test commands: system packages for headless OpenGL (Mesa
-# llvmpipe through EGL) when missing, and a virtual environment with bpy 5.0.1 and pytest.
-# Safe to run again: it only installs what is missing.
+# Set-up shared by the demo, test and build commands: system packages for headless OpenGL
+# (Mesa llvmpipe through EGL) when missing, and a virtual environment with the chosen
+# Blender's bpy module and the test tools (see scripts/blender.sh: CUBEGI_BLENDER picks the
+# version, the newest this machine can run by default). Safe to run again: it only installs
+# what is missing.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-VENV="${CUBEGI_VENV:-$ROOT/.venv}"
-PY="${PYTHON:-python3.11}"
-command -v "$PY" >/dev/null 2>&1 || PY=python3
+source "$ROOT/scripts/blender.sh"
 
 SYSTEM_PACKAGES="libx11-6 libxext6 libxfixes3 libxi6 libxrender1 libxkbcommon0 libsm6 libxt6 \
 libgl1 libopengl0 libegl1 libegl-mesa0 libgl1-mesa-dri"
@@ -26,12 +26,12 @@ if ((${#missing[@]})); then
 fi
 
 if [ ! -x "$VENV/bin/python" ]; then
-  "$PY" -c 'import sys; assert sys.version_info[:2] == (3, 11), "bpy 5.0.1 needs CPython 3.11"' \
-    || { echo "setup: CPython 3.11 is needed (bpy 5.0.1 is built for it only)"; exit 1; }
-  echo "setup: creating $VENV"
-  "$PY" -m venv "$VENV"
+  echo "setup: creating $VENV (bpy $CUBEGI_BLENDER on $("$CUBEGI_PYTHON" --version))"
+  "$CUBEGI_PYTHON" -m venv "$VENV"
 fi
-if ! "$VENV/bin/python" -c 'import bpy, pytest, hypothesis, matplotlib, dask, distributed' >/dev/null 2>&1; then
-  echo "setup: installing Python packages into $VENV"
-  "$VENV/bin/python" -m pip install -q --disable-pip-version-check -r "$ROOT/requirements-dev.txt"
+have="$("$VENV/bin/python" -c 'import importlib.metadata as m; print(m.version("bpy"))' 2>/dev/null || true)"
+if [ "$have" != "$CUBEGI_BLENDER" ] \
+  || ! "$VENV/bin/python" -c 'import pytest, hypothesis, matplotlib, dask, distributed' >/dev/null 2>&1; then
+  echo "setup: installing bpy==$CUBEGI_BLENDER and the test tools into $VENV"
+  "$VENV/bin/python" -m pip install -q --disable-pip-version-check "bpy==$CUBEGI_BLENDER" -r "$ROOT/requirements-dev.txt"
 fi

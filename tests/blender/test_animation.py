@@ -8,6 +8,7 @@ import subprocess
 import sys
 
 import bpy
+import pytest
 import numpy as np
 
 import scenes
@@ -49,6 +50,7 @@ def _cli(*args):
     return subprocess.run([sys.executable, "-m", "cubegi_engine", *map(str, args)], cwd=ROOT, capture_output=True, text=True, timeout=300)
 
 
+@pytest.mark.smoke
 def test_bake_animation_writes_the_documented_cache_and_each_frame_equals_a_full_bake(empty_scene, cubegi, tmp_path):
     src = _animated_room(tmp_path)
     out, report = tmp_path / "out.blend", tmp_path / "report.json"

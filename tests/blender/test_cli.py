@@ -34,6 +34,7 @@ def saved_scene(empty_scene, tmp_path):
     return path, {"Room": len(room.data.vertices), "Block": len(block.data.vertices)}
 
 
+@pytest.mark.smoke
 def test_cli_bakes_a_saved_file(saved_scene, tmp_path, cubegi):
     src, counts = saved_scene
     before = src.read_bytes()

@@ -62,6 +62,7 @@ def _same(a, b, tol):
         np.testing.assert_allclose(a[key], b[key], rtol=0, atol=tol * peak, err_msg=str(key))
 
 
+@pytest.mark.smoke
 def test_a_batch_equals_one_machine_bakes_and_a_bad_file_stops_nothing(three_files, tmp_path):
     paths, broken = three_files
     out = tmp_path / "out"

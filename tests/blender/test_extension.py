@@ -6,10 +6,12 @@ import subprocess
 import sys
 
 import bpy
+import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
+@pytest.mark.smoke
 def test_manifest_validates_with_blenders_tool():
     tool = os.path.join(bpy.utils.system_resource("SCRIPTS"), "addons_core", "bl_pkg", "cli", "blender_ext.py")
     r = subprocess.run([sys.executable, tool, "validate", ROOT], capture_output=True, text=True)
@@ -55,6 +57,7 @@ print("INSTALLED-BAKE-OK", where)
 """
 
 
+@pytest.mark.smoke
 def test_the_built_zip_installs_bakes_and_uninstalls(tmp_path):
     """The build command makes a zip without the dev files; Blender installs it into a
     temporary user folder, the installed copy bakes, and uninstalling removes it all."""

@@ -61,6 +61,7 @@ def test_an_update_with_nothing_changed_keeps_the_bake(room):
     _assert_same(_light(), baked, tol=0.0)
 
 
+@pytest.mark.smoke
 def test_power_and_colour_edits_are_a_weighted_sum_then_the_bake_of_the_edited_scene(room):
     assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
     baked = _light()
@@ -71,7 +72,7 @@ def test_power_and_colour_edits_are_a_weighted_sum_then_the_bake_of_the_edited_s
     assert instant.path == "weights" and "solve" not in instant.seconds
     # Instant: the lamp's direct light is exactly rescaled; the others' untouched.
     lit = room.cubegi_addon.session.kept(bpy.context.scene).light
-    point = lit.sources["light:point"]
+    point = next(s for s in lit.sources.values() if s.light is not None and s.light.name == "point")
     np.testing.assert_allclose(point.weight, 120.0 * 2.5 * np.array([1.0, 0.5, 0.25]))
     assert not np.allclose(_light()[("Room", "CubeGI_direct")], baked[("Room", "CubeGI_direct")])
     settled = _update(room)
@@ -226,3 +227,42 @@ def test_live_applies_edits_on_depsgraph_updates_and_frames(room):
     scene.cubegi.live = False
     scene.frame_set(10)
     assert _light()[("Room", "CubeGI_direct")].max() == at_1
+
+
+@pytest.fixture
+def instanced_lamps(empty_scene, cubegi):
+    """A closed room lit only by one lamp collection instanced four times (four Empties)."""
+    v, f = scenes.box_mesh((-2, -2, 0), (2, 2, 2.5), (6, 6, 4), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    bv, bf = scenes.box_mesh((-0.5, 0.3, 0.0), (0.4, 1.1, 0.9), (2, 2, 2), inward=False)
+    scenes.mesh_object("Block", bv, bf, scenes.material("Red", (0.7, 0.1, 0.1)))
+    lamps = bpy.data.collections.new("Lamps")
+    lamp = bpy.data.objects.new("Lamp", bpy.data.lights.new("Lamp", "POINT"))
+    lamp.data.energy = 40.0
+    lamps.objects.link(lamp)  # in no scene: seen only through its instances
+    for k, place in enumerate([(-1.2, -1.2, 2.0), (1.2, -1.2, 2.0), (-1.2, 1.2, 2.0), (1.2, 1.5, 1.6)]):
+        holder = bpy.data.objects.new(f"Lamps.{k}", None)
+        holder.instance_type = "COLLECTION"
+        holder.instance_collection = lamps
+        holder.location = place
+        bpy.context.scene.collection.objects.link(holder)
+    return cubegi
+
+
+@pytest.mark.parametrize("edit", ["power", "move one"])
+def test_instanced_lamps_are_as_many_lights_in_every_update(instanced_lamps, edit):
+    """Each instance of a lamp is its own light (its key: the lamp's and its instancer's
+    session_uid and its place in the instancer), so an update keeps all four: a power edit
+    of the shared lamp and a move of one instance each equal a full bake of the edited
+    scene (before, the four became one key and updates kept one lamp's light)."""
+    assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
+    kept = instanced_lamps.cubegi_addon.session.kept(bpy.context.scene)
+    assert len(kept.arrays.lights) == 4 and len({light.key for light in kept.arrays.lights}) == 4
+    if edit == "power":
+        bpy.data.lights["Lamp"].energy = 90.0
+    else:
+        bpy.data.objects["Lamps.2"].location = (-0.4, 1.6, 1.9)
+    report = _update(instanced_lamps)
+    assert report.path == ("weights" if edit == "power" else "lights"), report
+    updated = _light()
+    _assert_same(updated, _full_bake(instanced_lamps))

@@ -197,8 +197,8 @@ def restore(mesh, snap):
         _mark(mesh, set())
     else:
         mesh[OWNED_KEY] = listed
+    # Named outright, also where there was none: from 5.3 on, removing the active or default
+    # colour attribute leaves its name behind (up to 5.2 it was cleared).
     colours = mesh.color_attributes
-    if active and active in colours:
-        colours.active_color_name = active
-    if default and default in colours:
-        colours.default_color_name = default
+    colours.active_color_name = active if active and active in colours else ""
+    colours.default_color_name = default if default and default in colours else ""

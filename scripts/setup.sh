@@ -2,10 +2,11 @@
 # Set-up shared by the demo, test and build commands: system packages for headless OpenGL
 # (Mesa llvmpipe through EGL) when missing, and a virtual environment with the chosen
 # Blender's bpy module and the test tools (see scripts/blender.sh: CUBEGI_BLENDER picks the
-# version, the newest this machine can run by default). Safe to run again: it only installs
-# what is missing.
+# version, the newest this machine can run by default; `.venv` links to the default's).
+# Safe to run again: it only installs what is missing.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+ASKED="${CUBEGI_BLENDER:-}"
 source "$ROOT/scripts/blender.sh"
 
 SYSTEM_PACKAGES="libx11-6 libxext6 libxfixes3 libxi6 libxrender1 libxkbcommon0 libsm6 libxt6 \
@@ -34,4 +35,13 @@ if [ "$have" != "$CUBEGI_BLENDER" ] \
   || ! "$VENV/bin/python" -c 'import pytest, hypothesis, matplotlib, dask, distributed' >/dev/null 2>&1; then
   echo "setup: installing bpy==$CUBEGI_BLENDER and the test tools into $VENV"
   "$VENV/bin/python" -m pip install -q --disable-pip-version-check "bpy==$CUBEGI_BLENDER" -r "$ROOT/requirements-dev.txt"
+fi
+
+# `.venv` names the default version's environment (the README's commands use it).
+if [ -z "$ASKED" ] && [ -z "${CUBEGI_VENV:-}" ]; then
+  if [ -L "$ROOT/.venv" ] || [ ! -e "$ROOT/.venv" ]; then
+    ln -sfn "$VENV" "$ROOT/.venv"
+  elif [ "$(readlink -f "$ROOT/.venv")" != "$(readlink -f "$VENV")" ]; then
+    echo "setup: note: .venv is an older environment of its own; remove it to have it name $VENV"
+  fi
 fi

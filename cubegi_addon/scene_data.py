@@ -391,13 +391,16 @@ def _mapped(node):
     return vector is not None and vector.is_linked
 
 
-def _light(ob_eval, matrix, key):
+def _light(ob_eval, matrix, key, notes):
     data = ob_eval.data
     m = np.array(matrix, dtype=np.float64)
     pos = m[:3, 3].copy()
     direction = -m[:3, 2]
     direction = direction / max(np.linalg.norm(direction), 1e-300)
-    colour = np.asarray(data.color[:3], dtype=np.float64) * float(data.energy)
+    # Exposure scales the power by 2^exposure, as Cycles does for every light type.
+    colour = np.asarray(data.color[:3], dtype=np.float64) * float(data.energy) * 2.0 ** float(getattr(data, "exposure", 0.0))
+    colour = colour * _light_node_factor(ob_eval.name, data, notes)
+    _note_unread_light_options(ob_eval, data, notes)
     common = dict(colour=colour, position=pos, direction=direction, casts_shadow=bool(data.use_shadow), name=ob_eval.name,
                   key=key)
     if data.type == "POINT":
@@ -412,8 +415,45 @@ def _light(ob_eval, matrix, key):
         e = np.cross(np.roll(poly, -1, axis=0) - poly[0], poly - poly[0])
         area = 0.5 * float(np.linalg.norm(e.sum(axis=0)))
         samples = area_samples(data.shape, data.size, data.size_y, AREA_SHADOW_SIDE) @ m[:3, :3].T + pos
+        if not getattr(data, "normalize", True):
+            # Not normalised to its size: its Power is per square metre of its (world) area.
+            common["colour"] = common["colour"] * area
         return Light("AREA", polygon=poly, area=area, samples=samples, **common)
     return None
+
+
+def _light_node_factor(name, data, notes):
+    """What a light's node tree multiplies its power and colour by ``(3,)``: an Emission
+    node's Color x Strength into the Light Output (ones without nodes). A tree CubeGI cannot
+    read gets a note and ones."""
+    tree = data.node_tree if getattr(data, "use_nodes", True) else None
+    if tree is None:
+        return np.ones(3)
+    out = next((n for n in tree.nodes if n.type == "OUTPUT_LIGHT" and n.is_active_output), None)
+    out = out or next((n for n in tree.nodes if n.type == "OUTPUT_LIGHT"), None)
+    surface = out.inputs.get("Surface") if out is not None else None
+    if surface is None or not surface.is_linked:
+        return np.ones(3)  # Cycles' default emission
+    node = surface.links[0].from_node
+    colour, strength = (node.inputs.get(k) for k in ("Color", "Strength")) if node.type == "EMISSION" else (None, None)
+    if colour is None or strength is None or colour.is_linked or strength.is_linked:
+        what = "its Emission node's inputs are linked" if node.type == "EMISSION" else f"its output is a {node.bl_label} node"
+        notes.append(f"light {name}: its node tree is not read ({what}); baked with its Power and Color alone")
+        return np.ones(3)
+    return np.asarray(colour.default_value[:3], dtype=np.float64) * float(strength.default_value)
+
+
+def _note_unread_light_options(ob, data, notes):
+    """Notes for the light options that change Cycles' light and that CubeGI does not read."""
+    if getattr(data, "use_temperature", False):
+        notes.append(f"light {ob.name}: Temperature ({data.temperature:g} K) is not read; baked with its Color alone")
+    if data.type == "AREA" and float(getattr(data, "spread", np.pi)) < np.pi - 1e-6:
+        notes.append(f"light {ob.name}: Spread ({np.degrees(data.spread):.0f} degrees) is not read; baked as a "
+                     "diffuse (180 degree) area light")
+    linking = getattr(ob.original, "light_linking", None)
+    if linking is not None and (linking.receiver_collection is not None or linking.blocker_collection is not None):
+        notes.append(f"light {ob.name}: light and shadow linking are not read; it lights, and is shadowed by, "
+                     "every object")
 
 
 def _light_problem(light):
@@ -521,7 +561,10 @@ def light_key(inst):
 
 
 def _add_light(inst, ob, lights, notes):
-    light = _light(ob, inst.matrix_world, light_key(inst))
+    if not ob.original.visible_diffuse:
+        notes.append(f"light {ob.name}: its Diffuse ray visibility is off, so it lights no diffuse surface; left out")
+        return
+    light = _light(ob, inst.matrix_world, light_key(inst), notes)
     problem = _light_problem(light) if light is not None else None
     if problem:
         notes.append(f"light {ob.name}: {problem}; skipped")

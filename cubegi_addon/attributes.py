@@ -136,12 +136,22 @@ def clear(mesh, which=is_own):
     for name in names:
         mesh.attributes.remove(mesh.attributes[name])
     _mark(mesh, mine - set(names))
+    colours = mesh.color_attributes
+    if colours.default_color_name and colours.default_color_name not in colours:
+        colours.default_color_name = ""  # 5.3 leaves a removed attribute's name behind
     return names
 
 
 def _create(mesh, name, rgba):
+    # The first colour attribute of a mesh becomes its render colour attribute, which a
+    # Color Attribute node with no name reads: CubeGI's light would become the next bake's
+    # albedo. The render colour attribute stays the user's (or none).
+    colours = mesh.color_attributes
+    render = colours.default_color_name
     attr = mesh.attributes.new(name, TYPE, DOMAIN)
     attr.data.foreach_set("color", rgba.ravel())
+    if colours.default_color_name != render:
+        colours.default_color_name = render if render in colours else ""
     _mark(mesh, owned(mesh) | {name})
 
 

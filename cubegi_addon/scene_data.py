@@ -17,6 +17,7 @@ from ..cubegi_engine.cubemap import sample_image
 from ..cubegi_engine.lights import Light, area_polygon, area_samples
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.scene import SceneArrays
+from . import attributes
 
 # Albedo for a material CubeGI cannot read (no nodes, or a surface shader it does not
 # know): the material's viewport display colour; for a face with no material, this grey
@@ -130,21 +131,35 @@ def _corner_colour(socket, mesh, loop_ids, loop_vertex, fallback, problems):
         return np.tile(np.asarray(node.outputs[0].default_value[:3], dtype=np.float64), (k, 1))
     if node.type == "TEX_IMAGE" and node.image is not None:
         rgb = _image_pixels(node.image)
-        uv_layer = None
+        uv_layer, mapped = None, None
         vec = node.inputs.get("Vector")
-        if vec is not None and vec.is_linked and vec.links[0].from_node.type == "UVMAP":
-            uv_layer = mesh.uv_layers.get(vec.links[0].from_node.uv_map)
+        if vec is not None and vec.is_linked:
+            link = vec.links[0]
+            if link.from_node.type == "UVMAP":
+                uv_layer = mesh.uv_layers.get(link.from_node.uv_map)
+            elif not (link.from_node.type == "TEX_COORD" and link.from_socket.name == "UV"):
+                mapped = f"{link.from_socket.name} output of a {link.from_node.bl_label} node"
         if uv_layer is None:
             uv_layer = next((u for u in mesh.uv_layers if u.active_render), None)
         if rgb is None or uv_layer is None:
             problems.append(f"image {node.image.name!r} has no pixels (missing file?)" if rgb is None else "no UV map for its image")
             return np.tile(fallback, (k, 1))
+        if mapped:
+            problems.append(f"image {node.image.name!r} is mapped by the {mapped}, which CubeGI does not read; "
+                            f"sampled at the UV map {uv_layer.name!r} instead")
         uv = np.empty(len(mesh.loops) * 2, dtype=np.float32)
         uv_layer.data.foreach_get("uv", uv)
         return sample_image(rgb, uv.reshape(-1, 2)[loop_ids].astype(np.float64))
     if node.type in {"VERTEX_COLOR", "ATTRIBUTE"}:
         name = node.layer_name if node.type == "VERTEX_COLOR" else node.attribute_name
-        attr = mesh.color_attributes.get(name) if name else mesh.color_attributes.active_color
+        # A Color Attribute node with no name reads the render colour attribute (the one
+        # marked for renders), not the active one (which a bake's display changes).
+        colours = mesh.color_attributes
+        attr = colours.get(name) if name else colours.get(colours.default_color_name)
+        if attr is not None and not name and attributes.is_any(attr.name):
+            problems.append(f"reads the render colour attribute of mesh {mesh.name!r}, which is CubeGI's own light "
+                            f"({attr.name!r}); mark one of your own for renders")
+            return np.tile(fallback, (k, 1))
         if attr is None:
             problems.append(f"colour attribute {name!r} not on mesh {mesh.name!r}")
             return np.tile(fallback, (k, 1))
@@ -197,6 +212,10 @@ def _material_corners(material, mesh, loop_ids, loop_vertex, notes):
         strength = _strength(ins["Emission Strength"], problems)
         notes += [f"material {material.name!r}: Emission Strength {p}; using {strength:g}" for p in problems]
         emission = _colour_and_notes(material, "Emission Color", ins["Emission Color"], *args, np.zeros(3), "no emission", notes)
+        alpha = ins.get("Alpha")
+        if alpha is not None and (alpha.is_linked or float(alpha.default_value) < 1.0):
+            notes.append(f"material {material.name!r}: Alpha is not read; baked as an opaque surface, which blocks "
+                         "light and casts shadow")
         for name, adjective in NOT_DIFFUSE:
             sock = ins.get(name)
             if sock is not None and (sock.is_linked or float(sock.default_value) > 0.0):
@@ -211,7 +230,11 @@ def _material_corners(material, mesh, loop_ids, loop_vertex, notes):
         notes += [f"material {material.name!r}: Strength {p}; using {strength:g}" for p in problems]
         emission = _colour_and_notes(material, "Color", shader.inputs["Color"], *args, np.ones(3), "white", notes) * strength
         return np.zeros((k, 3)), emission
-    notes.append(f"material {material.name!r}: shader {shader.bl_idname} not understood, using its viewport colour")
+    if shader.type == "GROUP":
+        notes.append(f"material {material.name!r}: its surface is a node group, which CubeGI does not read; baked with "
+                     "its viewport colour and no emission (any light it emits is lost)")
+    else:
+        notes.append(f"material {material.name!r}: shader {shader.bl_idname} not understood, using its viewport colour")
     return np.tile(fallback, (k, 1)), np.zeros((k, 3))
 
 
@@ -236,7 +259,8 @@ def _mesh_arrays(ob_eval, matrix, notes):
         mesh.corner_normals.foreach_get("vector", cn)
 
         m = np.array(matrix, dtype=np.float64)
-        co = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+        local_co = co.reshape(-1, 3)
+        co = local_co @ m[:3, :3].T + m[:3, 3]
         normal_m = np.linalg.inv(m[:3, :3]).T if abs(np.linalg.det(m[:3, :3])) > 1e-300 else m[:3, :3]
         cn = cn.reshape(-1, 3) @ normal_m.T
         cn /= np.maximum(np.linalg.norm(cn, axis=1, keepdims=True), 1e-300)
@@ -256,6 +280,7 @@ def _mesh_arrays(ob_eval, matrix, notes):
             albedo[ids], emission[ids] = _material_corners(mat, mesh, ids, loop_vertex, notes)
         return {
             "co": co,
+            "local_co": local_co,
             "loop_vertex": loop_vertex,
             "corner_normal": cn,
             "tri_loops": tri_loops,
@@ -469,15 +494,22 @@ def _light_problem(light):
     return None
 
 
-def _same_corners(mesh, data):
-    """True if the evaluated mesh's corners name the same vertices as the original mesh's
-    (modifiers that only move vertices); False if modifiers add, remove or reorder them
-    (a Sort Elements node keeps the count but not the order)."""
-    if data["vertex_count"] != len(mesh.vertices) or len(data["loop_vertex"]) != len(mesh.loops):
+def _same_vertices(mesh, data):
+    """True if the evaluated mesh's vertices are the original mesh's, one for one, so its
+    light can be written to them: its corners name the same vertices (modifiers that only
+    move vertices), or its vertices stand where the original's do (modifiers that only
+    change faces: Triangulate). False if modifiers add, remove or reorder vertices (a Sort
+    Elements node keeps the count but not the order)."""
+    if data["vertex_count"] != len(mesh.vertices):
         return False
-    original = np.empty(len(mesh.loops), dtype=np.int64)
-    mesh.loops.foreach_get("vertex_index", original)
-    return bool(np.array_equal(original, data["loop_vertex"]))
+    if len(data["loop_vertex"]) == len(mesh.loops):
+        original = np.empty(len(mesh.loops), dtype=np.int64)
+        mesh.loops.foreach_get("vertex_index", original)
+        if np.array_equal(original, data["loop_vertex"]):
+            return True
+    co = np.empty(len(mesh.vertices) * 3, dtype=np.float64)
+    mesh.vertices.foreach_get("co", co)
+    return bool(np.array_equal(co.reshape(-1, 3), data["local_co"]))
 
 
 NON_MESH_GEOMETRY = {"CURVE", "SURFACE", "FONT", "META", "CURVES", "POINTCLOUD", "VOLUME"}
@@ -485,10 +517,12 @@ NON_MESH_GEOMETRY = {"CURVE", "SURFACE", "FONT", "META", "CURVES", "POINTCLOUD",
 
 @contextmanager
 def _as_rendered(view_layer):
-    """The view layer with everything that renders shown in the viewport too, for the time of
-    the block: objects hidden with H or disabled in viewports, and collections hidden or
-    disabled in viewports, render (Cycles' rule is ``hide_render`` and the view layer's
-    exclusion) and so take part in the bake. Put back as it was afterwards."""
+    """The view layer evaluated as a render evaluates it, for the time of the block: objects
+    hidden with H or disabled in viewports, and collections hidden or disabled in viewports,
+    render (Cycles' rule is ``hide_render`` and the view layer's exclusion) and so take part
+    in the bake; modifiers are on where they are on in renders, subdivision at its render
+    levels, particle systems at their render count and their emitters shown as in renders.
+    Put back as it was afterwards."""
     undo = []
     visible = _render_visible_objects(view_layer)
 
@@ -504,11 +538,25 @@ def _as_rendered(view_layer):
         for child in layer_coll.children:
             walk(child)
 
+    def render_setting(owner, prop, value):
+        before = getattr(owner, prop)
+        if before != value:
+            setattr(owner, prop, value)
+            undo.append(lambda: setattr(owner, prop, before))
+
     try:
         walk(view_layer.layer_collection)
         for ob in view_layer.objects:
             if ob.hide_render or ob.name not in visible:
                 continue
+            # Modifiers and particles evaluated as a render evaluates them.
+            for mod in ob.modifiers:
+                render_setting(mod, "show_viewport", mod.show_render)
+                if mod.type in {"SUBSURF", "MULTIRES"}:
+                    render_setting(mod, "levels", mod.render_levels)
+                if mod.type == "PARTICLE_SYSTEM":
+                    render_setting(ob, "show_instancer_for_viewport", ob.show_instancer_for_render)
+                    render_setting(mod.particle_system.settings, "display_percentage", 100)
             if ob.hide_viewport:
                 ob.hide_viewport = False
                 undo.append(lambda o=ob: setattr(o, "hide_viewport", True))
@@ -545,6 +593,8 @@ def _rendered_instances(context, depsgraph):
         top = inst.parent.original if inst.is_instance and inst.parent else original
         if top.hide_render or top.name not in visible or original.hide_render:
             continue
+        if not inst.show_self:  # an instancer that does not render itself (Show Emitter off)
+            continue
         yield inst, ob, original, top
 
 
@@ -572,6 +622,16 @@ def _add_light(inst, ob, lights, notes):
         lights.append(light)
 
 
+def _note_unread_visibility(ob, notes):
+    """Notes for an object's ray visibility that changes Cycles' light and that CubeGI does
+    not read."""
+    if not ob.visible_shadow:
+        notes.append(f"{ob.name}: Visibility > Shadow is off, which CubeGI does not read; it casts shadows")
+    if not ob.visible_diffuse:
+        notes.append(f"{ob.name}: Visibility > Diffuse is off, which CubeGI does not read; the light it passes on "
+                     "is baked")
+
+
 def _is_dynamic(inst, original):
     settings = getattr(original, "cubegi", None)
     return original.type == "MESH" and not inst.is_instance and settings is not None and settings.dynamic
@@ -584,7 +644,7 @@ def _moving_object(ob, inst, original, notes):
         return None
     pts = _shading_points(data)
     mesh = original.data
-    if mesh.library is not None or not _same_corners(mesh, data):
+    if mesh.library is not None or not _same_vertices(mesh, data):
         notes.append(f"{original.name}: dynamic, but its mesh is linked or its modifiers change its vertices; not lit")
         return None
     n = len(pts["points"])
@@ -647,6 +707,7 @@ def _collect(context, depsgraph):
         data = _mesh_arrays(ob, inst.matrix_world, notes)
         if data is None:
             continue
+        _note_unread_visibility(original, notes)
         pts = _shading_points(data)
         pts["name"] = original.name
         parts.append(pts)
@@ -671,7 +732,7 @@ def _collect(context, depsgraph):
         if mesh.name in claimed_meshes:
             notes.append(f"{original.name}: shares mesh {mesh.name!r} with an object already baked; not baked again")
             continue
-        if not _same_corners(mesh, data):
+        if not _same_vertices(mesh, data):
             notes.append(
                 f"{original.name}: modifiers change its vertex count or order; it lights others but is not baked "
                 "(apply them, or bake a copy without them)"
@@ -685,6 +746,9 @@ def _collect(context, depsgraph):
             notes.append(f"{name}: {kind.lower()} object lit and lighting others, but not baked")
         else:
             notes.append(f"{name}: {kind.lower()} object has no surface; skipped")
+    if scene.background_set is not None:
+        notes.append(f"scene {scene.name!r}: its Background Set {scene.background_set.name!r} is not read; its "
+                     "objects cast no shadow and pass on no light")
     if not parts:
         raise BakeError("the scene has no visible geometry to bake")
     tri_offsets = np.cumsum([0] + [len(p["points"]) for p in parts[:-1]])
@@ -749,11 +813,9 @@ def scored_areas(targets, arrays):
     diffuse closure), so comparisons with it leave those vertices out."""
     import bpy
 
-    from .attributes import vertex_values
-
     out = {}
     for target in targets:
         areas = vertex_areas(bpy.data.objects[target.object_name])
-        albedo = vertex_values(target, arrays.albedo)
+        albedo = attributes.vertex_values(target, arrays.albedo)
         out[target.object_name] = np.where(albedo.max(axis=1) > 0.0, areas, 0.0)
     return out

@@ -147,3 +147,142 @@ def test_light_options_not_read_are_named(empty_scene, cubegi, feature):
     found = [n for n in _notes() if note in n]
     _record(feature, "not supported", note=found[0] if found else None)
     assert found, _notes()
+
+
+# --- objects: the scene as a render evaluates it ----------------------------------------------
+
+def _plate(name, z=1.0, half=0.2, x=-0.5):
+    v, f = scenes.grid_patch((x - half, -half, z), (2 * half, 0, 0), (0, 2 * half, 0), 1, 1)
+    return scenes.mesh_object(name, v, np.asarray(f)[:, ::-1], scenes.material(name, (0.5, 0.5, 0.5)))
+
+
+def _render_only_array():
+    plate = _plate("Plate")
+    array = plate.modifiers.new("Array", "ARRAY")
+    array.count, array.relative_offset_displace = 3, (1.5, 0.0, 0.0)
+    array.show_viewport = False  # three plates in renders, one in the viewport
+
+
+def _hidden_emitter():
+    plate = _plate("Emitter", half=0.6, x=0.0)
+    plate.modifiers.new("Particles", "PARTICLE_SYSTEM")
+    settings = plate.particle_systems[0].settings
+    settings.count, settings.frame_end, settings.lifetime = 0, 1, 1  # no particles, only the emitter matters
+    plate.show_instancer_for_render = False  # the emitter does not render: it casts no shadow
+
+
+def _triangulated():
+    tall = bpy.data.objects["Tall"]
+    tall.modifiers.new("Triangulate", "TRIANGULATE")
+
+
+RENDER_ROWS = {
+    "Modifier enabled in renders only (Array)": _render_only_array,
+    "Particle emitter with Show Emitter off in renders": _hidden_emitter,
+    "Triangulate modifier (vertex count unchanged)": _triangulated,
+}
+
+
+@pytest.mark.parametrize("feature", list(RENDER_ROWS))
+def test_geometry_is_what_a_render_evaluates(empty_scene, cubegi, feature):
+    obs = _box()
+    _light("AREA", shape="SQUARE", size=0.6)
+    RENDER_ROWS[feature]()
+    before = {(o.name, m.name, m.show_viewport) for o in bpy.data.objects for m in o.modifiers}
+    err, _ = _direct_errors(cubegi, obs)
+    _record(feature, "read exactly", direct_rel_bias=err["rel_bias"], direct_rel_rmse=err["rel_rmse"])
+    assert {(o.name, m.name, m.show_viewport) for o in bpy.data.objects for m in o.modifiers} == before  # put back
+    assert abs(err["rel_bias"]) < DIRECT_BIAS_TOL and err["rel_rmse"] < DIRECT_RMSE_TOL, err
+    assert not [n for n in _notes() if "vertex count" in n and n.split(":")[0] in {o.name for o in obs}], _notes()  # all baked
+
+
+def test_an_unnamed_color_attribute_node_reads_the_render_attribute_and_baking_twice_changes_nothing(empty_scene, cubegi):
+    obs = _box()
+    _light("AREA", shape="SQUARE", size=0.6)
+    floor = bpy.data.objects["Floor"]
+    mesh = floor.data
+    for name, colour in (("Paint", (0.8, 0.1, 0.1)), ("Other", (0.1, 0.8, 0.1))):
+        attr = mesh.color_attributes.new(name, "FLOAT_COLOR", "POINT")
+        attr.data.foreach_set("color", np.tile((*colour, 1.0), len(attr.data)).astype(np.float32).ravel())
+    mesh.color_attributes.render_color_index = mesh.color_attributes.find("Paint")
+    mesh.color_attributes.active_color = mesh.color_attributes["Other"]
+    tree = floor.active_material.node_tree
+    node = tree.nodes.new("ShaderNodeVertexColor")  # layer_name left empty
+    bsdf = next(n for n in tree.nodes if n.type == "BSDF_PRINCIPLED")
+    tree.links.new(node.outputs["Color"], bsdf.inputs["Base Color"])
+    read = cubegi.cubegi_addon.attributes.read
+    assert bpy.ops.cubegi.bake(**FAST) == {"FINISHED"}
+    first = {o.name: read(o.data, "CubeGI_total") for o in obs}
+    kept = cubegi.cubegi_addon.session.kept(bpy.context.scene)
+    floor_albedo = kept.arrays.albedo[kept.arrays.point_object == kept.arrays.object_names.index("Floor")]
+    np.testing.assert_allclose(floor_albedo, np.tile((0.8, 0.1, 0.1), (len(floor_albedo), 1)), atol=1e-6)
+    cubegi.cubegi_addon.session.forget()
+    assert bpy.ops.cubegi.bake(**FAST) == {"FINISHED"}
+    for o in obs:
+        np.testing.assert_allclose(read(o.data, "CubeGI_total"), first[o.name], rtol=1e-5, atol=1e-7, err_msg=o.name)
+    _record("Color Attribute node with no name", "read exactly", note="the render colour attribute; a second bake equal")
+
+
+def _shadow_off():
+    bpy.data.objects["Tall"].visible_shadow = False
+
+
+def _alpha():
+    mat = bpy.data.objects["Tall"].active_material
+    next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED").inputs["Alpha"].default_value = 0.0
+
+
+def _generated_coordinates():
+    tree = bpy.data.objects["Floor"].active_material.node_tree
+    image = bpy.data.images.new("Checker", 8, 8)
+    image.generated_type = "COLOR_GRID"
+    tex = tree.nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    coords = tree.nodes.new("ShaderNodeTexCoord")
+    tree.links.new(coords.outputs["Generated"], tex.inputs["Vector"])
+    bsdf = next(n for n in tree.nodes if n.type == "BSDF_PRINCIPLED")
+    tree.links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
+    bpy.data.objects["Floor"].data.uv_layers.new(name="UVMap")
+
+
+def _background_set():
+    backdrop = bpy.data.scenes.new("Backdrop")
+    v, f = scenes.box_mesh((-3, -3, -0.5), (3, 3, 3), (2, 2, 2), inward=True)
+    scenes.mesh_object("Set", v, f, scenes.material("Set", (0.5, 0.5, 0.5)), collection=backdrop.collection)
+    bpy.context.scene.background_set = backdrop
+
+
+def _emission_in_group():
+    group = bpy.data.node_groups.new("Glow", "ShaderNodeTree")
+    group.interface.new_socket("Shader", in_out="OUTPUT", socket_type="NodeSocketShader")
+    out = group.nodes.new("NodeGroupOutput")
+    glow = group.nodes.new("ShaderNodeEmission")
+    glow.inputs["Strength"].default_value = 5.0
+    group.links.new(glow.outputs["Emission"], out.inputs[0])
+    mat = bpy.data.objects["Short"].active_material = scenes.material("Glowing", (0.5, 0.5, 0.5))
+    tree = mat.node_tree
+    node = tree.nodes.new("ShaderNodeGroup")
+    node.node_tree = group
+    output = next(n for n in tree.nodes if n.type == "OUTPUT_MATERIAL")
+    tree.links.new(node.outputs[0], output.inputs["Surface"])
+
+
+OBJECT_NOTES = {
+    "Object Visibility > Shadow off": (_shadow_off, "Tall: Visibility > Shadow is off"),
+    "Principled Alpha below 1 (a cut-out)": (_alpha, "Alpha is not read; baked as an opaque surface"),
+    "Image texture mapped by Generated coordinates": (_generated_coordinates, "is mapped by the Generated output of a Texture Coordinate node"),
+    "Background Set scene": (_background_set, "its Background Set 'Backdrop' is not read"),
+    "Emission shader inside a node group": (_emission_in_group, "its surface is a node group, which CubeGI does not read"),
+}
+
+
+@pytest.mark.parametrize("feature", list(OBJECT_NOTES))
+def test_object_and_material_features_not_read_are_named(empty_scene, cubegi, feature):
+    _box()
+    _light("AREA", shape="SQUARE", size=0.6)
+    make, note = OBJECT_NOTES[feature]
+    make()
+    assert bpy.ops.cubegi.bake(**FAST) == {"FINISHED"}
+    found = [n for n in _notes() if note in n]
+    _record(feature, "not supported", note=found[0] if found else None)
+    assert found, _notes()

@@ -97,9 +97,14 @@ def _animated_materials():
 
 
 def _static_changed(context, kept):
-    """True if the static geometry differs from the kept bake's: an object moved (its world
-    matrix), or one that can deform (modifiers, shape keys, animated mesh data) has other
-    vertices now (then the scene is read again and fingerprinted)."""
+    """True if the static geometry differs from the kept bake's: another set of objects
+    renders (one keyframed into or out of renders), an object moved (its world matrix), or
+    one that can deform (modifiers, shape keys, animated mesh data) has other vertices now
+    (then the scene is read again and fingerprinted)."""
+    from . import scene_data
+
+    if scene_data.static_object_names(context) != set(kept.arrays.object_names):
+        return True
     deforming = False
     for name in kept.arrays.object_names:
         ob = bpy.data.objects.get(name)
@@ -110,8 +115,6 @@ def _static_changed(context, kept):
             getattr(data, "animation_data", None) is not None)
     if not deforming:
         return False
-    from . import scene_data
-
     return bool(scene_data.collect(context).arrays.fingerprint().changed(kept.arrays.fingerprint()))
 
 

@@ -5,6 +5,7 @@ llvmpipe (OpenGL 4.5 through EGL); ``docs/blender-versions.md`` has the table.
 Everything else in the add-on is written once for every supported version.
 """
 
+import bpy
 import numpy as np
 
 # The oldest release CubeGI is tested on (the manifest's ``blender_version_min``). 4.2 cannot
@@ -35,3 +36,15 @@ def shader_columns(shader, columns):
     """
     declared = {name for name, _type in shader.attrs_info_get()}
     return {name: data for name, data in columns.items() if name in declared}
+
+
+def light_node_tree(light):
+    """The node tree a render uses for a light's data, or None.
+
+    Up to 5.0 a light uses its nodes only with Use Nodes on (off by default); from 5.1 it
+    always does, and reading ``use_nodes`` is deprecated (it reads True; to be removed in
+    6.0).
+    """
+    if bpy.app.version >= (5, 1, 0):
+        return light.node_tree
+    return light.node_tree if light.use_nodes else None

@@ -13,11 +13,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..cubegi_engine.blackbody import ACCURATE_FROM as BLACKBODY_ACCURATE_FROM, blackbody_rgb
 from ..cubegi_engine.cubemap import sample_image
 from ..cubegi_engine.lights import Light, area_polygon, area_samples
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.scene import SceneArrays
-from . import attributes
+from . import attributes, compat
 
 # Albedo for a material CubeGI cannot read (no nodes, or a surface shader it does not
 # know): the material's viewport display colour; for a face with no material, this grey
@@ -144,9 +145,9 @@ def _corner_colour(socket, mesh, loop_ids, loop_vertex, fallback, problems):
         if rgb is None or uv_layer is None:
             problems.append(f"image {node.image.name!r} has no pixels (missing file?)" if rgb is None else "no UV map for its image")
             return np.tile(fallback, (k, 1))
-        if mapped:
-            problems.append(f"image {node.image.name!r} is mapped by the {mapped}, which CubeGI does not read; "
-                            f"sampled at the UV map {uv_layer.name!r} instead")
+        if mapped:  # (what is wrong, what the bake does instead)
+            problems.append((f"image {node.image.name!r} is mapped by the {mapped}, which CubeGI does not read",
+                             f"sampled at the UV map {uv_layer.name!r} instead"))
         uv = np.empty(len(mesh.loops) * 2, dtype=np.float32)
         uv_layer.data.foreach_get("uv", uv)
         return sample_image(rgb, uv.reshape(-1, 2)[loop_ids].astype(np.float64))
@@ -186,7 +187,9 @@ def _strength(socket, problems):
 def _colour_and_notes(material, label, socket, mesh, loop_ids, loop_vertex, fallback, what, notes):
     problems = []
     colour = _corner_colour(socket, mesh, loop_ids, loop_vertex, fallback, problems)
-    notes += [f"material {material.name!r}: {label} {p}; using {what}" for p in problems]
+    for p in problems:
+        problem, instead = p if isinstance(p, tuple) else (p, f"using {what}")
+        notes.append(f"material {material.name!r}: {label} {problem}; {instead}")
     return colour
 
 
@@ -425,6 +428,11 @@ def _light(ob_eval, matrix, key, notes):
     # Exposure scales the power by 2^exposure, as Cycles does for every light type.
     colour = np.asarray(data.color[:3], dtype=np.float64) * float(data.energy) * 2.0 ** float(getattr(data, "exposure", 0.0))
     colour = colour * _light_node_factor(ob_eval.name, data, notes)
+    if getattr(data, "use_temperature", False):  # Blender 4.5 and later
+        colour = colour * blackbody_rgb(data.temperature)
+        if data.temperature < BLACKBODY_ACCURATE_FROM:
+            notes.append(f"light {ob_eval.name}: its Temperature ({data.temperature:g} K) is approximated; below "
+                         f"{BLACKBODY_ACCURATE_FROM:g} K its colour drifts from Cycles' (too much green: 3x at 1000 K)")
     _note_unread_light_options(ob_eval, data, notes)
     common = dict(colour=colour, position=pos, direction=direction, casts_shadow=bool(data.use_shadow), name=ob_eval.name,
                   key=key)
@@ -451,7 +459,7 @@ def _light_node_factor(name, data, notes):
     """What a light's node tree multiplies its power and colour by ``(3,)``: an Emission
     node's Color x Strength into the Light Output (ones without nodes). A tree CubeGI cannot
     read gets a note and ones."""
-    tree = data.node_tree if getattr(data, "use_nodes", True) else None
+    tree = compat.light_node_tree(data)
     if tree is None:
         return np.ones(3)
     out = next((n for n in tree.nodes if n.type == "OUTPUT_LIGHT" and n.is_active_output), None)
@@ -470,8 +478,6 @@ def _light_node_factor(name, data, notes):
 
 def _note_unread_light_options(ob, data, notes):
     """Notes for the light options that change Cycles' light and that CubeGI does not read."""
-    if getattr(data, "use_temperature", False):
-        notes.append(f"light {ob.name}: Temperature ({data.temperature:g} K) is not read; baked with its Color alone")
     if data.type == "AREA" and float(getattr(data, "spread", np.pi)) < np.pi - 1e-6:
         notes.append(f"light {ob.name}: Spread ({np.degrees(data.spread):.0f} degrees) is not read; baked as a "
                      "diffuse (180 degree) area light")
@@ -666,6 +672,18 @@ def moving_objects(context):
                 if part is not None:
                     out.append(part)
     return out
+
+
+def static_object_names(context):
+    """The names (as in ``SceneArrays.object_names``) of the static geometry that renders
+    now, without reading a mesh: a frame whose set differs from the bake's (an object
+    keyframed into or out of renders) needs a full bake."""
+    names = set()
+    with _as_rendered(context.view_layer):
+        for inst, ob, original, _ in _rendered_instances(context, context.evaluated_depsgraph_get()):
+            if ob.type == "MESH" and not _is_dynamic(inst, original):
+                names.add(original.name)
+    return names
 
 
 def scene_lights(context):

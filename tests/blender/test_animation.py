@@ -140,3 +140,34 @@ def test_a_frame_whose_static_geometry_moved_is_baked_in_full(empty_scene, cubeg
     report = tmp_path / "r.json"
     assert _cli("bake-animation", src, "-o", tmp_path / "out.blend", "--report", report, *FAST).returncode == 0
     assert [f["path"] for f in json.loads(report.read_text())["frames"]] == ["full", "lights", "full"]
+
+
+def test_an_object_keyframed_into_and_out_of_renders_casts_its_shadow_only_while_it_renders(empty_scene, cubegi, tmp_path):
+    """The Block leaves renders at frame 2 and comes back at frame 3; a Crate renders only at
+    frame 2. Each frame whose set of rendered objects changed is baked in full, and every
+    frame equals a full bake of it (before: the Block's shadow stayed at frame 2 and the
+    Crate never cast one)."""
+    src = _animated_room(tmp_path, dynamic=False)
+    bpy.ops.wm.open_mainfile(filepath=str(src))
+    cv, cf = scenes.box_mesh((-0.3, -0.3, 0.0), (0.3, 0.3, 0.6), (2, 2, 2), inward=False)
+    crate = scenes.mesh_object("Crate", cv, cf, scenes.material("Grey", (0.5, 0.5, 0.5)))
+    crate.location = (0.8, -0.8, 0.0)
+    block = bpy.data.objects["Block"]
+    for ob, hidden in ((block, (False, True, False)), (crate, (True, False, True))):
+        for frame, hide in zip((1, 2, 3), hidden):
+            ob.hide_render = hide
+            ob.keyframe_insert("hide_render", frame=frame)
+    bpy.ops.wm.save_as_mainfile(filepath=str(src))
+    report = tmp_path / "r.json"
+    r = _cli("bake-animation", src, "-o", tmp_path / "out.blend", "--report", report, *FAST)
+    assert r.returncode == 0, r.stderr
+    assert [f["path"] for f in json.loads(report.read_text())["frames"]] == ["full", "full", "full"]
+    read = cubegi.cubegi_addon.attributes.read
+    for frame in (2, 3):
+        with np.load(tmp_path / "out.cubegi" / f"frame_{frame:04d}.npz") as data:
+            cached = data["Room:direct"]
+        bpy.ops.wm.open_mainfile(filepath=str(src))
+        bpy.context.scene.frame_set(frame)
+        assert bpy.ops.cubegi.bake(grid=(3, 3, 2), cube_size=16, bounces=3) == {"FINISHED"}
+        np.testing.assert_allclose(read(bpy.data.objects["Room"].data, "CubeGI_direct"), cached, rtol=0,
+                                   atol=SOLVE_TOL * float(cached.max()), err_msg=f"frame {frame}")

@@ -28,6 +28,8 @@ def _parser():
     b = sub.add_parser("bake", help="bake a .blend file's light into CubeGI colour attributes")
     b.add_argument("input", help="the .blend file to bake (never written)")
     b.add_argument("-o", "--output", required=True, help="where to write the baked .blend")
+    b.add_argument("--gltf", metavar="OUT.glb", help="also export the baked scene as glTF binary with its light kept above 1 "
+                   "(float attributes _CUBEGI_LIGHT, _CUBEGI_INDIRECT; see docs/export.md)")
     _bake_options(b)
     a = sub.add_parser("bake-animation", help="bake every frame's light into a cache folder beside the output (OUT.cubegi/)")
     a.add_argument("input", help="the .blend file to bake (never written)")
@@ -266,6 +268,9 @@ def _mark_dynamic(bpy, names):
 def cmd_bake(args):
     settings = _settings(args)
     src, compressed, dst, report_path = _check_io(args)
+    gltf_path = None
+    if args.gltf:
+        gltf_path = files.writable_target(args.gltf, "glTF export", [(src, "input"), (dst, "output"), (report_path, "report")])
     bpy = _blender()
 
     from . import pipeline
@@ -279,6 +284,10 @@ def cmd_bake(args):
     jobs = [(dst, _save_blend(compressed))]
     if report_path:
         jobs.append((report_path, _save_json(report)))
+    if gltf_path:
+        from . import export
+
+        jobs.append((gltf_path, lambda tmp: export.write_glb(bpy.context, tmp)))
     files.write_all(jobs)
     _summary(report)
 

@@ -4,10 +4,11 @@ import os
 
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, IntVectorProperty, StringProperty
+from bpy_extras.io_utils import ExportHelper
 
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.settings import MAX_BOUNCES, MAX_CELLS, MAX_CUBE_SIZE, MIN_CUBE_SIZE, QUALITY, BakeSettings
-from . import animation, attributes, display, files, grid_objects, live, materials, pipeline, prefs, probe_view, props, session
+from . import animation, attributes, display, export, files, grid_objects, live, materials, pipeline, prefs, probe_view, props, session
 
 # Seconds between the modal bake's steps: often enough to feel live, rarely enough that
 # Blender's own events get through (the same pace as Blender's extension manager).
@@ -329,6 +330,35 @@ class CUBEGI_OT_clear(bpy.types.Operator):
         return {"FINISHED"}
 
 
+class CUBEGI_OT_export_gltf(bpy.types.Operator, ExportHelper):
+    """Export the scene as glTF binary with the baked light kept above 1 (float vertex attributes)"""
+
+    bl_idname = "cubegi.export_gltf"
+    bl_label = "CubeGI Light (.glb)"
+    bl_options = {"REGISTER"}
+    filename_ext = ".glb"
+    filter_glob: StringProperty(default="*.glb", options={"HIDDEN"})
+
+    @classmethod
+    def poll(cls, context):
+        return _poll(cls, context, lambda c: None if export.baked_meshes(c.scene) else "Nothing to export: bake first")
+
+    def execute(self, context):
+        exposure = []
+        try:
+            path = files.writable_target(bpy.path.abspath(self.filepath), "export")
+            files.write_all([(path, lambda tmp: exposure.append(export.write_glb(context, tmp)))])
+        except BakeError as exc:
+            self.report({"ERROR"}, f"CubeGI: {exc}")
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"CubeGI: wrote {path} (COLOR_0 at exposure {exposure[0]:+.2f})")
+        return {"FINISHED"}
+
+
+def menu_export(self, context):
+    self.layout.operator(CUBEGI_OT_export_gltf.bl_idname)
+
+
 class CUBEGI_OT_add_probe_grid(bpy.types.Operator):
     """Add a CubeGI probe grid fitted to the visible geometry. Its box sets the grid's bounds;
     its Resolution sets the probes along each axis"""
@@ -449,7 +479,7 @@ def menu_add(self, context):
 
 classes = (
     CUBEGI_OT_bake, CUBEGI_OT_clear, CUBEGI_OT_add_probe_grid, CUBEGI_OT_wire_materials, CUBEGI_OT_unwire_materials,
-    CUBEGI_OT_update_light, CUBEGI_OT_bake_animation,
+    CUBEGI_OT_update_light, CUBEGI_OT_bake_animation, CUBEGI_OT_export_gltf,
 )
 _register, _unregister = bpy.utils.register_classes_factory(classes)
 
@@ -457,8 +487,10 @@ _register, _unregister = bpy.utils.register_classes_factory(classes)
 def register():
     _register()
     bpy.types.VIEW3D_MT_add.append(menu_add)
+    bpy.types.TOPBAR_MT_file_export.append(menu_export)
 
 
 def unregister():
+    bpy.types.TOPBAR_MT_file_export.remove(menu_export)
     bpy.types.VIEW3D_MT_add.remove(menu_add)
     _unregister()

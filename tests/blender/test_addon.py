@@ -25,7 +25,8 @@ def box(empty_scene, cubegi):
 
 NAMED = (
     "CUBEGI_OT_bake", "CUBEGI_OT_clear", "CUBEGI_OT_add_probe_grid", "CUBEGI_OT_wire_materials",
-    "CUBEGI_OT_unwire_materials", "CUBEGI_OT_update_light", "CUBEGI_OT_bake_animation", "VIEW3D_PT_cubegi", "VIEW3D_PT_cubegi_display",
+    "CUBEGI_OT_unwire_materials", "CUBEGI_OT_update_light", "CUBEGI_OT_bake_animation", "CUBEGI_OT_export_gltf",
+    "VIEW3D_PT_cubegi", "VIEW3D_PT_cubegi_display",
     "VIEW3D_PT_cubegi_report",
 )
 
@@ -33,7 +34,7 @@ NAMED = (
 def test_unregister_leaves_nothing_behind_and_register_restores_everything(cubegi):
     addon = cubegi.cubegi_addon
     classes = [c for m in (addon.prefs, addon.props, addon.operators, addon.panel) for c in m.classes]
-    assert len(classes) == 13 and all(c.is_registered for c in classes)
+    assert len(classes) == 14 and all(c.is_registered for c in classes)
     handlers = [(addon.session.HANDLER_LISTS, addon.session._forget_all),
                 (("depsgraph_update_post",), addon.live._persistent_update), (("frame_change_post",), addon.live._persistent_frame),
                 (("frame_change_post",), addon.animation.on_frame_change)]
@@ -45,6 +46,7 @@ def test_unregister_leaves_nothing_behind_and_register_restores_everything(cubeg
         assert [c for c in NAMED if getattr(bpy.types, c, None) is not None] == []
         assert not hasattr(bpy.types.Scene, "cubegi") and not hasattr(bpy.types.Object, "cubegi")
         assert not any(getattr(f, "__name__", "") == "menu_add" for f in menu._dyn_ui_initialize())
+        assert not any(getattr(f, "__name__", "") == "menu_export" for f in bpy.types.TOPBAR_MT_file_export._dyn_ui_initialize())
         assert addon.probe_view._handle is None
         assert not any(addon.probe_view._forget_all in getattr(bpy.app.handlers, n) for n in addon.probe_view._HANDLER_LISTS)
         assert not any(fn in getattr(bpy.app.handlers, n) for lists, fn in handlers for n in lists)
@@ -55,6 +57,7 @@ def test_unregister_leaves_nothing_behind_and_register_restores_everything(cubeg
     assert all(getattr(bpy.app.handlers, n).count(addon.probe_view._forget_all) == 1 for n in addon.probe_view._HANDLER_LISTS)
     assert all(getattr(bpy.app.handlers, n).count(fn) == 1 for lists, fn in handlers for n in lists)
     assert sum(getattr(f, "__name__", "") == "menu_add" for f in menu._dyn_ui_initialize()) == 1
+    assert sum(getattr(f, "__name__", "") == "menu_export" for f in bpy.types.TOPBAR_MT_file_export._dyn_ui_initialize()) == 1
 
 
 # --- polls explain themselves ----------------------------------------------------------------

@@ -34,6 +34,7 @@ def main():
     args = ap.parse_args()
 
     import bpy
+
     from cubegi_engine.__main__ import load_extension
 
     load_extension()
@@ -86,7 +87,8 @@ def main():
         ("power edit, instant", t_instant, f"engine {engine * 1000:.2f} ms + writing 4 layers"),
         ("power edit, settled", t_settled, "energy balance of the new mix, every layer"),
         ("moved light", t_move, f"its shadow map {u_move.seconds['lights'] * 1000:.0f} ms, solve {u_move.seconds['solve'] * 1000:.0f} ms"),
-        ("material colour edit", t_albedo, f"read the scene {u_albedo.seconds['lights'] * 1000:.0f} ms, solve {u_albedo.seconds['solve'] * 1000:.0f} ms"),
+        ("material colour edit", t_albedo,
+         f"read the scene {u_albedo.seconds['lights'] * 1000:.0f} ms, solve {u_albedo.seconds['solve'] * 1000:.0f} ms"),
     ]
     for name, seconds, note in rows:
         print(f"{name:33s} {seconds * 1000:8.1f} ms  {100 * seconds / t_full:5.1f}% of the full bake  ({note})")

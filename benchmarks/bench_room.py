@@ -26,6 +26,7 @@ def main():
     args = ap.parse_args()
 
     import bpy
+
     from cubegi_engine.__main__ import load_extension
 
     load_extension()

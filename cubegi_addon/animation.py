@@ -57,7 +57,10 @@ def frame_arrays(scene):
 def _mean(arrays):
     direct = [v for k, v in arrays.items() if k.endswith(":direct")]
     indirect = [v for k, v in arrays.items() if k.endswith(":indirect")]
-    mean = (lambda vs: np.concatenate(vs).mean(axis=0).tolist() if vs else [0.0, 0.0, 0.0])
+
+    def mean(values):
+        return np.concatenate(values).mean(axis=0).tolist() if values else [0.0, 0.0, 0.0]
+
     return mean(direct), mean(indirect)
 
 

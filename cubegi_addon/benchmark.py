@@ -15,7 +15,8 @@ import time
 import bpy
 import numpy as np
 
-from ..cubegi_engine import __version__, benchmark as analysis, metrics
+from ..cubegi_engine import __version__, metrics
+from ..cubegi_engine import benchmark as analysis
 from ..cubegi_engine.grid import fit_bounds
 from ..cubegi_engine.report import BakeReport
 from . import attributes, bench_scenes, demo, grid_objects, reference, scene_data, session

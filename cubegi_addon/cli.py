@@ -12,8 +12,8 @@ import json
 import os
 import sys
 
-from ..cubegi_engine.settings import QUALITY, BakeSettings
 from ..cubegi_engine.errors import BakeError
+from ..cubegi_engine.settings import QUALITY, BakeSettings
 from . import files
 
 # Set to 1 to see the traceback of a failure that is CubeGI's own defect.

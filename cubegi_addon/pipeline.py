@@ -13,7 +13,8 @@ import bpy
 import numpy as np
 
 from ..cubegi_engine import metrics
-from ..cubegi_engine.bake import bake_steps as engine_bake_steps, run
+from ..cubegi_engine.bake import bake_steps as engine_bake_steps
+from ..cubegi_engine.bake import run
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.records import Progress, Stage
 from ..cubegi_engine.report import BakeReport

@@ -13,10 +13,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..cubegi_engine.blackbody import ACCURATE_FROM as BLACKBODY_ACCURATE_FROM, blackbody_rgb
+from ..cubegi_engine.blackbody import ACCURATE_FROM as BLACKBODY_ACCURATE_FROM
+from ..cubegi_engine.blackbody import blackbody_rgb
 from ..cubegi_engine.cubemap import sample_image
-from ..cubegi_engine.lights import Light, area_polygon, area_samples
 from ..cubegi_engine.errors import BakeError
+from ..cubegi_engine.lights import Light, area_polygon, area_samples
 from ..cubegi_engine.scene import SceneArrays
 from . import attributes, compat
 

@@ -214,11 +214,13 @@ def plot(records, path):
             cyc = sorted((r for r in records if r["scene"] == scene and r["method"] == "cycles"), key=lambda r: r["settings"]["samples"])
             cub = [r for r in records if r["scene"] == scene and r["method"] == "cubegi"]
             if cyc:
-                ax.plot([_seconds(r, part) for r in cyc], [r["errors"][part]["rel_rmse"] for r in cyc], "o-", color="tab:red", label="Cycles (samples)")
+                ax.plot([_seconds(r, part) for r in cyc], [r["errors"][part]["rel_rmse"] for r in cyc], "o-", color="tab:red",
+                        label="Cycles (samples)")
                 for r in cyc:
                     ax.annotate(str(r["settings"]["samples"]), (_seconds(r, part), r["errors"][part]["rel_rmse"]), fontsize=7, color="tab:red")
             if cub:
-                ax.scatter([_seconds(r, part) for r in cub], [r["errors"][part]["rel_rmse"] for r in cub], color="tab:blue", s=18, label="CubeGI settings", zorder=3)
+                ax.scatter([_seconds(r, part) for r in cub], [r["errors"][part]["rel_rmse"] for r in cub], color="tab:blue", s=18,
+                           label="CubeGI settings", zorder=3)
             ax.set_xscale("log")
             ax.set_yscale("log")
             ax.grid(True, which="both", alpha=0.3)

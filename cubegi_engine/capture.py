@@ -72,7 +72,8 @@ class ProbeCapture:
         move with the geometry: take a new capture)."""
         fingerprint = scene.fingerprint()
         if (self.cube_size != int(cube_size) or self.visibility != bool(visibility) or not _same_grid(self.grid, grid)
-                or self.budget != budget or self.near_field != bool(near_field) or self.proxy is not None or not fingerprint.same_layout(self.fingerprint)
+                or self.budget != budget or self.near_field != bool(near_field) or self.proxy is not None
+                or not fingerprint.same_layout(self.fingerprint)
                 or not _same_sky(self.transport, scene)):
             return None
         moved = fingerprint.changed(self.fingerprint)

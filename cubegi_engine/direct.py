@@ -18,7 +18,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import cubemap, lights as lights_mod, nearfield, sh
+from . import cubemap, nearfield, sh
+from . import lights as lights_mod
 from .emitters import emitter_direct
 from .transport import capture_cubes, clip_planes
 

@@ -19,7 +19,8 @@ object at the area-shadow size.
 
 import numpy as np
 
-from . import cubemap, lights as lights_mod
+from . import cubemap
+from . import lights as lights_mod
 from .transport import capture_cubes, clip_planes
 
 __all__ = ["emissive_triangles", "emitter_direct", "SAMPLES"]

@@ -30,7 +30,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from . import sh
 from .convergence import gmres
 from .errors import BakeError
 from .lights import light_keys

@@ -7,7 +7,6 @@ import json
 import bpy
 import numpy as np
 import pytest
-
 import scenes
 from state import material_state, scene_state
 

@@ -8,9 +8,8 @@ import subprocess
 import sys
 
 import bpy
-import pytest
 import numpy as np
-
+import pytest
 import scenes
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))

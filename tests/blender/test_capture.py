@@ -5,11 +5,10 @@ import importlib
 
 import bpy
 import numpy as np
+import scenes
 
 from cubegi.cubegi_engine import cubemap, transport
 from cubegi.cubegi_engine.grid import ProbeGrid
-
-import scenes
 
 
 def _collect_and_renderer(cubegi):

@@ -14,7 +14,6 @@ import time
 import bpy
 import numpy as np
 import pytest
-
 import scenes
 
 pytest.importorskip("distributed")

@@ -18,10 +18,9 @@ import os
 import bpy
 import numpy as np
 import pytest
+import scenes
 
 from cubegi.cubegi_engine import metrics
-
-import scenes
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 RESULTS = os.path.join(ROOT, "out", "conformance.json")

@@ -12,10 +12,9 @@ import json
 import bpy
 import numpy as np
 import pytest
+import scenes
 
 from cubegi.cubegi_engine import metrics
-
-import scenes
 
 # Tolerances, and what limits them:
 # * direct light: CubeGI's formulas are exact for unshadowed light; the error left is

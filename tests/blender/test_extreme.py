@@ -5,7 +5,6 @@ import json
 import bpy
 import numpy as np
 import pytest
-
 import scenes
 
 

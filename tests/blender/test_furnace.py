@@ -8,7 +8,6 @@ import json
 import bpy
 import numpy as np
 import pytest
-
 import scenes
 
 # Uniform radiance is captured exactly by SH band 0. Measured: every vertex within 1e-5;

@@ -2,10 +2,9 @@
 ``tests/blender/data/golden_bakes.npz`` (see ``tests/blender/golden.py``): a restructuring of the code must
 not move the light."""
 
+import golden
 import numpy as np
 import pytest
-
-import golden
 
 # The bake is deterministic on one machine (two runs agree bit for bit); across machines and
 # GPU drivers float32 sums may be ordered differently, so allow a millionth of the scene's

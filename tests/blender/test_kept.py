@@ -11,7 +11,6 @@ import sys
 import bpy
 import numpy as np
 import pytest
-
 import scenes
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))

@@ -4,7 +4,6 @@ light in the left one only. Cycles puts exactly no light in the right room."""
 import bpy
 import numpy as np
 import pytest
-
 import scenes
 
 

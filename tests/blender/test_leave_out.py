@@ -6,7 +6,6 @@ import json
 
 import bpy
 import numpy as np
-
 import scenes
 
 SETTINGS = dict(cube_size=16, bounces=3)

@@ -5,7 +5,6 @@ colours them (the paper's bunny, moved from beside a red wall to a dark corner).
 import bpy
 import numpy as np
 import pytest
-
 import scenes
 
 SETTINGS = dict(grid=(4, 4, 3), cube_size=16, bounces=4)

@@ -3,7 +3,6 @@ as they were (forced here by making each stage raise)."""
 
 import bpy
 import pytest
-
 import scenes
 from state import scene_state as _state
 

@@ -5,7 +5,6 @@ scene gives, without drawing a probe; Live applies edits as the user makes them.
 import bpy
 import numpy as np
 import pytest
-
 import scenes
 
 # The one-shot bake's tail is solved by GMRES to a relative residual of 1e-5 (float32

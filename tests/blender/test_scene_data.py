@@ -4,7 +4,6 @@ modifiers, instances and objects hidden from render."""
 import bpy
 import numpy as np
 import pytest
-
 import scenes
 
 

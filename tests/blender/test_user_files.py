@@ -9,7 +9,6 @@ import sys
 
 import bpy
 import pytest
-
 import scenes
 from state import scene_state
 

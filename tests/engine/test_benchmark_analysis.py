@@ -6,6 +6,7 @@ import pytest
 
 from cubegi.cubegi_engine import benchmark
 
+
 def _rec(scene, method, seconds, err, **settings):
     errors = {part: {"rel_rmse": err, "rel_bias": 0.0, "p95_rel": err} for part in ("direct", "indirect", "total")}
     return {"scene": scene, "method": method, "settings": settings, "seconds": seconds, "errors": errors}

@@ -130,7 +130,6 @@ def test_the_voxel_search_finds_what_testing_every_triangle_finds():
     reach, rays = 0.4, 16
     near = nearfield.build(allp, alln, reach, tris + len(pts), rays=rays)
     expected = _brute_force_hits(pts, nrm, reach, allp, tris + len(pts), rays)
-    got = np.full((len(pts), rays), -1)
     hit_points = near.rows[near.hit_row]
     mine = hit_points < len(pts)
     # Which triangle each of the near field's hits is on: its corners name it.

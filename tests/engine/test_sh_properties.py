@@ -2,7 +2,8 @@
 rotates the output, and deringing leaves no negative light from non-negative radiance."""
 
 import numpy as np
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from cubegi.cubegi_engine import cubemap, sh

@@ -1,7 +1,7 @@
 """Animation bakes: every frame's light, each by the cheapest valid path, into a cache folder
 that other tools can read, and applied to the attributes when the frame changes.
 
-Cache format (documented in the README, "Dynamic scenes"): for ``OUT.blend`` the folder
+Cache format (documented in docs/user-guide.md#dynamic-scenes): for ``OUT.blend`` the folder
 ``OUT.cubegi/`` holds one ``frame_NNNN.npz`` per frame (four digits, zero-padded), with, for
 every baked object, the arrays ``"<object name>:direct"`` and ``"<object name>:indirect"``:
 float32, shape ``(vertices, 3)``, in vertex order, the values the attributes

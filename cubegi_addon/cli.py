@@ -63,9 +63,9 @@ def _bake_options(p, demo=False):
     d = BakeSettings()
     p.add_argument("--grid", nargs=3, type=int, metavar=("NX", "NY", "NZ"), help="probes along X, Y and Z")
     p.add_argument(
-        "--quality", choices=[q.lower() for q in QUALITY], default="balanced",
+        "--quality", choices=[q.lower() for q in QUALITY],
         help="a preset for --cells, --cube-size and --bounces (each still overrides it): draft (4 cells, 16, 3 bounces), "
-        "balanced (8, 16, 5: the default), final (12, 32, 5)",
+        "balanced (8, 16, 5), final (12, 32, 5). Every option not given takes the file's own CubeGI settings",
     )
     p.add_argument("--cells", type=int, help="cells along the longest side of a fitted grid (default: the preset's)")
     p.add_argument("--cube-size", type=int, help=f"cube-map face size in texels (default: the preset's, {d.cube_size})")
@@ -77,13 +77,13 @@ def _bake_options(p, demo=False):
     )
     p.add_argument("--no-tail", action="store_true", help="do not add the estimated light after the last bounce to CubeGI")
     p.add_argument(
-        "--capture-triangles", type=int, default=d.capture_triangles, metavar="N",
+        "--capture-triangles", type=int, metavar="N",
         help=f"the probes draw a simplified copy of the scene with at most about N triangles (0: the full scene; default "
         f"{d.capture_triangles:,}); direct light, shadows and the baked vertices use every triangle",
     )
     p.add_argument(
         "--no-near-field", action="store_true",
-        help="leave each vertex's near surroundings to the probes (no rays; see the README's accuracy section)",
+        help="leave each vertex's near surroundings to the probes (no rays; see docs/accuracy.md)",
     )
     p.add_argument(
         "--keep-probes-in-place", action="store_true",
@@ -93,11 +93,11 @@ def _bake_options(p, demo=False):
     p.add_argument(
         "--sky-per-vertex", action="store_true",
         help="shadow the sky at every vertex along its own lines of sight instead of through the probes (exact to a few "
-        "per cent; several times a small bake's time, growing with vertices; see the README's accuracy section)",
+        "per cent; several times a small bake's time, growing with vertices; see docs/accuracy.md)",
     )
     p.add_argument(
         "--no-energy-conservation", action="store_true",
-        help="leave each bounce's total as interpolated (for comparison; see the README)",
+        help="leave each bounce's total as interpolated (for comparison; see docs/accuracy.md)",
     )
     p.add_argument("--reference", choices=["cycles"], help="also bake a path-traced reference and report CubeGI's error against it")
     p.add_argument("--reference-samples", type=int, default=256, help="Cycles samples for --reference (default 256)")
@@ -120,9 +120,11 @@ def _cluster_options(p):
 
 
 def _forwarded(args):
-    """The bake options of ``args`` as command-line words, for the bakes a cluster runs."""
-    words = ["--quality", args.quality, "--capture-triangles", str(args.capture_triangles)]
-    for flag, value in (("--cells", args.cells), ("--cube-size", args.cube_size), ("--bounces", args.bounces)):
+    """The bake options given in ``args`` as command-line words, for the bakes a cluster runs
+    (each bake takes the rest from its file)."""
+    words = ["--quality", args.quality] if args.quality else []
+    for flag, value in (("--cells", args.cells), ("--cube-size", args.cube_size), ("--bounces", args.bounces),
+                        ("--capture-triangles", args.capture_triangles)):
         if value is not None:
             words += [flag, str(value)]
     if args.grid:
@@ -166,25 +168,58 @@ def cmd_batch(args):
         raise BakeError(f"{sum(r['status'] == 'failed' for r in summary['files'])} of {len(summary['files'])} files failed; the rest are baked")
 
 
+def _given(args):
+    """The bake settings the arguments set (name -> value); a file's own settings give the rest."""
+    given = {k: v for k, v in (("quality", args.quality), ("cells", args.cells), ("cube_size", args.cube_size),
+                               ("bounces", args.bounces), ("tolerance", args.tolerance),
+                               ("capture_triangles", args.capture_triangles)) if v is not None}
+    for name, off in (("visibility", args.no_visibility), ("add_tail", args.no_tail), ("near_field", args.no_near_field),
+                      ("move_probes", args.keep_probes_in_place)):
+        if off:
+            given[name] = False
+    if args.sky_per_vertex:
+        given["sky_per_vertex"] = True
+    return given
+
+
+def _validated(make):
+    """``make()``'s BakeSettings, validated; a BakeError names the option."""
+    try:
+        return make().validate()
+    except BakeError as exc:
+        option = f"--{exc.setting.replace('_', '-')}: " if getattr(exc, "setting", None) else ""
+        raise BakeError(f"{option}{exc}") from None
+
+
 def _settings(args):
-    """The bake settings of the arguments, validated (a BakeError names the option)."""
+    """The arguments checked before Blender starts: the settings they give over the defaults,
+    validated (a BakeError names the option)."""
     if args.grid is not None and min(args.grid) < 1:
         raise BakeError(f"--grid needs three integers >= 1, got {' '.join(map(str, args.grid))}")
     if args.reference and args.reference_samples < 1:
         raise BakeError(f"--reference-samples must be 1 or more, got {args.reference_samples}")
-    given = {k: v for k, v in (("cells", args.cells), ("cube_size", args.cube_size), ("bounces", args.bounces)) if v is not None}
-    try:
-        settings = BakeSettings.preset(
-            args.quality, visibility=not args.no_visibility, tolerance=args.tolerance, add_tail=not args.no_tail,
-            conserve_energy=not args.no_energy_conservation, capture_triangles=args.capture_triangles or None,
-            near_field=not args.no_near_field, move_probes=not args.keep_probes_in_place,
-            sky_per_vertex=args.sky_per_vertex, **given,
-        )
-        settings.validate()
-    except BakeError as exc:
-        option = f"--{exc.setting.replace('_', '-')}: " if getattr(exc, "setting", None) else ""
-        raise BakeError(f"{option}{exc}") from None
-    return settings
+    given = _given(args)
+    quality = given.pop("quality", "balanced")
+    if given.get("capture_triangles") == 0:
+        given["capture_triangles"] = None
+    return _validated(lambda: BakeSettings.preset(quality, conserve_energy=not args.no_energy_conservation, **given))
+
+
+def _file_settings(bpy, args):
+    """The settings of a bake of the open file: the arguments given, then the file's own
+    CubeGI settings (Quality, Near Field, ...). Shadow-map sizes are BakeSettings' (not this
+    machine's Preferences, which would bake one file differently on two machines)."""
+    from . import props
+
+    return _validated(lambda: props.bake_settings(bpy.context.scene, _given(args), conserve_energy=not args.no_energy_conservation))
+
+
+def _file_lit(bpy, args):
+    """The lit colour to write: ``--lit``'s, else the file's Lit Colour setting (None: none)."""
+    if getattr(args, "lit", None):
+        return args.lit.upper()
+    lit = bpy.context.scene.cubegi.lit
+    return None if lit == "NONE" else lit
 
 
 def _check_input(path):
@@ -277,7 +312,7 @@ def cmd_bake(args):
 
     _open_for_baking(bpy, src)
     _mark_dynamic(bpy, args.dynamic)
-    lit = args.lit.upper() if args.lit else None
+    settings, lit = _file_settings(bpy, args), _file_lit(bpy, args)
     report = pipeline.bake(bpy.context, settings, tuple(args.grid) if args.grid else None, lit=lit,
                            reference_samples=args.reference_samples if args.reference else None, progress=_print_progress)
     report.input, report.output = src, dst
@@ -317,7 +352,7 @@ def cmd_bake_animation(args):
     _mark_dynamic(bpy, args.dynamic)
     scene = bpy.context.scene
     first, last = args.frames or (scene.frame_start, scene.frame_end)
-    lit = args.lit.upper() if args.lit else None
+    settings, lit = _file_settings(bpy, args), _file_lit(bpy, args)
     result = run(bake_animation_steps(bpy.context, settings, range(first, last + 1), folder,
                                       tuple(args.grid) if args.grid else None, lit), _print_progress)
     scene.cubegi.animation_cache = folder

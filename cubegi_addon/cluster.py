@@ -13,7 +13,7 @@ finished outputs whole and no half-written file; a second run skips what is done
 Run from the source tree (the command line): imports no bpy; needs ``dask`` and
 ``distributed``. A task is ``subprocess.run`` of a command line, so a worker imports
 nothing of CubeGI: it needs this source tree at the same path, its Python (the venv with
-bpy) and EGL for the GPU module (see the README, "Baking on a cluster").
+bpy) and EGL for the GPU module (see docs/command-line.md#baking-on-a-cluster).
 """
 
 import json

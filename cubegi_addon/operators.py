@@ -7,7 +7,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, In
 from bpy_extras.io_utils import ExportHelper
 
 from ..cubegi_engine.errors import BakeError
-from ..cubegi_engine.settings import MAX_BOUNCES, MAX_CELLS, MAX_CUBE_SIZE, MIN_CUBE_SIZE, QUALITY, BakeSettings
+from ..cubegi_engine.settings import MAX_BOUNCES, MAX_CELLS, MAX_CUBE_SIZE, MIN_CUBE_SIZE, BakeSettings
 from . import animation, attributes, display, export, files, grid_objects, live, materials, pipeline, prefs, probe_view, props, session
 
 # Seconds between the modal bake's steps: often enough to feel live, rarely enough that
@@ -16,24 +16,10 @@ MODAL_STEP_SECONDS = 0.05
 
 
 def _settings_from(op, scene):
-    s = scene.cubegi
-    quality = op.quality if hasattr(op, "quality") and op.properties.is_property_set("quality") else None
-    preset = QUALITY[quality] if quality else {}
-
-    def pick(name):  # the operator's, then its preset's, then the scene's
-        if hasattr(op, name) and op.properties.is_property_set(name):
-            return getattr(op, name)
-        return preset[name] if name in preset else getattr(s, name)
-
-    tolerance = pick("tolerance")
-    budget = pick("capture_triangles")
-    return BakeSettings(
-        cube_size=pick("cube_size"), bounces=pick("bounces"), cells=pick("cells"), visibility=pick("visibility"),
-        tolerance=tolerance if tolerance > 0 else None, add_tail=pick("add_tail"),
-        capture_triangles=budget if budget > 0 else None, near_field=pick("near_field"), move_probes=pick("move_probes"),
-        sky_per_vertex=pick("sky_per_vertex"),
-        **prefs.capture_settings(),
-    )
+    """The operator's settings where the call set them, else the scene's (props.bake_settings)."""
+    given = {name: getattr(op, name) for name in (*props.BAKE_FIELDS, "quality")
+             if hasattr(op, name) and op.properties.is_property_set(name)}
+    return props.bake_settings(scene, given, **prefs.capture_settings())
 
 
 class StepJob:

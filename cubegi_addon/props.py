@@ -20,6 +20,26 @@ QUALITY_ITEMS = (
 )
 
 
+# The scene settings a bake reads (BakeSettings fields of the same names).
+BAKE_FIELDS = ("cube_size", "bounces", "cells", "visibility", "tolerance", "add_tail", "capture_triangles", "near_field",
+               "move_probes", "sky_per_vertex")
+
+
+def bake_settings(scene, given=None, **fixed):
+    """The BakeSettings a bake of ``scene`` uses: the values in ``given`` (name -> value, what
+    an operator call or the command line set), then those of a ``quality`` preset among
+    them, then the scene's own CubeGI settings, which are saved in the file. ``fixed``: other
+    BakeSettings fields. Tolerance and Capture Triangles of 0 mean none."""
+    given = dict(given or {})
+    quality = given.pop("quality", None)
+    preset = QUALITY[str(quality).upper()] if quality else {}
+    s = scene.cubegi
+    values = {name: given[name] if name in given else preset[name] if name in preset else getattr(s, name) for name in BAKE_FIELDS}
+    values["tolerance"] = values["tolerance"] or None
+    values["capture_triangles"] = values["capture_triangles"] or None
+    return BakeSettings(**values, **fixed)
+
+
 def _apply_quality(settings, context):
     """Write the chosen preset's values into the settings (they stay editable)."""
     for name, value in QUALITY[settings.quality].items():

@@ -13,7 +13,7 @@ against the samples on its side of each sample's face, weighted as an area light
 
 Cost: one form factor per emissive triangle and point (emissive triangles are merged per
 object and material-free: thousands of tiny emissive triangles cost thousands of passes over
-the points; see the README's accuracy section), and ``SAMPLES`` cube maps per emissive
+the points; see docs/accuracy.md), and ``SAMPLES`` cube maps per emissive
 object at the area-shadow size.
 """
 

@@ -1,7 +1,7 @@
 """A bake's report: a typed record, its JSON (strict: no NaN or Inf) and a few lines of text
 for the command line and the panel. Pure Python; must not import bpy.
 
-The JSON layout (``to_dict``) is the report file's documented format (README, "Reports").
+The JSON layout (``to_dict``) is the report file's documented format (docs/report-format.md).
 """
 
 import json

@@ -16,7 +16,7 @@ MIN_CAPTURE_TRIANGLES = 1000
 MAX_CELLS = 64
 
 # Quality presets: cells along the longest side of a fitted grid, cube-map size and bounces
-# (the tail adds the rest). From the benchmark's error-time front (README, *Error against
+# (the tail adds the rest). From the benchmark's error-time front (docs/accuracy.md, *Error against
 # run time*): 16^2 faces are on the front in every scene, 32^2 cost twice the capture for a
 # point or two of error; 4 cells give the best speed-up over Cycles, 12 the lowest error.
 # BALANCED is BakeSettings' default.
@@ -67,7 +67,7 @@ class BakeSettings:
     # The sky's direct light per vertex, along SKY_PER_VERTEX_DIRECTIONS lines of sight of
     # its own (:func:`cubegi_engine.direct.sky_direct`), instead of through the probes: the
     # sky's shadows exact to within a few per cent, at a cost that grows with vertices x
-    # directions (see README, *Accuracy against Cycles*).
+    # directions (see docs/accuracy.md#accuracy-against-cycles).
     sky_per_vertex: bool = False
 
     def validate(self) -> "BakeSettings":

@@ -217,3 +217,36 @@ def test_cli_quality_presets_set_what_is_not_given(saved_scene, tmp_path):
     assert balanced["move_probes"] is True and got["probes in place"]["settings"]["move_probes"] is False
     assert got["probes in place"]["grid"].get("probes_moved") is None
     assert balanced["sky_per_vertex"] is False and got["sky per vertex"]["settings"]["sky_per_vertex"] is True
+
+
+def test_the_command_line_bakes_with_the_files_own_settings_unless_an_option_overrides(saved_scene, tmp_path, cubegi):
+    """A file saved with Quality Final, Near Field off and Lit Colour on: `bake` and
+    `bake-animation` with no options bake it so (before: Balanced, with the near field, no
+    lit colour); an option given wins over the file."""
+    import json
+
+    src, _ = saved_scene
+    bpy.ops.wm.open_mainfile(filepath=str(src))
+    s = bpy.context.scene.cubegi
+    s.quality = "FINAL"  # sets its cells, cube size and bounces
+    s.near_field = False
+    s.lit = "ALL"
+    s.bounces = 2  # edited after the preset, as a user may
+    bpy.ops.wm.save_as_mainfile(filepath=str(src))
+    runs = {"file": ("bake", []), "overridden": ("bake", ["--quality", "draft", "--lit", "indirect"]),
+            "animation": ("bake-animation", ["--frames", "1", "1"])}
+    got = {}
+    for name, (command, extra) in runs.items():
+        report, out = tmp_path / f"{name}.json", tmp_path / f"{name}.blend"
+        r = _cli(command, str(src), "-o", str(out), "--report", str(report), *extra)
+        assert r.returncode == 0, r.stderr
+        got[name] = json.loads(report.read_text())
+        bpy.ops.wm.open_mainfile(filepath=str(out))
+        got[name]["lit"] = "CubeGI_lit" in bpy.data.objects["Room"].data.attributes
+    file_settings = got["file"]["settings"]
+    assert (file_settings["cells"], file_settings["cube_size"], file_settings["bounces"]) == (12, 32, 2)
+    assert file_settings["near_field"] is False and got["file"]["lit"]
+    over = got["overridden"]["settings"]
+    assert (over["cells"], over["cube_size"], over["bounces"]) == (4, 16, 3) and over["near_field"] is False
+    assert got["overridden"]["lit"]
+    assert got["animation"]["frames"][0]["probes"] == got["file"]["grid"]["probes"] and got["animation"]["lit"]

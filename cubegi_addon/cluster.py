@@ -16,6 +16,7 @@ nothing of CubeGI: it needs this source tree at the same path, its Python (the v
 bpy) and EGL for the GPU module (see docs/command-line.md#baking-on-a-cluster).
 """
 
+import hashlib
 import json
 import math
 import os
@@ -25,6 +26,7 @@ import sys
 import tempfile
 import time
 
+from ..cubegi_engine import __version__
 from ..cubegi_engine.errors import BakeError
 from . import files
 
@@ -41,6 +43,8 @@ MIN_FRAMES_PER_CHUNK = 8
 RETRIES = 2
 # Seconds between the progress lines a job prints.
 PROGRESS_SECONDS = 5.0
+# The field of a bake's report that holds what it was made from (job_key).
+KEY_FIELD = "batch_key"
 
 
 def _client(workers=None, scheduler=None):
@@ -137,16 +141,40 @@ def _record(src, out_dir, status, error=None):
     return rec
 
 
-def _done_before(src, out_dir):
-    """True if ``src``'s output and report exist, name it, and are newer than it (resume)."""
+def job_key(src, options):
+    """What a file's bake was made from: the input's content (SHA-256 of its bytes, not its
+    time), the bake options and CubeGI's version. A batch skips a file only while this is
+    unchanged; images or libraries the file links to are not part of it."""
+    digest = hashlib.sha256()
+    with open(src, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return {"input_sha256": digest.hexdigest(), "options": list(options), "cubegi_version": __version__}
+
+
+def _done_before(src, out_dir, key):
+    """True if ``src``'s output and report exist and its report carries ``key`` (resume)."""
     out, report = _paths(src, out_dir)
     try:
         with open(report) as fh:
             data = json.load(fh)
-        return (data.get("input") == os.path.realpath(src) and os.path.isfile(out)
-                and os.path.getmtime(report) >= os.path.getmtime(src) and os.path.getmtime(out) >= os.path.getmtime(src))
+        return data.get("input") == os.path.realpath(src) and os.path.isfile(out) and data.get(KEY_FIELD) == key
     except (OSError, ValueError, KeyError):
         return False
+
+
+def _stamp(report, key):
+    """Add ``key`` to a finished bake's report (written whole, as every CubeGI file)."""
+    with open(report) as fh:
+        data = json.load(fh)
+    data[KEY_FIELD] = key
+    text = json.dumps(data, indent=2, allow_nan=False)
+    files.write_all([(report, lambda tmp: _write(tmp, text))])
+
+
+def _write(path, text):
+    with open(path, "w") as fh:
+        fh.write(text)
 
 
 def batch(inputs, out_dir, options, workers=None, scheduler=None, log=print):
@@ -159,8 +187,9 @@ def batch(inputs, out_dir, options, workers=None, scheduler=None, log=print):
         raise BakeError(f"two inputs would write the same output name: {', '.join(twice)}; rename one")
     t0 = time.perf_counter()
     records, todo = {}, []
-    for src in map(os.path.realpath, inputs):
-        if _done_before(src, out_dir):
+    keys = {src: job_key(src, options) for src in map(os.path.realpath, inputs)}
+    for src in keys:
+        if _done_before(src, out_dir, keys[src]):
             records[src] = _record(src, out_dir, "skipped")
         else:
             todo.append(src)
@@ -173,7 +202,10 @@ def batch(inputs, out_dir, options, workers=None, scheduler=None, log=print):
                        for src in todo]
             _wait(futures, lambda m: log(f"batch: {m}"))
             for src, fut in zip(todo, futures):
-                records[src] = _record(src, out_dir, *_outcome(fut))
+                status, error = _outcome(fut)
+                if status == "done":
+                    _stamp(_paths(src, out_dir)[1], keys[src])
+                records[src] = _record(src, out_dir, status, error)
         finally:
             _close(client, cluster)
     summary = {"files": [records[os.path.realpath(f)] for f in inputs], "seconds": round(time.perf_counter() - t0, 3),

@@ -77,13 +77,20 @@ def test_a_batch_equals_one_machine_bakes_and_a_bad_file_stops_nothing(three_fil
         alone = tmp_path / f"alone{k}.blend"
         assert _cli("bake", path, "-o", alone, *FAST).returncode == 0
         _same(_attributes(out / f"scene{k}.blend"), _attributes(alone), SAME_TOL)
-    # A second run resumes: done files are skipped, a changed input is baked again.
+    # A second run resumes: a file is skipped while its content and the options are what its
+    # bake was made from (a touched file is unchanged), baked again when either changed.
+    def run(*options):
+        r = _cli("batch", *paths, "--out-dir", out, "--workers", "2", *options)
+        assert r.returncode == 0, r.stderr
+        return {os.path.basename(f["file"]): f["status"] for f in json.loads((out / "batch.json").read_text())["files"]}
+
     time.sleep(1.1)
-    os.utime(paths[1])
-    r = _cli("batch", *paths, "--out-dir", out, "--workers", "2", *FAST)
-    assert r.returncode == 0, r.stderr
-    status = {os.path.basename(f["file"]): f["status"] for f in json.loads((out / "batch.json").read_text())["files"]}
-    assert status == {"scene0.blend": "skipped", "scene1.blend": "done", "scene2.blend": "skipped"}
+    os.utime(paths[0])  # newer, same content
+    bpy.ops.wm.open_mainfile(filepath=str(paths[1]))
+    next(o for o in bpy.data.objects if o.type == "MESH").location.x += 0.01  # the content changes, not only the time
+    bpy.ops.wm.save_as_mainfile(filepath=str(paths[1]))
+    assert run(*FAST) == {"scene0.blend": "skipped", "scene1.blend": "done", "scene2.blend": "skipped"}
+    assert run(*FAST[:-1], "1") == {"scene0.blend": "done", "scene1.blend": "done", "scene2.blend": "done"}  # other options
     assert not [n for n in os.listdir(out) if n.startswith(".cubegi-") or n.endswith(".blend1")]  # nothing half-written
 
 

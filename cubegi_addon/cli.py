@@ -149,7 +149,15 @@ def cmd_batch(args):
     _settings(args)
     if args.workers is not None and args.workers < 1:
         raise BakeError(f"--workers must be 1 or more, got {args.workers}")
-    inputs = [_check_input(f)[0] for f in args.inputs]
+    # A file that cannot be baked (missing, not a .blend) is reported in the summary, as a
+    # file that fails to bake is; the others are baked.
+    inputs, refused = [], {}
+    for f in args.inputs:
+        try:
+            inputs.append(_check_input(f)[0])
+        except BakeError as exc:
+            inputs.append(os.path.realpath(f))
+            refused[inputs[-1]] = str(exc)
     out_dir = os.path.abspath(args.out_dir)
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise BakeError(f"--out-dir {args.out_dir!r} is a file; give a folder")
@@ -160,7 +168,7 @@ def cmd_batch(args):
     from . import cluster
 
     summary = cluster.batch(inputs, out_dir, _forwarded(args), workers=args.workers or (None if args.scheduler else 2),
-                            scheduler=args.scheduler, log=lambda m: print(f"cubegi: {m}", flush=True))
+                            scheduler=args.scheduler, log=lambda m: print(f"cubegi: {m}", flush=True), refused=refused)
     for line in cluster.summary_lines(summary):
         print(f"cubegi: {line}", flush=True)
     print(f"cubegi: wrote {os.path.join(out_dir, 'batch.json')}", flush=True)

@@ -45,6 +45,7 @@ RETRIES = 2
 PROGRESS_SECONDS = 5.0
 # The field of a bake's report that holds what it was made from (job_key).
 KEY_FIELD = "batch_key"
+SUMMARY = "batch.json"
 
 
 def _client(workers=None, scheduler=None):
@@ -177,17 +178,25 @@ def _write(path, text):
         fh.write(text)
 
 
-def batch(inputs, out_dir, options, workers=None, scheduler=None, log=print):
+def batch(inputs, out_dir, options, workers=None, scheduler=None, log=print, refused=None):
     """Bake every file of ``inputs`` into ``out_dir`` (``name.blend``, ``name.json``); returns
-    the summary and writes it to ``out_dir/batch.json``."""
+    the summary and writes it to ``out_dir/batch.json``. ``refused``: {input: why} of inputs
+    that cannot be baked (reported as failed, as is an input whose report would be the
+    summary); the others are baked."""
     os.makedirs(out_dir, exist_ok=True)
     names = [os.path.splitext(os.path.basename(f))[0] for f in inputs]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise BakeError(f"two inputs would write the same output name: {', '.join(twice)}; rename one")
+    refused = {os.path.realpath(k): v for k, v in (refused or {}).items()}
+    for src in map(os.path.realpath, inputs):
+        if _paths(src, out_dir)[1] == os.path.join(out_dir, SUMMARY):
+            refused.setdefault(src, f"its report would be the batch's summary {SUMMARY}; rename the file")
     t0 = time.perf_counter()
     records, todo = {}, []
-    keys = {src: job_key(src, options) for src in map(os.path.realpath, inputs)}
+    for src, why in refused.items():
+        records[src] = _record(src, out_dir, "failed", why)
+    keys = {src: job_key(src, options) for src in map(os.path.realpath, inputs) if src not in refused}
     for src in keys:
         if _done_before(src, out_dir, keys[src]):
             records[src] = _record(src, out_dir, "skipped")
@@ -211,7 +220,7 @@ def batch(inputs, out_dir, options, workers=None, scheduler=None, log=print):
     summary = {"files": [records[os.path.realpath(f)] for f in inputs], "seconds": round(time.perf_counter() - t0, 3),
                "workers": None if scheduler else int(workers or 2), "scheduler": scheduler}
     text = json.dumps(summary, indent=2, allow_nan=False)
-    files.write_all([(os.path.join(out_dir, "batch.json"), lambda tmp: open(tmp, "w").write(text))])
+    files.write_all([(os.path.join(out_dir, SUMMARY), lambda tmp: _write(tmp, text))])
     return summary
 
 

@@ -65,13 +65,22 @@ def _same(a, b, tol):
 def test_a_batch_equals_one_machine_bakes_and_a_bad_file_stops_nothing(three_files, tmp_path):
     paths, broken = three_files
     out = tmp_path / "out"
-    r = _cli("batch", *paths, broken, "--out-dir", out, "--workers", "2", *FAST)
-    assert r.returncode == 2, r.stderr  # one file failed: reported, the rest baked
+    # Inputs that cannot be baked: a truncated .blend, a file that is no .blend, one named like
+    # the summary. Each is reported; the rest are baked (one rule for every bad input).
+    not_blend = tmp_path / "notes.txt"
+    not_blend.write_text("not a blend file")
+    named_batch = tmp_path / "batch.blend"
+    named_batch.write_bytes(paths[0].read_bytes())
+    r = _cli("batch", *paths, broken, not_blend, named_batch, "--out-dir", out, "--workers", "2", *FAST)
+    assert r.returncode == 2, r.stderr  # files failed: reported, the rest baked
     summary = json.loads((out / "batch.json").read_text())
     status = {os.path.basename(f["file"]): f["status"] for f in summary["files"]}
-    assert status == {"scene0.blend": "done", "scene1.blend": "done", "scene2.blend": "done", "broken.blend": "failed"}
-    failed = next(f for f in summary["files"] if f["status"] == "failed")
-    assert "cannot read the input" in failed["error"] and "broken.blend: cannot read the input" in r.stdout
+    assert status == {"scene0.blend": "done", "scene1.blend": "done", "scene2.blend": "done", "broken.blend": "failed",
+                      "notes.txt": "failed", "batch.blend": "failed"}
+    errors = {os.path.basename(f["file"]): f["error"] for f in summary["files"] if f["status"] == "failed"}
+    assert "cannot read the input" in errors["broken.blend"] and "broken.blend: cannot read the input" in r.stdout
+    assert "not a .blend file" in errors["notes.txt"] and "batch.json" in errors["batch.blend"]
+    assert "3 of 6 files failed" in r.stderr
     assert all(f["probes"] == 18 and f["seconds"] > 0 for f in summary["files"] if f["status"] == "done")
     for k, path in enumerate(paths):
         alone = tmp_path / f"alone{k}.blend"

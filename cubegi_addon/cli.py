@@ -449,6 +449,11 @@ def main(argv=None):
     except KeyboardInterrupt:
         print("cubegi: interrupted; nothing was written", file=sys.stderr)
         return 130
+    except MemoryError:  # the scene is larger than this machine's memory: the user's situation, not a defect
+        print("cubegi: error: out of memory: the scene is too large for this machine at these settings; bake with fewer "
+              "probes (--quality draft, --cells), a smaller --capture-triangles, or on a machine with more memory; "
+              "nothing was written", file=sys.stderr)
+        return 2
     except Exception as exc:  # a defect: one line, the traceback on request
         if os.environ.get(DEBUG_ENV):
             raise

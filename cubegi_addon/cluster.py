@@ -45,6 +45,8 @@ RETRIES = 2
 PROGRESS_SECONDS = 5.0
 # The field of a bake's report that holds what it was made from (job_key).
 KEY_FIELD = "batch_key"
+# Seconds to wait for a scheduler to answer before the batch is refused.
+SCHEDULER_TIMEOUT = 10
 SUMMARY = "batch.json"
 
 
@@ -56,7 +58,12 @@ def _client(workers=None, scheduler=None):
     except ImportError:
         raise BakeError("baking on a cluster needs dask and distributed: pip install dask distributed") from None
     if scheduler:
-        return Client(scheduler), None
+        try:
+            return Client(scheduler, timeout=SCHEDULER_TIMEOUT), None
+        except (OSError, TimeoutError, ValueError) as exc:  # the user's address or network, not a CubeGI defect
+            reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise BakeError(f"cannot reach the Dask scheduler at {scheduler} ({reason}); start it (dask scheduler) or "
+                            "check the address") from None
     cluster = LocalCluster(n_workers=int(workers or 2), threads_per_worker=1, processes=True, dashboard_address=None)
     return Client(cluster), cluster
 

@@ -7,12 +7,16 @@ Cycles) and is skipped where bpy is missing. Blender's user folder is redirected
 temporary one so the tests never touch the user's configuration.
 """
 
+import atexit
 import os
+import shutil
 import sys
 import tempfile
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="cubegi-test-user-"))
+if "BLENDER_USER_RESOURCES" not in os.environ:
+    os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp(prefix="cubegi-test-user-")
+    atexit.register(shutil.rmtree, os.environ["BLENDER_USER_RESOURCES"], ignore_errors=True)
 sys.path.insert(0, ROOT)
 
 from cubegi_engine.__main__ import load_extension  # noqa: E402

@@ -250,3 +250,22 @@ def test_the_command_line_bakes_with_the_files_own_settings_unless_an_option_ove
     assert (over["cells"], over["cube_size"], over["bounces"]) == (4, 16, 3) and over["near_field"] is False
     assert got["overridden"]["lit"]
     assert got["animation"]["frames"][0]["probes"] == got["file"]["grid"]["probes"] and got["animation"]["lit"]
+
+
+def test_running_out_of_memory_is_refused_in_one_line_and_writes_nothing(saved_scene, tmp_path, cubegi, monkeypatch, capsys):
+    """A scene too large for the machine's memory is the user's situation: status 2 and one
+    line saying what to do, not a defect's status 3 (the bake's allocation fails as
+    MemoryError; here the pipeline raises it, as numpy does on a huge array)."""
+    src, _ = saved_scene
+    out = tmp_path / "out.blend"
+
+    def too_large(*args, **kwargs):
+        raise MemoryError("Unable to allocate 93.1 GiB for an array with shape (1000000, 6144, 4)")
+
+    monkeypatch.setattr(cubegi.cubegi_addon.pipeline, "bake", too_large)
+    import cubegi.cubegi_addon.cli as cli
+
+    assert cli.main(["bake", str(src), "-o", str(out)]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and "out of memory" in err[0] and "please report" not in err[0], err
+    assert not out.exists()

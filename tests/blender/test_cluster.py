@@ -165,3 +165,18 @@ def test_an_animation_in_chunks_gives_the_one_machine_cache(empty_scene, cubegi,
     assert not [n for n in os.listdir(many.parent) if n.startswith(".cubegi-")]
     bpy.ops.wm.open_mainfile(filepath=str(many))
     assert bpy.context.scene.cubegi.animation_cache == "//out.cubegi"
+
+
+def test_an_unreachable_scheduler_is_refused_in_one_line(three_files, tmp_path):
+    """A scheduler address where nothing listens is the user's situation: status 2 and one
+    line saying what to do (before: status 3 and "please report it")."""
+    paths, _ = three_files
+    import socket
+
+    with socket.socket() as s:  # a free port on this machine, closed again: nothing listens there
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    r = _cli("batch", paths[0], "--out-dir", tmp_path / "out", "--scheduler", f"tcp://127.0.0.1:{port}", *FAST)
+    assert r.returncode == 2, r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "cannot reach the Dask scheduler" in lines[0] and "please report" not in lines[0], r.stderr

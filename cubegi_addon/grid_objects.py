@@ -137,13 +137,10 @@ def _padded(lo, hi, scale):
 
 
 def grids_of(grid):
-    """The ProbeGrids of a ProbeGrid or GridSet (or of the whole grid under a probe subset
-    that keeps every probe), and each one's first probe index."""
-    if hasattr(grid, "keep"):
-        grid = grid.grid
-    if isinstance(grid, GridSet):
-        return grid.grids, tuple(int(o) for o in grid.offsets)
-    return (grid,), (0,)
+    """The ProbeGrids of a grid (of the whole grid under a probe subset), and each one's
+    first probe index."""
+    parts = grid.parts()
+    return tuple(g for g, _ in parts), tuple(first for _, first in parts)
 
 
 def grid_report(grid):
@@ -156,12 +153,14 @@ def grid_report(grid):
 def store_probe_light(objects, probe_field):
     """Keep each grid object's share of a bake's probe field (grids in ``objects`` order)."""
     grids, offsets = grids_of(probe_field.grid)
-    moved = getattr(probe_field.grid, "offsets", None)  # a whole field's moved probes, if any
+    # A whole field's probes, each where the bake placed it (zeros: at its cell centre). A
+    # grid set's first probe indices were once read here as moves: a bogus property.
+    moved = probe_field.grid.displacements()
     for ob, g, start in zip(objects, grids, offsets):
         ob[LIGHT_KEY] = np.asarray(probe_field.coeffs[start : start + g.count], dtype=np.float64).ravel().tolist()
         ob[VALID_KEY] = [int(v) for v in probe_field.valid[start : start + g.count]]
-        mine = None if moved is None else moved[start : start + g.count]
-        if mine is not None and np.any(mine):
+        mine = moved[start : start + g.count]
+        if np.any(mine):
             ob[OFFSET_KEY] = np.asarray(mine, dtype=np.float64).ravel().tolist()
         elif OFFSET_KEY in ob:
             del ob[OFFSET_KEY]

@@ -150,7 +150,7 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
         used = placement.keep
         timings["placement"] = placement.seconds
     if not used.all() or (placement is not None and placement.moved):
-        grid = ProbeSubset(grid, used, None if placement is None else placement.offsets)
+        grid = ProbeSubset(grid, used, None if placement is None else placement.displacement)
     total = 3 + settings.bounces
 
     budget = settings.capture_triangles

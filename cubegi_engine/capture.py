@@ -146,8 +146,10 @@ def _same_sky(transport, scene) -> bool:
 
 
 def _same_grid(a, b) -> bool:
-    if hasattr(a, "keep") or hasattr(b, "keep"):  # probe subsets
-        return (hasattr(a, "keep") and hasattr(b, "keep") and np.array_equal(a.keep, b.keep)
-                and np.array_equal(a.positions(), b.positions()) and _same_grid(a.grid, b.grid))
-    ga, gb = getattr(a, "grids", (a,)), getattr(b, "grids", (b,))
+    """Whether grids ``a`` and ``b`` number the same probes at the same places."""
+    a_subset, b_subset = a.whole() is not a, b.whole() is not b
+    if a_subset or b_subset:  # probe subsets
+        return (a_subset and b_subset and np.array_equal(a.kept(), b.kept())
+                and np.array_equal(a.positions(), b.positions()) and _same_grid(a.whole(), b.whole()))
+    ga, gb = [g for g, _ in a.parts()], [g for g, _ in b.parts()]
     return len(ga) == len(gb) and all(x == y for x, y in zip(ga, gb))

@@ -124,12 +124,12 @@ class ProbeField:
         """This field on its whole grid: a field of a probe subset (a bake that left out the
         probes no point uses) with the left-out probes as invalid and dark."""
         grid = self.grid
-        if not hasattr(grid, "expand"):
+        if grid.whole() is grid:
             return self
         source = None if self.source_coeffs is None else grid.expand(self.source_coeffs)
-        whole = grid.grid
-        if grid.offsets is not None:  # moved probes keep their places
-            whole = ProbeSubset(grid.grid, np.ones(grid.grid.count, dtype=bool), grid.expand(grid.offsets, 0.0))
+        whole = grid.whole()
+        if np.any(grid.displacements()):  # moved probes keep their places
+            whole = ProbeSubset(whole, np.ones(whole.count, dtype=bool), grid.expand(grid.displacements(), 0.0))
         return ProbeField(whole, grid.expand(self.coeffs), grid.expand(self.valid, False), source)
 
     @property

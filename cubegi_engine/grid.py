@@ -6,6 +6,17 @@ Probes sit at the centres of the ``nx x ny x nz`` cells that divide the grid's b
 the paper ("render a cube map at the center of each volume"). Probe ``(ix, iy, iz)`` has the
 flat index ``ix + nx * (iy + ny * iz)``. A point outside the box of probe centres takes the
 nearest face of that box (clamped trilinear), so every point gets weights summing to 1.
+
+Three kinds of grid share one protocol, so callers never ask which kind they hold:
+:class:`ProbeGrid` (one box), :class:`GridSet` (several, each point using one) and
+:class:`ProbeSubset` (the probes of either that a bake captures). Each has ``count``,
+``positions()``, ``trilinear(points)``, ``point_cell_edge(points)`` and:
+
+- ``parts()``: ``[(ProbeGrid, first probe index)]``, its boxes in probe order;
+- ``whole()``: the grid whose probes it numbers a subset of (itself if none);
+- ``kept()``: the indices of the whole grid's probes it holds, in its order;
+- ``displacements()``: ``(count, 3)``, where each probe was moved from its cell centre;
+- ``uniform_cell()``: the cell size ``(3,)`` where every probe has the same, else None.
 """
 
 from dataclasses import dataclass
@@ -53,6 +64,22 @@ class ProbeGrid:
     def point_cell_edge(self, points):
         """The smallest cell edge of the grid each point uses, ``(s,)`` float64."""
         return np.full(len(points), float(np.min(self.cell_size)))
+
+    # The Grid protocol (see the module docstring), for every kind of grid alike.
+    def parts(self):
+        return [(self, 0)]
+
+    def whole(self):
+        return self
+
+    def kept(self):
+        return np.arange(self.count)
+
+    def displacements(self):
+        return np.zeros((self.count, 3))
+
+    def uniform_cell(self):
+        return self.cell_size
 
     def positions(self):
         """Probe centres ``(count, 3)`` float64, x fastest."""
@@ -108,8 +135,23 @@ class GridSet:
         if not self.grids:
             raise ValueError("a grid set needs at least one probe grid")
         counts = [g.count for g in self.grids]
-        self.offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+        self.first_probe = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)  # (grids,) each one's first
         self.count = int(sum(counts))
+
+    def parts(self):
+        return list(zip(self.grids, (int(f) for f in self.first_probe)))
+
+    def whole(self):
+        return self
+
+    def kept(self):
+        return np.arange(self.count)
+
+    def displacements(self):
+        return np.zeros((self.count, 3))
+
+    def uniform_cell(self):
+        return None  # cells differ between grids
 
     def positions(self):
         return np.concatenate([g.positions() for g in self.grids])
@@ -146,7 +188,7 @@ class GridSet:
                 kept = w * ~covered[i]
                 total = kept.sum(axis=1, keepdims=True)
                 w = kept / np.maximum(total, 1e-300)
-            index[sel], weight[sel] = i + self.offsets[g], w
+            index[sel], weight[sel] = i + self.first_probe[g], w
         return index, weight
 
     def point_cell_edge(self, points):
@@ -158,21 +200,37 @@ class ProbeSubset:
     """The probes of ``grid`` (a ProbeGrid or GridSet) that ``keep`` ``(grid.count,)`` bool
     names, numbered in their order: what a bake captures when the rest light no point (or
     sit inside geometry). A left-out probe takes no weight (a point whose probes are all
-    left out gets none). ``offsets`` ``(grid.count, 3)``: where a probe was moved from its
-    cell centre (out of geometry: :mod:`cubegi_engine.placement`); it still takes its
+    left out gets none). ``displacement`` ``(grid.count, 3)``: where a probe was moved from
+    its cell centre (out of geometry: :mod:`cubegi_engine.placement`); it still takes its
     centre's trilinear weights."""
 
-    def __init__(self, grid, keep, offsets=None):
+    def __init__(self, grid, keep, displacement=None):
         self.grid = grid
         self.keep = np.flatnonzero(np.asarray(keep, dtype=bool))
         self.count = len(self.keep)
         self._number = np.full(grid.count, -1, dtype=np.int64)
         self._number[self.keep] = np.arange(self.count)
-        self.offsets = None if offsets is None or not np.any(offsets) else np.asarray(offsets, dtype=np.float64)[self.keep]
+        moved = displacement is not None and np.any(displacement)
+        self._displacement = np.asarray(displacement, dtype=np.float64)[self.keep] if moved else None
+
+    def parts(self):
+        return self.grid.parts()
+
+    def whole(self):
+        return self.grid
+
+    def kept(self):
+        return self.keep
+
+    def displacements(self):
+        return np.zeros((self.count, 3)) if self._displacement is None else self._displacement
+
+    def uniform_cell(self):
+        return None  # placement decides on whole grids; a subset's probes use their cubic edge
 
     @property
     def moved(self) -> int:
-        return 0 if self.offsets is None else int(np.count_nonzero(np.any(self.offsets != 0.0, axis=1)))
+        return int(np.count_nonzero(np.any(self.displacements() != 0.0, axis=1)))
 
     @property
     def left_out(self) -> int:
@@ -180,7 +238,7 @@ class ProbeSubset:
 
     def positions(self):
         pos = self.grid.positions()[self.keep]
-        return pos if self.offsets is None else pos + self.offsets
+        return pos if self._displacement is None else pos + self._displacement
 
     def trilinear(self, points):
         index, weight = self.grid.trilinear(points)

@@ -47,12 +47,12 @@ BEYOND = (0.1, 0.2, 0.3, 0.4)
 
 @dataclass
 class Placement:
-    """What :func:`place` decided: ``keep (p,)`` bool (probes captured), ``offsets (p, 3)``
+    """What :func:`place` decided: ``keep (p,)`` bool (probes captured), ``displacement (p, 3)``
     (each kept probe's move from its cell centre; zero for most), ``moved`` and
     ``left_out`` counts, and the seconds it took."""
 
     keep: np.ndarray
-    offsets: np.ndarray
+    displacement: np.ndarray
     moved: int
     left_out: int
     seconds: float = 0.0
@@ -93,9 +93,9 @@ def place(grid, triangles_points, triangles, candidates=None) -> Placement:
     positions = grid.positions()
     p = len(positions)
     keep = np.ones(p, dtype=bool) if candidates is None else np.asarray(candidates, dtype=bool).copy()
-    offsets = np.zeros((p, 3))
+    displacement = np.zeros((p, 3))
     if not len(triangles) or not keep.any():
-        return Placement(keep, offsets, 0, 0, time.perf_counter() - t0)
+        return Placement(keep, displacement, 0, 0, time.perf_counter() - t0)
     cell = grid.point_cell_edge(positions)
     a, b, c = (np.asarray(triangles_points, dtype=np.float64)[triangles[:, k]] for k in range(3))
     index = VoxelIndex(a, b, c, float(np.min(cell)) * PROBE_REACH)
@@ -140,13 +140,13 @@ def place(grid, triangles_points, triangles, candidates=None) -> Placement:
         best = _most_room(row, clear)
         probe = stuck[row[best]]
         ok = clear[best] >= MARGIN * cell[probe]  # clear of surfaces by at least MARGIN
-        offsets[probe[ok]] = step[best[ok]]
+        displacement[probe[ok]] = step[best[ok]]
         keep[probe[ok]] = True
     if not keep.any():  # every probe reads as inside (normals turned the wrong way): keep them
         return Placement(np.asarray(candidates if candidates is not None else np.ones(p), dtype=bool).copy(),
                          np.zeros((p, 3)), 0, 0, time.perf_counter() - t0)
-    moved = int(np.count_nonzero(np.any(offsets != 0.0, axis=1)))
-    return Placement(keep, offsets, moved, int(len(stuck) - moved), time.perf_counter() - t0)
+    moved = int(np.count_nonzero(np.any(displacement != 0.0, axis=1)))
+    return Placement(keep, displacement, moved, int(len(stuck) - moved), time.perf_counter() - t0)
 
 
 def _most_room(row, clear):
@@ -159,7 +159,7 @@ def _most_room(row, clear):
 
 def _cell_sizes(grid, positions, edge):
     """Per probe, its cell's edge lengths ``(k, 3)`` (a grid set: the cubic cell ``edge``)."""
-    size = getattr(grid, "cell_size", None)
-    if size is not None and not callable(size):
+    size = grid.uniform_cell()
+    if size is not None:
         return np.broadcast_to(np.asarray(size, dtype=np.float64), (len(positions), 3))
     return np.repeat(np.asarray(edge, dtype=np.float64)[:, None], 3, axis=1)

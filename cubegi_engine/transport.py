@@ -149,8 +149,8 @@ class Transport:
         # finer grid's box): a grid-placement problem the bake notes. (Points covered by
         # another object, dark by the visibility test below, are not counted; nor are points
         # whose probes were all left out for lying inside geometry: a floor under a block.)
-        whole = getattr(grid, "grid", None)  # a ProbeSubset's grid
-        self.no_probe = ~np.any((weight if whole is None else whole.trilinear(scene.points)[1]) > 0, axis=1)
+        whole = grid.whole()  # a probe subset's whole grid
+        self.no_probe = ~np.any((weight if whole is grid else whole.trilinear(scene.points)[1]) > 0, axis=1)
         spare = None  # (rows, weights of the probes behind them), for points the near field leaves dark
         if visibility:
             dist = capture.dist.reshape(p, 6, n, n)

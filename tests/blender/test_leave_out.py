@@ -96,8 +96,8 @@ def test_probes_inside_the_blocks_move_out_before_the_capture(empty_scene, cubeg
     assert any(f"probes: {moved} found inside geometry were moved out" in line for line in summary)
     assert any(line.startswith(f"probes: {inside} sit") and "inside geometry" in line for line in report["left_out"])
     grid = cubegi.cubegi_addon.session.kept(bpy.context.scene).result.capture.grid
-    offsets = grid.offsets[np.any(grid.offsets != 0, axis=1)]
-    pos = grid.positions()[np.any(grid.offsets != 0, axis=1)]
+    offsets = grid.displacements()[np.any(grid.displacements() != 0, axis=1)]
+    pos = grid.positions()[np.any(grid.displacements() != 0, axis=1)]
     assert len(pos) == moved and (np.abs(offsets) <= 0.45 * 0.25 + 1e-9).all()
     for lo, hi in (((-0.67, 0.03, 0.02), (-0.13, 0.57, 1.17)), ((0.17, -0.57, 0.02), (0.73, -0.03, 0.57))):
         assert not np.any(np.all((pos > lo) & (pos < hi), axis=1))
@@ -108,7 +108,7 @@ def test_probes_inside_the_blocks_move_out_before_the_capture(empty_scene, cubeg
     (grid_ob,) = grid_objects.probe_grid_objects(bpy.context.scene)
     stored = grid_objects.stored_probe_offsets(grid_ob)
     assert np.count_nonzero(np.any(stored != 0, axis=1)) == moved
-    np.testing.assert_allclose(stored[grid.keep], grid.offsets)
+    np.testing.assert_allclose(stored[grid.keep], grid.displacements())
     assert grid_objects.stored_probe_light(grid_ob) is not None
     assert bpy.ops.cubegi.bake(move_probes=False, **SETTINGS) == {"FINISHED"}
     assert not grid_objects.stored_probe_offsets(grid_ob).any()

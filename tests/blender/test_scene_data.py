@@ -183,3 +183,22 @@ def test_corner_groups_are_numpys_unique_rows(cubegi):
         got_first, got_inverse = _groups(vertex, normal, material)
         np.testing.assert_array_equal(got_first, first)
         np.testing.assert_array_equal(got_inverse, inverse.ravel())
+
+
+def test_two_grid_objects_whose_probes_all_stay_store_no_probe_offsets(empty_scene, cubegi):
+    """Two grid objects side by side, every probe lighting a vertex and none moved: the
+    field's grid stays a grid set, and neither object gets a stored probe offset (a grid
+    set's first probe indices were once stored on the first one as moves)."""
+    grid_objects = cubegi.cubegi_addon.grid_objects
+    v, f = scenes.box_mesh((-2, -1, 0), (2, 1, 2), (8, 4, 4), inward=True)
+    scenes.mesh_object("Room", v, f)
+    scenes.add_light("POINT", (0.3, 0.2, 1.5), 50.0)
+    col = bpy.context.scene.collection
+    grid_objects.new_probe_grid(col, (-2, -1, 0), (0, 1, 2), (2, 2, 2), name="Left")
+    grid_objects.new_probe_grid(col, (0, -1, 0), (2, 1, 2), (2, 2, 2), name="Right")
+    assert bpy.ops.cubegi.bake(bounces=1, move_probes=False) == {"FINISHED"}
+    field = cubegi.cubegi_addon.session.kept(bpy.context.scene).result.field.whole()
+    assert len(field.grid.parts()) == 2 and not np.any(field.grid.displacements())
+    for ob in grid_objects.probe_grid_objects(bpy.context.scene):
+        assert grid_objects.OFFSET_KEY not in ob, ob.name
+        assert grid_objects.stored_probe_light(ob) is not None

@@ -24,16 +24,16 @@ def test_a_probe_inside_a_small_block_moves_out_within_its_cell():
     got = placement.place(_grid(), pts, tris)
     centre = 13
     assert got.moved == 1 and got.left_out == 0 and got.keep.all()
-    assert np.count_nonzero(np.any(got.offsets != 0, axis=1)) == 1
-    new = _grid().positions()[centre] + got.offsets[centre]
-    assert (np.abs(got.offsets[centre]) <= placement.MAX_SHIFT + 1e-12).all()
+    assert np.count_nonzero(np.any(got.displacement != 0, axis=1)) == 1
+    new = _grid().positions()[centre] + got.displacement[centre]
+    assert (np.abs(got.displacement[centre]) <= placement.MAX_SHIFT + 1e-12).all()
     outside = np.any((new < [-0.3, -0.25, -0.2]) | (new > [0.3, 0.25, 0.2]))
     assert outside, new
     # Clear of the block's surface by about MARGIN of a cell (MARGIN along the ray it left by).
     gap = np.max(np.maximum(np.abs(new) - [0.3, 0.25, 0.2], 0.0))
     assert gap >= 0.5 * placement.MARGIN
     # A subset of the grid carries the move: its probe stands there; weights are the cell's.
-    sub = ProbeSubset(_grid(), got.keep, got.offsets)
+    sub = ProbeSubset(_grid(), got.keep, got.displacement)
     np.testing.assert_allclose(sub.positions()[centre], new)
     assert sub.moved == 1
     i0, w0 = _grid().trilinear(np.array([[0.1, 0.2, 0.3]]))
@@ -49,9 +49,9 @@ def test_a_probe_inside_a_thin_wall_stops_where_it_has_the_most_room():
     pts, tris = _box((-0.02, -1.4, -1.4), (0.02, 1.4, 1.4))
     got = placement.place(_grid(), pts, tris)
     assert got.moved >= 1 and got.keep[13]
-    x = abs(got.offsets[13][0])
-    assert x - 0.02 > placement.MARGIN + 0.15, got.offsets[13]  # beyond the first stop
-    assert np.all(np.abs(got.offsets[13]) <= placement.MAX_SHIFT + 1e-12)
+    x = abs(got.displacement[13][0])
+    assert x - 0.02 > placement.MARGIN + 0.15, got.displacement[13]  # beyond the first stop
+    assert np.all(np.abs(got.displacement[13]) <= placement.MAX_SHIFT + 1e-12)
 
 
 def test_a_probe_deep_in_a_block_with_no_way_out_in_its_cell_is_left_out():
@@ -64,7 +64,7 @@ def test_a_probe_deep_in_a_block_with_no_way_out_in_its_cell_is_left_out():
 def test_probes_in_the_open_or_in_a_room_stay_where_they_are():
     pts, tris = _box((-1.4, -1.4, -1.4), (1.4, 1.4, 1.4), inward=True)  # a room around every probe
     got = placement.place(_grid(), pts, tris)
-    assert got.moved == 0 and got.left_out == 0 and got.keep.all() and not got.offsets.any()
+    assert got.moved == 0 and got.left_out == 0 and got.keep.all() and not got.displacement.any()
     asked = np.zeros(27, dtype=bool)
     asked[:5] = True  # only these are candidates (the rest light no point)
     got = placement.place(_grid(), *_box((5, 5, 5), (6, 6, 6)), candidates=asked)

@@ -33,7 +33,7 @@ import numpy as np
 from .convergence import gmres
 from .errors import BakeError
 from .lights import light_keys
-from .solve import ENERGY_FACTOR_RANGE
+from .solve import energy_factor
 
 __all__ = ["BounceOperator", "Source", "SceneLight", "from_bake", "MAX_OPERATOR_ELEMENTS", "SKY", "EMISSION"]
 
@@ -66,15 +66,6 @@ def _dense_interpolation(index, weights, p):
     flat = (np.arange(m)[:, None] * (9 * p) + cols).ravel()
     values = np.asarray(weights, dtype=np.float64).ravel()
     return np.bincount(flat, values, minlength=m * 9 * p).reshape(m, 9 * p).astype(np.float32)
-
-
-def _balance(target, got):
-    """:func:`cubegi_engine.solve.conserve_energy`'s factor from the two totals ``(3,)``."""
-    factor = np.ones(3)
-    ok = (got > 0) & (target > 0)
-    factor[ok] = target[ok] / got[ok]
-    lo, hi = ENERGY_FACTOR_RANGE
-    return np.where((factor >= lo) & (factor <= hi), factor, 1.0)
 
 
 class BounceOperator:
@@ -144,7 +135,7 @@ class BounceOperator:
         c = self.project(self.albedo * direct)
         target = (self.areas[:, None] * self.albedo * np.asarray(direct) * self.landing).sum(axis=0)
         for k in range(count):
-            g[k] = _balance(target, self.u @ c)
+            g[k] = energy_factor(target, self.u @ c)
             b = g[k] * c
             target = np.einsum("cq,qc->c", self.v, b)
             c = self.apply(b)
@@ -368,7 +359,7 @@ class SceneLight:
             if self.op.landing is not None:
                 probe = ((self.op.u @ c).reshape(n, 3) * weights).sum(axis=0)
                 added = ((area @ d).reshape(n, 3) * weights).sum(axis=0)
-                scale[k] = _balance(probe, probe + added)
+                scale[k] = energy_factor(probe, probe + added)
             f = np.tile(scale[k], n)
             deltas.append(f * d)  # what the near field adds on the support, scaled
             prev = f * (base + d)

@@ -19,7 +19,8 @@ from . import convergence
 from .records import BounceRecord, Progress, Stage, TailReport
 from .settings import BakeSettings
 
-__all__ = ["LightSolution", "solve_steps", "conserve_energy", "area_weighted_mean", "ENERGY_FACTOR_RANGE", "SOLVE_GIVE_UP"]
+__all__ = ["LightSolution", "solve_steps", "conserve_energy", "energy_factor", "area_weighted_mean", "ENERGY_FACTOR_RANGE",
+           "SOLVE_GIVE_UP"]
 
 # A tail solve that ends with a larger relative residual than this is not trusted.
 SOLVE_GIVE_UP = 1e-2
@@ -52,23 +53,27 @@ def conserve_energy(light, radiance, landing, areas):
     """
     target = (areas[:, None] * radiance * landing).sum(axis=0)
     got = (areas[:, None] * light).sum(axis=0)
+    factor = energy_factor(target, got)
+    return light * factor, factor
+
+
+def energy_factor(target, got):
+    """The energy balance's one rule: per channel ``target / got`` of two totals ``(3,)``,
+    1 where either is not positive or the factor lies outside ENERGY_FACTOR_RANGE (a total
+    that far off is not a bounce's small error but something the balance must not hide).
+    Every balance (a bake's bounces, the near field's, relighting's) takes its factor here."""
+    target, got = np.asarray(target, dtype=np.float64), np.asarray(got, dtype=np.float64)
     factor = np.ones(3)
     ok = (got > 0) & (target > 0)
     factor[ok] = target[ok] / got[ok]
     lo, hi = ENERGY_FACTOR_RANGE
-    factor = np.where((factor >= lo) & (factor <= hi), factor, 1.0)
-    return light * factor, factor
+    return np.where((factor >= lo) & (factor <= hi), factor, 1.0)
 
 
 def keep_total(light, before, areas):
     """``light (s, 3)`` scaled per channel to the area-weighted total of ``before``: the near
-    field moves where a bounce's light lands, the energy balance has said how much lands
-    (factors within ENERGY_FACTOR_RANGE; else left as it is)."""
-    got = (areas[:, None] * light).sum(axis=0)
-    want = (areas[:, None] * before).sum(axis=0)
-    factor = np.where((got > 0) & (want > 0), want / np.where(got > 0, got, 1.0), 1.0)
-    lo, hi = ENERGY_FACTOR_RANGE
-    return light * np.where((factor >= lo) & (factor <= hi), factor, 1.0)
+    field moves where a bounce's light lands, the energy balance has said how much lands."""
+    return light * energy_factor((areas[:, None] * before).sum(axis=0), (areas[:, None] * light).sum(axis=0))
 
 
 @dataclass

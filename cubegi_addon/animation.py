@@ -64,13 +64,28 @@ def _mean(arrays):
     return mean(direct), mean(indirect)
 
 
+# Scenes (session_uid) an animation bake is running on: their frame changes are the bake's own
+# and show no cache.
+_baking = set()
+
+
 def bake_animation_steps(context, settings, frames, folder, resolution=None, lit=None):
     """Bake frames ``frames`` (an iterable of ints) into ``folder``; a generator of Progress
-    (one per frame), returning ``{"frames": [...], ...}`` (see the module docstring)."""
+    (one per frame), returning ``{"frames": [...], ...}`` (see the module docstring). The
+    scene's cache link is the caller's to set: a bake refused or failed leaves it as it was."""
     scene = context.scene
     frames = [int(f) for f in frames]
     if not frames:
         raise BakeError("no frames to bake")
+    _baking.add(scene.session_uid)
+    try:
+        return (yield from _bake_frames(context, settings, frames, folder, resolution, lit))
+    finally:
+        _baking.discard(scene.session_uid)
+
+
+def _bake_frames(context, settings, frames, folder, resolution, lit):
+    scene = context.scene
     os.makedirs(folder, exist_ok=True)
     records = []
     t_all = time.perf_counter()
@@ -146,21 +161,37 @@ def _npz(arrays):
 
 
 def apply_frame(scene, folder, frame):
-    """Put a cached frame's light on the attributes (direct, indirect, total); False if the
-    cache has no such frame or it does not fit the meshes."""
+    """Put a cached frame's light on the attributes (direct, indirect, total). Returns None
+    if every baked object got its light, else what was missing (one line): no such frame or
+    folder, or objects the cache has no light for (renamed or changed since the bake), which
+    keep the light they had."""
     path = frame_path(folder, frame)
     if not os.path.isfile(path):
-        return False
+        where = "the cache folder is missing" if not os.path.isdir(folder) else f"frame {frame} is not in it"
+        return f"animation cache {folder}: {where}; the light shown is an earlier frame's (Bake Animation again)"
+    missing = []
     with np.load(path) as data:
         for ob in _baked_objects(scene):
             direct, indirect = data.get(f"{ob.name}:direct"), data.get(f"{ob.name}:indirect")
             if direct is None or indirect is None or direct.shape != (len(ob.data.vertices), 3):
+                missing.append(ob.name)
                 continue
             attributes.put(ob.data, attributes.DIRECT, direct)
             attributes.put(ob.data, attributes.INDIRECT, indirect)
             attributes.put(ob.data, attributes.TOTAL, direct + indirect)
             ob.data.update()
-    return True
+    if missing:
+        return (f"animation cache, frame {frame}: no light for {', '.join(missing)} (renamed or changed since the "
+                "bake); they keep an earlier frame's light (Bake Animation again)")
+    return None
+
+
+def detach_cache(scene):
+    """A still bake's light replaces the animation's: the scene stops showing its cache (it
+    stays on disk). Returns whether it showed one."""
+    attached = bool(scene.cubegi.animation_cache)
+    scene.cubegi.animation_cache = ""
+    return attached
 
 
 @bpy.app.handlers.persistent
@@ -168,9 +199,14 @@ def on_frame_change(scene, depsgraph=None):
     """With a baked animation cache on the scene, show each frame's light (scrubbing,
     playback, ``blender -b -a`` renders)."""
     settings = getattr(scene, "cubegi", None)
-    if settings is None or not settings.animation_cache or settings.live:
+    if settings is None or not settings.animation_cache or settings.live or scene.session_uid in _baking:
         return
-    apply_frame(scene, bpy.path.abspath(settings.animation_cache), scene.frame_current)
+    problem = apply_frame(scene, bpy.path.abspath(settings.animation_cache), scene.frame_current)
+    if problem and settings.last_update != problem:
+        settings.last_update = problem  # the panel shows it
+        print(f"CubeGI: {problem}")
+    elif not problem and settings.last_update.startswith("animation cache"):
+        settings.last_update = ""
 
 
 def register():

@@ -321,6 +321,9 @@ def cmd_bake(args):
     _open_for_baking(bpy, src)
     _mark_dynamic(bpy, args.dynamic)
     settings, lit = _file_settings(bpy, args), _file_lit(bpy, args)
+    from .animation import detach_cache
+
+    detach_cache(bpy.context.scene)  # the output shows this bake's light, not an older animation's
     report = pipeline.bake(bpy.context, settings, tuple(args.grid) if args.grid else None, lit=lit,
                            reference_samples=args.reference_samples if args.reference else None, progress=_print_progress)
     report.input, report.output = src, dst

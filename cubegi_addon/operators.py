@@ -217,6 +217,8 @@ class CUBEGI_OT_bake(_ModalJob, bpy.types.Operator):
         for warning in report.warnings:
             self.report({"WARNING"}, f"CubeGI: {warning}")
         context.scene.cubegi.last_report = report.to_json(indent=None)
+        if animation.detach_cache(context.scene):
+            self.report({"INFO"}, "CubeGI: the animation cache is no longer shown (this bake's light replaces it)")
         display.show(context.scene)
         self.report(
             {"INFO"},
@@ -250,7 +252,6 @@ class CUBEGI_OT_bake_animation(_ModalJob, bpy.types.Operator):
         settings = _settings_from(self, scene).validate()
         lit = None if scene.cubegi.lit == "NONE" else scene.cubegi.lit
         frames = range(scene.frame_start, scene.frame_end + 1)
-        scene.cubegi.animation_cache = ""  # while baking, frame changes must not show an older cache
         job = StepJob(animation.bake_animation_steps(context, settings, frames, folder, None, lit))
         job.folder = folder
         return job

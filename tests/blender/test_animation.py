@@ -170,3 +170,44 @@ def test_an_object_keyframed_into_and_out_of_renders_casts_its_shadow_only_while
         assert bpy.ops.cubegi.bake(grid=(3, 3, 2), cube_size=16, bounces=3) == {"FINISHED"}
         np.testing.assert_allclose(read(bpy.data.objects["Room"].data, "CubeGI_direct"), cached, rtol=0,
                                    atol=SOLVE_TOL * float(cached.max()), err_msg=f"frame {frame}")
+
+
+def test_the_cache_in_the_add_on_never_shows_stale_light_without_a_word(empty_scene, cubegi, tmp_path):
+    """After an animation bake: a refused Bake Animation keeps the valid cache linked; a
+    still Bake replaces the cache's light (a frame change no longer brings the old cache
+    back); a missing cache folder or an object renamed since the bake is named in the panel's
+    Last Update line (before: each was silent, or overwrote the still bake)."""
+    src = _animated_room(tmp_path, dynamic=False)
+    out = tmp_path / "out.blend"
+    assert _cli("bake-animation", src, "-o", out, *FAST).returncode == 0
+    read = cubegi.cubegi_addon.attributes.read
+    bpy.ops.wm.open_mainfile(filepath=str(out))
+    s = bpy.context.scene.cubegi
+    assert s.animation_cache == "//out.cubegi"
+    # Refused (nothing renders): the cache stays linked, and still plays.
+    for ob in bpy.data.objects:
+        ob.hide_render = ob.type == "MESH"
+    with pytest.raises(RuntimeError, match="no visible geometry"):
+        bpy.ops.cubegi.bake_animation()
+    assert s.animation_cache == "//out.cubegi"
+    for ob in bpy.data.objects:
+        ob.hide_render = False
+    # An object renamed since the bake: named, and it keeps the light it had.
+    bpy.data.objects["Block"].name = "Crate"
+    bpy.context.scene.frame_set(2)
+    assert "no light for Crate" in s.last_update, s.last_update
+    bpy.data.objects["Crate"].name = "Block"
+    bpy.context.scene.frame_set(3)
+    assert not s.last_update.startswith("animation cache")
+    # A still bake replaces the animation's light for good.
+    bpy.data.lights["point"].energy *= 3.0
+    assert bpy.ops.cubegi.bake(grid=(3, 3, 2), cube_size=16, bounces=3) == {"FINISHED"}
+    still = read(bpy.data.objects["Room"].data, "CubeGI_direct")
+    assert s.animation_cache == ""
+    bpy.context.scene.frame_set(1)
+    np.testing.assert_array_equal(read(bpy.data.objects["Room"].data, "CubeGI_direct"), still)
+    # A missing cache folder: named.
+    s.animation_cache = "//out.cubegi"
+    os.rename(tmp_path / "out.cubegi", tmp_path / "moved.cubegi")
+    bpy.context.scene.frame_set(2)
+    assert "the cache folder is missing" in s.last_update, s.last_update

@@ -395,6 +395,10 @@ def _bake_animation_on_cluster(args, src, dst, report_path):
     if report_path:
         text = json.dumps({"input": src, "output": dst, **result}, indent=2, allow_nan=False)
         files.write_all([(report_path, lambda tmp: open(tmp, "w").write(text))])
+    if result["up_to_date"]:
+        print(f"cubegi: {result['cache']} is up to date: the input, the options and CubeGI are what its frames were "
+              "baked from; nothing baked", flush=True)
+        return
     print(f"cubegi: baked {len(result['frames'])} frames in {len(result['chunks'])} chunks in {result['seconds']:.2f} s "
           f"into {result['cache']}", flush=True)
 

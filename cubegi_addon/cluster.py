@@ -48,6 +48,8 @@ KEY_FIELD = "batch_key"
 # Seconds to wait for a scheduler to answer before the batch is refused.
 SCHEDULER_TIMEOUT = 10
 SUMMARY = "batch.json"
+# In an animation cache folder: what its frames were baked from (job_key), for a re-run.
+CACHE_KEY_FILE = "cubegi_cache.json"
 
 
 def _client(workers=None, scheduler=None):
@@ -256,15 +258,26 @@ def chunks(first, last, workers):
 def bake_animation(src, out, first, last, options, workers=None, scheduler=None, log=print):
     """Bake frames ``first..last`` of ``src`` in chunks on Dask: the cache ``OUT.cubegi/``
     and ``OUT.blend`` as one machine writes them (the first chunk writes the .blend). Returns
-    ``{"frames": [...], "chunks": [...], "seconds": ...}``. A chunk whose frames are all in
-    the cache already (a second run) is not baked again."""
+    ``{"frames": [...], "chunks": [...], "seconds": ..., "up_to_date": bool}``. A chunk whose
+    frames are all in the cache already (a second run) is not baked again, while the cache's
+    key (:data:`CACHE_KEY_FILE`: the input's content, the options, the version) is this run's;
+    with another key every frame is baked again."""
     from .animation import cache_folder, frame_path
 
     cache = cache_folder(out)
     os.makedirs(cache, exist_ok=True)
+    key, key_path = job_key(src, options), os.path.join(cache, CACHE_KEY_FILE)
+    try:
+        with open(key_path) as fh:
+            same = json.load(fh) == key
+    except (OSError, ValueError):
+        same = False
     parts = chunks(first, last, workers or 2)
     todo = [(a, b) for a, b in parts
-            if not all(os.path.isfile(frame_path(cache, f)) for f in range(a, b + 1)) or (a == first and not os.path.isfile(out))]
+            if not same or not all(os.path.isfile(frame_path(cache, f)) for f in range(a, b + 1))
+            or (a == first and not os.path.isfile(out))]
+    if todo and os.path.exists(key_path):
+        os.remove(key_path)  # frames of two keys may mix until every chunk is done: no key meanwhile
     t0 = time.perf_counter()
     scratch = tempfile.mkdtemp(prefix=".cubegi-chunks-", dir=os.path.dirname(out))
     results = []
@@ -293,6 +306,9 @@ def bake_animation(src, out, first, last, options, workers=None, scheduler=None,
     failed = [r for r in results if r["status"] != "done"]
     if failed:
         raise BakeError(f"frames {failed[0]['first']}-{failed[0]['last']} failed: {failed[0]['error']}")
+    if todo or not same:
+        text = json.dumps(key, indent=2)
+        files.write_all([(key_path, lambda tmp: _write(tmp, text))])
     frames = sorted((f for r in results for f in r["frames"]), key=lambda f: f["frame"])
     return {"frames": frames, "chunks": [{k: r[k] for k in ("first", "last", "status")} for r in results],
-            "seconds": round(time.perf_counter() - t0, 3), "cache": cache}
+            "seconds": round(time.perf_counter() - t0, 3), "cache": cache, "up_to_date": not todo}

@@ -137,6 +137,10 @@ def test_a_killed_workers_bake_is_retried_and_gives_the_same_light(three_files, 
         _same(_attributes(tmp_path / "out" / f"scene{k}.blend"), _attributes(alone), SAME_TOL)
 
 
+def _frames_in(folder):
+    return sorted(n for n in os.listdir(folder) if n.startswith("frame_"))
+
+
 def test_an_animation_in_chunks_gives_the_one_machine_cache(empty_scene, cubegi, tmp_path):
     v, f = scenes.box_mesh((-2, -2, 0), (2, 2, 2.5), (6, 6, 4), inward=True)
     scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
@@ -157,7 +161,7 @@ def test_an_animation_in_chunks_gives_the_one_machine_cache(empty_scene, cubegi,
     assert [(c["first"], c["last"]) for c in rep["chunks"]] == [(1, 8), (9, 16)]
     assert [f["frame"] for f in rep["frames"]] == list(range(1, 17))
     assert [f["path"] for f in rep["frames"]][:2] == ["full", "lights"] and rep["frames"][8]["path"] == "full"
-    assert sorted(os.listdir(many.parent / "out.cubegi")) == sorted(os.listdir(one.parent / "out.cubegi"))
+    assert _frames_in(many.parent / "out.cubegi") == _frames_in(one.parent / "out.cubegi")
     for frame in range(1, 17):
         name = f"frame_{frame:04d}.npz"
         with np.load(one.parent / "out.cubegi" / name) as a, np.load(many.parent / "out.cubegi" / name) as b:
@@ -165,6 +169,20 @@ def test_an_animation_in_chunks_gives_the_one_machine_cache(empty_scene, cubegi,
     assert not [n for n in os.listdir(many.parent) if n.startswith(".cubegi-")]
     bpy.ops.wm.open_mainfile(filepath=str(many))
     assert bpy.context.scene.cubegi.animation_cache == "//out.cubegi"
+    # Run again: with nothing changed it bakes nothing and says so; after the input changed
+    # (the lamp quartered) every frame is baked again (before: "baked 0 frames", the old cache).
+    again = ("bake-animation", src, "-o", many, "--frames", "1", "16", "--workers", "2", *FAST)
+    r = _cli(*again)
+    assert r.returncode == 0 and "is up to date" in r.stdout and "nothing baked" in r.stdout, r.stdout + r.stderr
+    with np.load(many.parent / "out.cubegi" / "frame_0005.npz") as data:
+        before = data["Room:direct"]
+    bpy.ops.wm.open_mainfile(filepath=str(src))
+    bpy.data.lights["point"].energy /= 4.0
+    bpy.ops.wm.save_as_mainfile(filepath=str(src))
+    r = _cli(*again)
+    assert r.returncode == 0 and "baked 16 frames" in r.stdout, r.stdout + r.stderr
+    with np.load(many.parent / "out.cubegi" / "frame_0005.npz") as data:
+        np.testing.assert_allclose(data["Room:direct"], before / 4.0, rtol=1e-4, atol=1e-6 * before.max())
 
 
 def test_an_unreachable_scheduler_is_refused_in_one_line(three_files, tmp_path):

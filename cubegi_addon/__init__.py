@@ -8,7 +8,7 @@ and unregisters in reverse. Importing this package imports no bpy: the command l
 import importlib
 
 # Registered in this order, unregistered in reverse.
-MODULES = ("prefs", "props", "operators", "panel", "probe_view", "session", "live", "animation")
+MODULES = ("prefs", "props", "operators", "panel", "probe_view", "session", "live", "animation", "command")
 
 
 def _modules():

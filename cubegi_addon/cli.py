@@ -22,8 +22,8 @@ DEBUG_ENV = "CUBEGI_DEBUG"
 BLEND_MAGIC, GZIP_MAGIC, ZSTD_MAGIC = b"BLENDER", b"\x1f\x8b", b"\x28\xb5\x2f\xfd"
 
 
-def _parser():
-    p = argparse.ArgumentParser(prog="python -m cubegi_engine", description="CubeGI: cube-map probe global illumination for Blender")
+def _parser(prog="python -m cubegi_engine"):
+    p = argparse.ArgumentParser(prog=prog, description="CubeGI: cube-map probe global illumination for Blender")
     sub = p.add_subparsers(dest="command", required=True)
     b = sub.add_parser("bake", help="bake a .blend file's light into CubeGI colour attributes")
     b.add_argument("input", help="the .blend file to bake (never written)")
@@ -279,9 +279,9 @@ def _blender():
     through its properties) until the process ends."""
     import bpy
 
-    from ..cubegi_engine.__main__ import load_extension
+    if not hasattr(bpy.types.Scene, "cubegi"):  # the bpy module, run from the source tree
+        from ..cubegi_engine.__main__ import load_extension
 
-    if not hasattr(bpy.types.Scene, "cubegi"):
         load_extension()
     return bpy
 
@@ -411,9 +411,10 @@ def cmd_demo(args):
     os.makedirs(out, exist_ok=True)
     blend = files.writable_target(os.path.join(out, "room.blend"), "demo file")
     report_path = files.writable_target(os.path.join(out, "report.json"), "report")
+    demo = _from_source_tree("demo")
     bpy = _blender()
 
-    from . import demo, pipeline
+    from . import pipeline
 
     demo.build_room()
     report = pipeline.bake(bpy.context, settings, tuple(args.grid) if args.grid else None, lit="ALL",
@@ -432,20 +433,34 @@ def cmd_benchmark(args):
     if not os.access(args.out, os.W_OK):
         raise BakeError(f"output folder is not writable: {args.out}")
     if args.scaling:
-        from . import scaling
-
+        scaling = _from_source_tree("scaling")
         scaling.run(args.out, quick=args.quick, log=lambda m: print(f"cubegi: {m}", flush=True))
         return 0
+    benchmark = _from_source_tree("benchmark")
     _blender()
-    from . import benchmark
-
     benchmark.run(args.out, quick=args.quick, scenes=args.scenes, log=lambda m: print(f"cubegi: {m}", flush=True))
     print(f"cubegi: wrote {', '.join(os.path.join(args.out, f) for f in ('results.json', 'results.md', 'error_vs_time.png'))}")
 
 
-def main(argv=None):
-    """Run the command line; returns the exit status (0 done, 2 refused, 3 CubeGI failed)."""
-    args = _parser().parse_args(argv)
+def _from_source_tree(name):
+    """The development module ``name`` (the demo, the benchmark), which only the source tree
+    has; an installed extension refuses the command that needs it."""
+    import importlib
+
+    try:
+        return importlib.import_module(f".{name}", __package__)
+    except ImportError:
+        raise BakeError(f"this command runs from CubeGI's source tree (python -m cubegi_engine ...), not from the "
+                        f"installed extension, which leaves out its {name} module") from None
+
+
+def main(argv=None, prog="python -m cubegi_engine"):
+    """Run the command line; returns the exit status (0 done, 2 refused, 3 CubeGI failed).
+    The same for ``python -m cubegi_engine`` and ``blender -c cubegi`` (:mod:`.command`)."""
+    try:
+        args = _parser(prog).parse_args(argv)
+    except SystemExit as exc:  # --help, or a usage error argparse has printed
+        return int(exc.code or 0)
     try:
         commands = {"bake": cmd_bake, "bake-animation": cmd_bake_animation, "batch": cmd_batch, "demo": cmd_demo,
                     "benchmark": cmd_benchmark}

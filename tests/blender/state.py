@@ -52,6 +52,9 @@ def scene_state():
         state[(mesh.name, "colour attributes")] = (colours.active_color_name, colours.default_color_name)
     for mat in bpy.data.materials:
         state[("material", mat.name)] = material_state(mat)
+    # Custom properties; not the storage of registered properties (``Object.cubegi``), which
+    # up to 4.5 also appears among them once read (5.0 keeps it apart).
+    registered = set(bpy.types.Object.bl_rna.properties.keys())
     for ob in bpy.data.objects:
-        state[("object", ob.name)] = sorted(ob.keys())
+        state[("object", ob.name)] = sorted(k for k in ob.keys() if k not in registered)
     return state

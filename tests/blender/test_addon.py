@@ -46,13 +46,13 @@ def test_unregister_leaves_nothing_behind_and_register_restores_everything(cubeg
         assert not hasattr(bpy.types.Scene, "cubegi") and not hasattr(bpy.types.Object, "cubegi")
         assert not any(getattr(f, "__name__", "") == "menu_add" for f in menu._dyn_ui_initialize())
         assert not any(getattr(f, "__name__", "") == "menu_export" for f in bpy.types.TOPBAR_MT_file_export._dyn_ui_initialize())
-        assert addon.probe_view._handle is None
+        assert addon.probe_view._handle is None and addon.command._handle is None  # blender -c cubegi gone
         assert not any(addon.probe_view._forget_all in getattr(bpy.app.handlers, n) for n in addon.probe_view._HANDLER_LISTS)
         assert not any(fn in getattr(bpy.app.handlers, n) for lists, fn in handlers for n in lists)
     finally:
         cubegi.register()
     assert all(c.is_registered for c in classes) and all(getattr(bpy.types, c, None) for c in NAMED)
-    assert hasattr(bpy.types.Scene, "cubegi") and addon.probe_view._handle is not None
+    assert hasattr(bpy.types.Scene, "cubegi") and addon.probe_view._handle is not None and addon.command._handle is not None
     assert all(getattr(bpy.app.handlers, n).count(addon.probe_view._forget_all) == 1 for n in addon.probe_view._HANDLER_LISTS)
     assert all(getattr(bpy.app.handlers, n).count(fn) == 1 for lists, fn in handlers for n in lists)
     assert sum(getattr(f, "__name__", "") == "menu_add" for f in menu._dyn_ui_initialize()) == 1

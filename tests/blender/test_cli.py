@@ -164,13 +164,11 @@ def test_the_readmes_headless_recipe_gives_what_the_cli_gives(saved_scene, tmp_p
     assert _cli("bake", str(src), "-o", str(cli_out), "--bounces", "3").returncode == 0
     # What blender -b scene.blend --python-expr does: open the file, run the expression
     # (here with the extension loaded from this tree, as the install test does with the zip).
+    # The recipe's relative path names a file in the folder Blender started in; Blender 4.5
+    # resolves it against the folder this process started in, so it is made absolute here.
     bpy.ops.wm.open_mainfile(filepath=str(src))
-    cwd = os.getcwd()
-    os.chdir(tmp_path)
-    try:
-        exec(expr, {})
-    finally:
-        os.chdir(cwd)
+    assert "'baked.blend'" in expr
+    exec(expr.replace("'baked.blend'", repr(str(tmp_path / "baked.blend"))), {})
     attributes = cubegi.cubegi_addon.attributes
     ours = {n: {a: attributes.read(bpy.data.objects[n].data, a) for a in ("CubeGI_direct", "CubeGI", "CubeGI_total")} for n in counts}
     bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "baked.blend"))

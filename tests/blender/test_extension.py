@@ -49,6 +49,18 @@ mesh.attributes["CubeGI"].data.foreach_get("color", values)
 assert np.isfinite(values).all() and values.reshape(-1, 4)[:, :3].mean() > 0
 prefs = bpy.context.preferences.addons["bl_ext.user_default.cubegi"].preferences
 assert tuple(prefs.grid_resolution) == (4, 4, 2)
+# ``blender -c cubegi ...``: the command the extension registers, called as Blender calls it
+# (its execute function, with the words after the command's name).
+saved, baked = os.path.join(sys.argv[2], "in.blend"), os.path.join(sys.argv[2], "cli.blend")
+bpy.ops.wm.save_as_mainfile(filepath=saved)
+command = installed.cubegi_addon.command
+assert command.execute(["bake", saved, "-o", baked, "--bounces", "2", "--cube-size", "8"]) == 0
+assert command.execute(["bake", saved, "-o", saved]) == 2  # refused in one line, the input untouched
+assert command.execute(["demo"]) == 2  # the demo runs from the source tree only
+bpy.ops.wm.open_mainfile(filepath=baked)
+values = np.empty(len(bpy.data.objects["Box"].data.vertices) * 4, dtype=np.float32)
+bpy.data.objects["Box"].data.attributes["CubeGI"].data.foreach_get("color", values)
+assert np.isfinite(values).all() and values.reshape(-1, 4)[:, :3].mean() > 0
 repo_index = next(i for i, r in enumerate(bpy.context.preferences.extensions.repos) if r.module == "user_default")
 assert bpy.ops.extensions.package_uninstall(repo_index=repo_index, pkg_id="cubegi") == {"FINISHED"}
 assert not os.path.exists(where), where
@@ -73,12 +85,12 @@ def test_the_built_zip_installs_bakes_and_uninstalls(tmp_path):
     assert "blender_manifest.toml" in names and "cubegi_engine/sh.py" in names and "cubegi_addon/operators.py" in names
     assert not [n for n in names if n.split("/")[0] in {"tests", "scripts", "benchmarks", "docs", ".ci", ".git"}]
     # Run from the source tree only: the command line, the demo and the benchmark.
-    for dev in ("cubegi_addon/cli.py", "cubegi_addon/cluster.py", "cubegi_addon/demo.py", "cubegi_addon/bench_scenes.py", "cubegi_addon/benchmark.py",
+    for dev in ("cubegi_addon/demo.py", "cubegi_addon/bench_scenes.py", "cubegi_addon/benchmark.py",
                 "cubegi_addon/scaling.py", "cubegi_engine/benchmark.py", "cubegi_engine/__main__.py"):
         assert dev not in names, dev
     env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "user"))
     r = subprocess.run(
-        [sys.executable, "-c", INSTALLED_BAKE, zip_path],
+        [sys.executable, "-c", INSTALLED_BAKE, zip_path, str(tmp_path)],
         capture_output=True, text=True, env=env, timeout=300,
     )
     assert r.returncode == 0 and "INSTALLED-BAKE-OK" in r.stdout, r.stdout[-3000:] + r.stderr[-3000:]

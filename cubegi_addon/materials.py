@@ -19,7 +19,7 @@ import bpy
 
 from ..cubegi_engine.errors import BakeError
 from . import attributes
-from .scene_data import DEFAULT_ALBEDO, WIRING_NODE
+from .read_materials import DEFAULT_ALBEDO, WIRING_NODE
 
 PREFIX = "CubeGI "
 ATTRIBUTE, MULTIPLY, EMISSION = (PREFIX + n for n in ("Light", "Albedo x Light", "Emission"))

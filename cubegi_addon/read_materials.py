@@ -1,0 +1,189 @@
+"""A material as CubeGI reads it: per face corner, the albedo and the emission of its surface
+shader (Principled BSDF, Diffuse BSDF, Emission), with notes for what it cannot read.
+
+Part of the scene reader (:mod:`.scene_data`); bulk data through ``foreach_get``.
+"""
+
+import numpy as np
+
+from ..cubegi_engine.cubemap import sample_image
+from . import attributes
+
+__all__ = ["material_corners", "image_pixels", "socket_strength", "DEFAULT_ALBEDO", "WIRING_NODE"]
+
+# Albedo for a material CubeGI cannot read (no nodes, or a surface shader it does not
+# know): the material's viewport display colour; for a face with no material, this grey
+# (Blender's default surface).
+DEFAULT_ALBEDO = (0.8, 0.8, 0.8)
+
+
+def _srgb_to_linear(c):
+    c = np.asarray(c, dtype=np.float64)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def image_pixels(image):
+    w, h = image.size
+    if w == 0 or h == 0:
+        return None
+    px = np.empty(w * h * image.channels, dtype=np.float32)
+    image.pixels.foreach_get(px)
+    px = px.reshape(h, w, image.channels)
+    if image.channels < 3:
+        px = np.repeat(px[..., :1], 3, axis=2)
+    rgb = px[..., :3].astype(np.float64)
+    if not image.is_float and image.colorspace_settings.name == "sRGB":
+        rgb = _srgb_to_linear(rgb)
+    return rgb
+
+
+# The Add Shader that Show in Renders (materials.wire) puts between a material's own shader
+# and its output; reading a material looks through it to the material's own shader.
+WIRING_NODE = "CubeGI Add"
+
+
+def _surface_shader(material):
+    """The shader node feeding the material's active output (through CubeGI's own wiring),
+    or None."""
+    if material is None or material.node_tree is None:
+        return None
+    tree = material.node_tree
+    outputs = [n for n in tree.nodes if n.type == "OUTPUT_MATERIAL"]
+    if not outputs:
+        return None
+    active = [n for n in outputs if n.is_active_output] or outputs
+    out = next((n for n in active if n.target in {"ALL", "CYCLES"}), active[0])
+    surface = out.inputs.get("Surface")
+    if surface is None or not surface.is_linked:
+        return None
+    node = surface.links[0].from_node
+    if node.name == WIRING_NODE:
+        own = node.inputs[0]
+        return own.links[0].from_node if own.is_linked else None
+    return node
+
+
+def _corner_colour(socket, mesh, loop_ids, loop_vertex, fallback, problems):
+    """Per-corner linear colour ``(k, 3)`` from a colour input socket.
+
+    Understands a plain value, an RGB node, an Image Texture (at the UV map given by a UV
+    Map node or the mesh's active render UV map) and a Color Attribute / Attribute node.
+    Anything else gives ``fallback``, and why is appended to ``problems``.
+    """
+    k = len(loop_ids)
+    if socket is None:
+        return np.tile(fallback, (k, 1))
+    if not socket.is_linked:
+        return np.tile(np.asarray(socket.default_value[:3], dtype=np.float64), (k, 1))
+    node = socket.links[0].from_node
+    if node.type == "RGB":
+        return np.tile(np.asarray(node.outputs[0].default_value[:3], dtype=np.float64), (k, 1))
+    if node.type == "TEX_IMAGE" and node.image is not None:
+        rgb = image_pixels(node.image)
+        uv_layer, mapped = None, None
+        vec = node.inputs.get("Vector")
+        if vec is not None and vec.is_linked:
+            link = vec.links[0]
+            if link.from_node.type == "UVMAP":
+                uv_layer = mesh.uv_layers.get(link.from_node.uv_map)
+            elif not (link.from_node.type == "TEX_COORD" and link.from_socket.name == "UV"):
+                mapped = f"{link.from_socket.name} output of a {link.from_node.bl_label} node"
+        if uv_layer is None:
+            uv_layer = next((u for u in mesh.uv_layers if u.active_render), None)
+        if rgb is None or uv_layer is None:
+            problems.append(f"image {node.image.name!r} has no pixels (missing file?)" if rgb is None else "no UV map for its image")
+            return np.tile(fallback, (k, 1))
+        if mapped:  # (what is wrong, what the bake does instead)
+            problems.append((f"image {node.image.name!r} is mapped by the {mapped}, which CubeGI does not read",
+                             f"sampled at the UV map {uv_layer.name!r} instead"))
+        uv = np.empty(len(mesh.loops) * 2, dtype=np.float32)
+        uv_layer.data.foreach_get("uv", uv)
+        return sample_image(rgb, uv.reshape(-1, 2)[loop_ids].astype(np.float64))
+    if node.type in {"VERTEX_COLOR", "ATTRIBUTE"}:
+        name = node.layer_name if node.type == "VERTEX_COLOR" else node.attribute_name
+        # A Color Attribute node with no name reads the render colour attribute (the one
+        # marked for renders), not the active one (which a bake's display changes).
+        colours = mesh.color_attributes
+        attr = colours.get(name) if name else colours.get(colours.default_color_name)
+        if attr is not None and not name and attributes.is_any(attr.name):
+            problems.append(f"reads the render colour attribute of mesh {mesh.name!r}, which is CubeGI's own light "
+                            f"({attr.name!r}); mark one of your own for renders")
+            return np.tile(fallback, (k, 1))
+        if attr is None:
+            problems.append(f"colour attribute {name!r} not on mesh {mesh.name!r}")
+            return np.tile(fallback, (k, 1))
+        data = np.empty(len(attr.data) * 4, dtype=np.float32)
+        attr.data.foreach_get("color", data)
+        data = data.reshape(-1, 4)[:, :3].astype(np.float64)
+        return data[loop_ids] if attr.domain == "CORNER" else data[loop_vertex[loop_ids]]
+    problems.append(f"fed by a {node.bl_label or node.type} node, which CubeGI does not read" if node.type != "TEX_IMAGE"
+                    else "an Image Texture with no image")
+    return np.tile(fallback, (k, 1))
+
+
+def socket_strength(socket, problems):
+    """A strength input's value: its own, or a Value node's; else its own and a problem."""
+    if not socket.is_linked:
+        return float(socket.default_value)
+    node = socket.links[0].from_node
+    if node.type == "VALUE":
+        return float(node.outputs[0].default_value)
+    problems.append(f"fed by a {node.bl_label or node.type} node, which CubeGI does not read")
+    return float(socket.default_value)
+
+
+def _colour_and_notes(material, label, socket, mesh, loop_ids, loop_vertex, fallback, what, notes):
+    problems = []
+    colour = _corner_colour(socket, mesh, loop_ids, loop_vertex, fallback, problems)
+    for p in problems:
+        problem, instead = p if isinstance(p, tuple) else (p, f"using {what}")
+        notes.append(f"material {material.name!r}: {label} {problem}; {instead}")
+    return colour
+
+
+# Principled BSDF inputs CubeGI's diffuse model leaves out: above these it says so.
+NOT_DIFFUSE = (("Metallic", "metallic"), ("Transmission Weight", "transmissive"))
+
+
+def material_corners(material, mesh, loop_ids, loop_vertex, notes):
+    """Albedo and emission ``(k, 3)`` each for the corners ``loop_ids`` of one material."""
+    k = len(loop_ids)
+    if material is None:
+        return np.tile(DEFAULT_ALBEDO, (k, 1)), np.zeros((k, 3))
+    fallback = np.asarray(material.diffuse_color[:3], dtype=np.float64)
+    shader = _surface_shader(material)
+    if shader is None:
+        notes.append(f"material {material.name!r}: no node surface, using its viewport colour")
+        return np.tile(fallback, (k, 1)), np.zeros((k, 3))
+    args = (mesh, loop_ids, loop_vertex)
+    if shader.type == "BSDF_PRINCIPLED":
+        ins = shader.inputs
+        albedo = _colour_and_notes(material, "Base Color", ins["Base Color"], *args, fallback, "its viewport colour", notes)
+        problems = []
+        strength = socket_strength(ins["Emission Strength"], problems)
+        notes += [f"material {material.name!r}: Emission Strength {p}; using {strength:g}" for p in problems]
+        emission = _colour_and_notes(material, "Emission Color", ins["Emission Color"], *args, np.zeros(3), "no emission", notes)
+        alpha = ins.get("Alpha")
+        if alpha is not None and (alpha.is_linked or float(alpha.default_value) < 1.0):
+            notes.append(f"material {material.name!r}: Alpha is not read; baked as an opaque surface, which blocks "
+                         "light and casts shadow")
+        for name, adjective in NOT_DIFFUSE:
+            sock = ins.get(name)
+            if sock is not None and (sock.is_linked or float(sock.default_value) > 0.0):
+                notes.append(f"material {material.name!r}: {name} is set; CubeGI bakes it as a diffuse surface, "
+                             f"which a {adjective} surface is not")
+        return albedo, emission * strength
+    if shader.type == "BSDF_DIFFUSE":
+        return _colour_and_notes(material, "Color", shader.inputs["Color"], *args, fallback, "its viewport colour", notes), np.zeros((k, 3))
+    if shader.type == "EMISSION":
+        problems = []
+        strength = socket_strength(shader.inputs["Strength"], problems)
+        notes += [f"material {material.name!r}: Strength {p}; using {strength:g}" for p in problems]
+        emission = _colour_and_notes(material, "Color", shader.inputs["Color"], *args, np.ones(3), "white", notes) * strength
+        return np.zeros((k, 3)), emission
+    if shader.type == "GROUP":
+        notes.append(f"material {material.name!r}: its surface is a node group, which CubeGI does not read; baked with "
+                     "its viewport colour and no emission (any light it emits is lost)")
+    else:
+        notes.append(f"material {material.name!r}: shader {shader.bl_idname} not understood, using its viewport colour")
+    return np.tile(fallback, (k, 1)), np.zeros((k, 3))

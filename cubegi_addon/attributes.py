@@ -131,14 +131,13 @@ def _rgba(mesh, name, values):
 def clear(mesh, which=is_own):
     """Remove the attributes CubeGI made on ``mesh`` whose names ``which`` accepts; returns
     their names. Nothing of the user's is touched."""
+    before = colour_names(mesh)
     mine = owned(mesh)
     names = [n for n in mine if which(n)]
     for name in names:
         mesh.attributes.remove(mesh.attributes[name])
     _mark(mesh, mine - set(names))
-    colours = mesh.color_attributes
-    if colours.default_color_name and colours.default_color_name not in colours:
-        colours.default_color_name = ""  # 5.3 leaves a removed attribute's name behind
+    put_colour_names(mesh, before)
     return names
 
 
@@ -146,12 +145,10 @@ def _create(mesh, name, rgba):
     # The first colour attribute of a mesh becomes its render colour attribute, which a
     # Color Attribute node with no name reads: CubeGI's light would become the next bake's
     # albedo. The render colour attribute stays the user's (or none).
-    colours = mesh.color_attributes
-    render = colours.default_color_name
+    before = colour_names(mesh)
     attr = mesh.attributes.new(name, TYPE, DOMAIN)
     attr.data.foreach_set("color", rgba.ravel())
-    if colours.default_color_name != render:
-        colours.default_color_name = render if render in colours else ""
+    put_colour_names(mesh, before)
     _mark(mesh, owned(mesh) | {name})
 
 
@@ -192,9 +189,8 @@ def snapshot(mesh):
         data = np.empty(len(mesh.attributes[name].data) * 4, dtype=np.float32)
         mesh.attributes[name].data.foreach_get("color", data)
         saved.append((name, data))
-    colours = mesh.color_attributes
     listed = list(mesh[OWNED_KEY]) if OWNED_KEY in mesh else None
-    return saved, listed, colours.active_color_name, colours.default_color_name
+    return saved, listed, *colour_names(mesh)
 
 
 def restore(mesh, snap):
@@ -207,8 +203,22 @@ def restore(mesh, snap):
         _mark(mesh, set())
     else:
         mesh[OWNED_KEY] = listed
-    # Named outright, also where there was none: from 5.3 on, removing the active or default
-    # colour attribute leaves its name behind (up to 5.2 it was cleared).
+    put_colour_names(mesh, (active, default))
+
+
+def colour_names(mesh):
+    """``(active, render)``: the names of the mesh's active and render (default) colour
+    attributes ("" for none)."""
     colours = mesh.color_attributes
+    return colours.active_color_name, colours.default_color_name
+
+
+def put_colour_names(mesh, names):
+    """Make the colour attributes named ``(active, render)`` the active and the render ones,
+    "" (none) where a name is empty or gone. Named outright, also where there was none: adding
+    a mesh's first colour attribute makes it both; removing one hands its role to another on
+    4.5 and leaves its name behind from 5.3."""
+    colours = mesh.color_attributes
+    active, render = names
     colours.active_color_name = active if active and active in colours else ""
-    colours.default_color_name = default if default and default in colours else ""
+    colours.default_color_name = render if render and render in colours else ""

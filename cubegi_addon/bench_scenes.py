@@ -46,6 +46,8 @@ def set_world(colour, strength=1.0):
     world = bpy.data.worlds.new("World")
     bpy.context.scene.world = world
     world.color = colour
+    if world.node_tree is None:  # Blender < 5 creates node trees on request
+        world.use_nodes = True
     if world.node_tree is not None:
         bg = next((n for n in world.node_tree.nodes if n.type == "BACKGROUND"), None)
         if bg is not None:

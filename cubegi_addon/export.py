@@ -71,11 +71,10 @@ def write_glb(context, path):
                 added.append((mesh, name))
             rgba = np.ones((len(light), 4), dtype=np.float32)
             rgba[:, :3] = np.clip(light * 2.0 ** exposure, 0.0, 1.0)
-            colours = mesh.color_attributes
-            active, render = colours.active_color_name, colours.default_color_name
+            names = attributes.colour_names(mesh)
             mesh.attributes.new(DISPLAY, "FLOAT_COLOR", "POINT").data.foreach_set("color", rgba.ravel())
             added.append((mesh, DISPLAY))
-            colours.active_color_name, colours.default_color_name = active, render
+            attributes.put_colour_names(mesh, names)
         result = bpy.ops.export_scene.gltf(
             filepath=path, export_format="GLB", export_attributes=True, export_vertex_color="NAME",
             export_vertex_color_name=DISPLAY, export_all_vertex_colors=False,
@@ -85,7 +84,9 @@ def write_glb(context, path):
     finally:
         for mesh, name in reversed(added):
             if name in mesh.attributes:
+                names = attributes.colour_names(mesh)
                 mesh.attributes.remove(mesh.attributes[name])
+                attributes.put_colour_names(mesh, names)
     _add_asset_extras(path, {"cubegi": {
         "exposure": exposure, "light": LIGHT, "indirect": INDIRECT,
         "color_0": f"{LIGHT} x 2^exposure, clamped to [0, 1]",

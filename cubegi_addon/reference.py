@@ -63,7 +63,7 @@ def bake_reference(context, meshes, passes=("DIRECT", "INDIRECT"), samples=128, 
         "target": scene.render.bake.target,
         "selected": [o for o in view_layer.objects if o.select_get()],
         "active": view_layer.objects.active,
-        "active_colour": {o.name: o.data.color_attributes.active_color_name for o in meshes},
+        "colour_names": {o.name: attributes.colour_names(o.data) for o in meshes},
     }
     out = {p: {} for p in passes}
     seconds = {}
@@ -94,9 +94,7 @@ def bake_reference(context, meshes, passes=("DIRECT", "INDIRECT"), samples=128, 
             tmp = o.data.color_attributes.get(_TMP)
             if tmp is not None:
                 o.data.color_attributes.remove(tmp)
-            name = saved["active_colour"][o.name]
-            if name and name in o.data.color_attributes:
-                o.data.color_attributes.active_color = o.data.color_attributes[name]
+            attributes.put_colour_names(o.data, saved["colour_names"][o.name])
         scene.render.engine = saved["engine"]
         for name in _CYCLES_SETTINGS:
             setattr(scene.cycles, name, saved[name])

@@ -29,8 +29,22 @@ from .geometry import POINT_CHUNK, chunks, cut_triangles
 __all__ = ["ProbeGrid", "GridSet", "ProbeSubset", "fit_bounds", "visibility_weights", "probes_in_front", "probes_used"]
 
 
+class _WholeGrid:
+    """The Grid protocol's part for a grid that numbers all its own probes, each at its cell
+    centre (a ProbeGrid, a GridSet)."""
+
+    def whole(self):
+        return self
+
+    def kept(self):
+        return np.arange(self.count)
+
+    def displacements(self):
+        return np.zeros((self.count, 3))
+
+
 @dataclass(frozen=True)
-class ProbeGrid:
+class ProbeGrid(_WholeGrid):
     """A box ``lo``..``hi`` (world units) cut into ``resolution`` cells, one probe in each."""
 
     lo: tuple
@@ -68,15 +82,6 @@ class ProbeGrid:
     # The Grid protocol (see the module docstring), for every kind of grid alike.
     def parts(self):
         return [(self, 0)]
-
-    def whole(self):
-        return self
-
-    def kept(self):
-        return np.arange(self.count)
-
-    def displacements(self):
-        return np.zeros((self.count, 3))
 
     def uniform_cell(self):
         return self.cell_size
@@ -117,7 +122,7 @@ class ProbeGrid:
         return np.ascontiguousarray(idx.T), np.ascontiguousarray(w.T)
 
 
-class GridSet:
+class GridSet(_WholeGrid):
     """Several probe grids baked together; each point uses one of them.
 
     The rule for a point: of the grids whose boxes contain it, the one with the smallest
@@ -140,15 +145,6 @@ class GridSet:
 
     def parts(self):
         return list(zip(self.grids, (int(f) for f in self.first_probe)))
-
-    def whole(self):
-        return self
-
-    def kept(self):
-        return np.arange(self.count)
-
-    def displacements(self):
-        return np.zeros((self.count, 3))
 
     def uniform_cell(self):
         return None  # cells differ between grids

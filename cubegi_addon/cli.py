@@ -372,7 +372,7 @@ def cmd_bake_animation(args):
     jobs = [(dst, _save_blend(compressed))]
     if report_path:
         text = json.dumps({"input": src, "output": dst, **result}, indent=2, allow_nan=False)
-        jobs.append((report_path, lambda tmp: open(tmp, "w").write(text)))
+        jobs.append((report_path, files.text(text)))
     files.write_all(jobs)
     paths = {}
     for rec in result["frames"]:
@@ -394,7 +394,7 @@ def _bake_animation_on_cluster(args, src, dst, report_path):
                                     scheduler=args.scheduler, log=lambda m: print(f"cubegi: {m}", flush=True))
     if report_path:
         text = json.dumps({"input": src, "output": dst, **result}, indent=2, allow_nan=False)
-        files.write_all([(report_path, lambda tmp: open(tmp, "w").write(text))])
+        files.write_all([(report_path, files.text(text))])
     if result["up_to_date"]:
         print(f"cubegi: {result['cache']} is up to date: the input, the options and CubeGI are what its frames were "
               "baked from; nothing baked", flush=True)

@@ -179,12 +179,8 @@ def _stamp(report, key):
         data = json.load(fh)
     data[KEY_FIELD] = key
     text = json.dumps(data, indent=2, allow_nan=False)
-    files.write_all([(report, lambda tmp: _write(tmp, text))])
+    files.write_all([(report, files.text(text))])
 
-
-def _write(path, text):
-    with open(path, "w") as fh:
-        fh.write(text)
 
 
 def batch(inputs, out_dir, options, workers=None, scheduler=None, log=print, refused=None):
@@ -229,7 +225,7 @@ def batch(inputs, out_dir, options, workers=None, scheduler=None, log=print, ref
     summary = {"files": [records[os.path.realpath(f)] for f in inputs], "seconds": round(time.perf_counter() - t0, 3),
                "workers": None if scheduler else int(workers or 2), "scheduler": scheduler}
     text = json.dumps(summary, indent=2, allow_nan=False)
-    files.write_all([(os.path.join(out_dir, SUMMARY), lambda tmp: _write(tmp, text))])
+    files.write_all([(os.path.join(out_dir, SUMMARY), files.text(text))])
     return summary
 
 
@@ -308,7 +304,7 @@ def bake_animation(src, out, first, last, options, workers=None, scheduler=None,
         raise BakeError(f"frames {failed[0]['first']}-{failed[0]['last']} failed: {failed[0]['error']}")
     if todo or not same:
         text = json.dumps(key, indent=2)
-        files.write_all([(key_path, lambda tmp: _write(tmp, text))])
+        files.write_all([(key_path, files.text(text))])
     frames = sorted((f for r in results for f in r["frames"]), key=lambda f: f["frame"])
     return {"frames": frames, "chunks": [{k: r[k] for k in ("first", "last", "status")} for r in results],
             "seconds": round(time.perf_counter() - t0, 3), "cache": cache, "up_to_date": not todo}

@@ -21,7 +21,17 @@ import tempfile
 
 from ..cubegi_engine.errors import BakeError
 
-__all__ = ["writable_target", "same_file", "write_all"]
+__all__ = ["writable_target", "same_file", "write_all", "text"]
+
+
+def text(content):
+    """A :func:`write_all` writer of the string ``content`` (UTF-8)."""
+
+    def write(tmp):
+        with open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(content)
+
+    return write
 
 
 def same_file(a, b):

@@ -213,7 +213,7 @@ class CUBEGI_OT_bake(_ModalJob, bpy.types.Operator):
         report = job.report
         if job.report_path:
             text = report.to_json()
-            files.write_all([(job.report_path, lambda tmp: _write_text(tmp, text))])
+            files.write_all([(job.report_path, files.text(text))])
         for warning in report.warnings:
             self.report({"WARNING"}, f"CubeGI: {warning}")
         context.scene.cubegi.last_report = report.to_json(indent=None)
@@ -270,11 +270,6 @@ class CUBEGI_OT_bake_animation(_ModalJob, bpy.types.Operator):
 def _open_file(path):
     """The open .blend as a path a report must not overwrite (none for an unsaved file)."""
     return [(path, "open .blend file")] if path else []
-
-
-def _write_text(path, text):
-    with open(path, "w") as fh:
-        fh.write(text)
 
 
 def _poll(cls, context, refusal=None):

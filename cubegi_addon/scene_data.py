@@ -173,7 +173,7 @@ NON_MESH_GEOMETRY = {"CURVE", "SURFACE", "FONT", "META", "CURVES", "POINTCLOUD",
 
 
 @contextmanager
-def _as_rendered(view_layer):
+def _as_rendered(view_layer, geometry=True):
     """The view layer evaluated as a render evaluates it, for the time of the block: objects
     hidden with H or disabled in viewports, and collections hidden or disabled in viewports,
     render (Cycles' rule is ``hide_render`` and the view layer's exclusion) and so take part
@@ -206,8 +206,9 @@ def _as_rendered(view_layer):
         for ob in view_layer.objects:
             if ob.hide_render or ob.name not in visible:
                 continue
-            # Modifiers and particles evaluated as a render evaluates them.
-            for mod in ob.modifiers:
+            # Modifiers and particles evaluated as a render evaluates them (not for a read
+            # of lights alone: each toggle is a depsgraph update, and Live reads on those).
+            for mod in ob.modifiers if geometry else ():
                 render_setting(mod, "show_viewport", mod.show_render)
                 if mod.type in {"SUBSURF", "MULTIRES"}:
                     render_setting(mod, "levels", mod.render_levels)
@@ -318,7 +319,7 @@ def scene_lights(context):
     ``(lights, sky (3,), sky pattern or None, notes)``. For updates of light alone (see
     :mod:`.live`)."""
     notes, lights = [], []
-    with _as_rendered(context.view_layer):
+    with _as_rendered(context.view_layer, geometry=False):
         for inst, ob, _, _ in _rendered_instances(context, context.evaluated_depsgraph_get()):
             if ob.type == "LIGHT":
                 read_lights.add_light(inst, ob, lights, notes)

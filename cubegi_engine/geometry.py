@@ -3,7 +3,7 @@ must not import bpy."""
 
 import numpy as np
 
-__all__ = ["cut_triangles", "near_any_triangle", "edge_neighbours", "chunks", "POINT_CHUNK"]
+__all__ = ["triangle_planes", "cut_planes", "cut_triangles", "near_any_triangle", "edge_neighbours", "chunks", "POINT_CHUNK"]
 
 # Per-point tests that make several (s, 9, 3) float64 arrays run this many points at a time:
 # a million points then need tens of megabytes, not gigabytes, and stay in cache.
@@ -15,28 +15,50 @@ def chunks(count, size=POINT_CHUNK):
     return [slice(start, start + size) for start in range(0, count, size)]
 
 
-def cut_triangles(origins, u, tid, triangles, vertices):
+def triangle_planes(triangles, vertices):
+    """``(t, 4, 3)``: per triangle its first corner ``a``, its unit normal, and the gradients
+    ``g1, g2`` of its barycentric coordinates: a point ``x`` of its plane has the weights
+    ``(x - a) . g1`` of its second corner and ``(x - a) . g2`` of its third. All zero but
+    ``a`` for a triangle of no area."""
+    tri = np.asarray(triangles).reshape(-1, 3)
+    a = vertices[tri[:, 0]]
+    e1, e2 = vertices[tri[:, 1]] - a, vertices[tri[:, 2]] - a
+    n = np.cross(e1, e2)
+    area2 = np.einsum("tc,tc->t", n, n)
+    inv = np.divide(1.0, area2, out=np.zeros_like(area2), where=area2 > 0)[:, None]
+    return np.stack([a, n * np.sqrt(inv), np.cross(e2, n) * inv, np.cross(n, e1) * inv], axis=1)
+
+
+def cut_planes(origins, u, tid, planes):
     """Where the rays ``origins + t u`` cut the planes of triangles ``tid``.
 
-    origins, u: ``(..., 3)`` (u unit); tid: ``(...)`` triangle index, -1 for none;
-    triangles: ``(t, 3)`` indices into vertices ``(v, 3)``. Returns ``(t, inside, normal)``:
-    the distance along each ray (nan where there is no triangle or the ray grazes its plane,
-    within 1e-3 of parallel), whether the cut lies inside the triangle, and the triangle's
-    unnormalised normal ``(..., 3)``.
+    origins, u: ``(..., 3)`` (u unit); tid: ``(...)`` triangle index, -1 for none; planes:
+    :func:`triangle_planes` of every triangle. Returns ``(t, inside)``: the distance along
+    each ray (nan where there is no triangle or the ray grazes its plane, within 1e-3 of
+    parallel) and whether the cut lies inside the triangle.
     """
-    tri = triangles[np.maximum(tid, 0)]
-    a, b, c = vertices[tri[..., 0]], vertices[tri[..., 1]], vertices[tri[..., 2]]
-    nrm = np.cross(b - a, c - a)
-    area2 = np.einsum("...c,...c->...", nrm, nrm)
-    denom = np.einsum("...c,...c->...", u, nrm)
-    ok = (tid >= 0) & (area2 > 0) & (np.abs(denom) > 1e-3 * np.sqrt(area2))
+    return _cut(origins, u, tid, planes[np.maximum(tid, 0)])
+
+
+def cut_triangles(origins, u, tid, triangles, vertices):
+    """:func:`cut_planes` for triangles given by corners: the planes of ``tid`` alone are
+    made (for a few rays against many triangles)."""
+    tid = np.asarray(tid)
+    planes = triangle_planes(triangles[np.maximum(tid, 0)], vertices).reshape(tid.shape + (4, 3))
+    return _cut(origins, u, tid, planes)
+
+
+def _cut(origins, u, tid, planes):
+    a, n, g1, g2 = planes[..., 0, :], planes[..., 1, :], planes[..., 2, :], planes[..., 3, :]
+    denom = np.einsum("...c,...c->...", u, n)
+    ok = (tid >= 0) & (np.abs(denom) > 1e-3)
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.einsum("...c,...c->...", a - origins, nrm) / np.where(ok, denom, 1.0)
-        x = origins + t[..., None] * u
-        l1 = np.einsum("...c,...c->...", np.cross(c - b, x - b), nrm) / np.where(ok, area2, 1.0)
-        l2 = np.einsum("...c,...c->...", np.cross(a - c, x - c), nrm) / np.where(ok, area2, 1.0)
-    inside = ok & (l1 >= 0) & (l2 >= 0) & (l1 + l2 <= 1)
-    return np.where(ok, t, np.nan), inside, nrm
+        t = np.einsum("...c,...c->...", a - origins, n) / np.where(ok, denom, 1.0)
+        x = origins + t[..., None] * u - a
+        b = np.einsum("...c,...c->...", x, g1)
+        c = np.einsum("...c,...c->...", x, g2)
+    inside = ok & (b >= 0) & (c >= 0) & (b + c <= 1)
+    return np.where(ok, t, np.nan), inside
 
 
 def near_any_triangle(centres, radius, a, b, c, tiles=8, centre_normals=None, across=None):

@@ -19,12 +19,12 @@ Three kinds of grid share one protocol, so callers never ask which kind they hol
 - ``uniform_cell()``: the cell size ``(3,)`` where every probe has the same, else None.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from . import cubemap
-from .geometry import POINT_CHUNK, chunks, cut_triangles
+from .geometry import POINT_CHUNK, chunks, cut_planes, edge_neighbours, triangle_planes
 
 __all__ = ["ProbeGrid", "GridSet", "ProbeSubset", "fit_bounds", "visibility_weights", "probes_in_front", "probes_used"]
 
@@ -306,9 +306,7 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     where the probe sees sky); probe_valid: ``(p,)`` bool; points, normals: ``(s, 3)``;
     index, weight: ``(s, 8)`` from :meth:`ProbeGrid.trilinear`. Returns new weights ``(s, 8)``.
 
-    ``cover`` = ``(probe_tid (p, 6, n, n), triangles (t, 3), triangle_object (t,), vertices,
-    point_object (s,), triangle_normals (t, 3), edge_neighbours (t, 3))`` (the triangles the
-    probes drew, over ``vertices``) adds a
+    ``cover`` (a :class:`Cover` of the triangles the probes drew) adds a
     test the depth map's tolerance is too coarse for: a triangle of another object (or of
     the same object, facing away from the point: the far side of a thin wall) that the
     probe's texel sees towards the point, whose plane the exact ray from the probe crosses
@@ -317,11 +315,8 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     gets no probe light, instead of falling back to its plain weights.
     """
     if len(points) > POINT_CHUNK:
-        def part(sl):  # the cover's point_object is per point
-            return None if cover is None else (*cover[:4], cover[4][sl], *cover[5:])
-
         parts = [visibility_weights(grid, probe_pos, probe_dist, probe_valid, points[sl], normals[sl], index[sl], weight[sl],
-                                    part(sl), both) for sl in chunks(len(points))]
+                                    None if cover is None else cover.rows(sl), both) for sl in chunks(len(points))]
         if both:
             return tuple(np.concatenate(p) for p in zip(*parts))
         return np.concatenate(parts)
@@ -335,11 +330,19 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     # Tolerance: two texels' worth of angle at that distance plus a hundredth of a cell.
     tol = dist * (4.0 / n) + 0.01 * cell
     visible = dist <= seen + tol
+    valid = probe_valid[index]
     covered = np.zeros_like(visible)
     if cover is not None:
-        covered = _covered(cover, probe_pos[index], points, normals, index, face, row, col, n, cell)
+        # The pairs that light the point are asked first; a point that none of them lights
+        # after that is dark if any other probe's ray to it is covered too (see ``dark``).
+        eyes = probe_pos[index]
+        ask = visible & valid & (weight > 0)
+        covered = _covered(cover, eyes, points, normals, index, face, row, col, n, cell, ask)
+        unlit = np.flatnonzero((weight * (ask & ~covered)).sum(axis=1) <= 1e-9)
+        if len(unlit):
+            covered[unlit] |= _covered(cover.rows(unlit), eyes[unlit], points[unlit], normals[unlit], index[unlit],
+                                      face[unlit], row[unlit], col[unlit], n, cell[unlit], ~ask[unlit])
         visible &= ~covered
-    valid = probe_valid[index]
     # A probe more than BEHIND cells behind the point's tangent plane sees its hemisphere from
     # the far side: at a convex edge nothing hides it.
     height = np.einsum("skc,sc->sk", probe_pos[index] - points[:, None, :], normals)
@@ -365,39 +368,42 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
 
 # How many edges away from a seen triangle the cover test looks for the one the ray crosses,
 # and how many (point, probe) pairs it searches at a time.
-COVER_RINGS, RING_CHUNK = 2, 16384
+COVER_RINGS, RING_CHUNK = 2, 65536
 
 
-def _blocks(tid, tri_object, tri_normals, point_object, normals):
+@dataclass(frozen=True)
+class Cover:
+    """What the cover test of :func:`visibility_weights` asks: the triangle each probe
+    texel saw ``probe_tid (p, 6, n, n)`` (-1: none), each triangle's object ``(t,)``, its
+    :func:`~.geometry.triangle_planes` ``(t, 4, 3)`` and :func:`~.geometry.edge_neighbours`
+    ``(t, 3)``, and each point's object ``(s,)``."""
+
+    probe_tid: np.ndarray
+    triangle_object: np.ndarray
+    planes: np.ndarray
+    neighbours: np.ndarray
+    point_object: np.ndarray
+
+    @classmethod
+    def of(cls, probe_tid, triangles, vertices, triangle_object, point_object):
+        return cls(probe_tid, triangle_object, triangle_planes(triangles, vertices), edge_neighbours(triangles), point_object)
+
+    def rows(self, sl):
+        """The same cover for the points ``sl``."""
+        return replace(self, point_object=self.point_object[sl])
+
+
+def _blocks(cover, tid, point_object, normals):
     """Whether triangles ``tid`` may cover points of ``point_object`` facing ``normals``:
     another object's, or the far side of a thin part of the same one (facing away)."""
     safe = np.maximum(tid, 0)
-    nrm = tri_normals[safe]
-    facing_away = np.einsum("...c,...c->...", nrm, normals) < -0.5 * np.linalg.norm(nrm, axis=-1)
-    return (tri_object[safe] != point_object) | facing_away
+    facing_away = np.einsum("...c,...c->...", cover.planes[safe, 1], normals) < -0.5
+    return (cover.triangle_object[safe] != point_object) | facing_away
 
 
-def _unique_per_row(ids, tried):
-    """``ids (m, k)`` with each row's repeats, and the ids in ``tried``'s row, set to -1; the
-    -1 entries moved to the end and the columns that are -1 in every row dropped."""
-    both = np.concatenate([tried, ids], axis=1)
-    order = np.argsort(both, axis=1, kind="stable")
-    srt = np.take_along_axis(both, order, axis=1)
-    dup = np.zeros_like(srt, dtype=bool)
-    dup[:, 1:] = srt[:, 1:] == srt[:, :-1]
-    # An id is new if it comes from ``ids`` and its first occurrence in the sorted row is from ``ids``.
-    from_ids = order >= tried.shape[1]
-    first = ~dup
-    group_first_from_ids = np.maximum.accumulate(np.where(first, np.arange(srt.shape[1])[None, :], 0), axis=1)
-    new = from_ids & np.take_along_axis(from_ids, group_first_from_ids, axis=1) & first & (srt >= 0)
-    out = np.where(new, srt, -1)
-    out = -np.sort(-out, axis=1)  # the new ids first, the -1s at the end
-    keep = (out >= 0).any(axis=0)
-    return out[:, keep] if keep.any() else out[:, :1]
-
-
-def _covered(cover, eyes, points, normals, index, face, row, col, n, cell):
-    """``(s, 8)``: another object's triangle lies between each probe and point (see above).
+def _covered(cover, eyes, points, normals, index, face, row, col, n, cell, ask):
+    """``(s, 8)``: another object's triangle lies between each probe and point (see above),
+    for the pairs ``ask (s, 8)`` (False elsewhere).
 
     The texel towards the point and its 8 neighbours are asked which triangles they see;
     the exact ray from the probe to the point is cut with each one's plane, and it covers
@@ -406,49 +412,74 @@ def _covered(cover, eyes, points, normals, index, face, row, col, n, cell):
     triangle it really crosses, near a rug's edge; a cut near but outside the other object
     must not count, or the floor around a rug would go dark.)
     """
-    probe_tid, triangles, tri_object, vertices, point_object, tri_normals, neighbours = cover
     q = points[:, None, :] + 1e-3 * cell[..., None] * normals[:, None, :]
     ray = q - eyes
     d = np.linalg.norm(ray, axis=-1)
     u = ray / np.maximum(d, 1e-300)[..., None]
-    eps = 1e-4 * cell
+    depth = d - 1e-4 * cell  # a cut this far along the ray lies in front of the point
     covered = np.zeros(index.shape, dtype=bool)
-    # Per pair and texel: a seen candidate the ray's plane cut lies ahead of but outside of.
+    # Per pair and texel: a seen candidate of another object the ray's plane cut lies ahead of
+    # but outside of.
     missed = np.full(index.shape + (9,), -1, dtype=np.int32)
     for j, (dr, dc) in enumerate((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)):
-        tid = probe_tid[index, face, np.clip(row + dr, 0, n - 1), np.clip(col + dc, 0, n - 1)]
-        candidate = (tid >= 0) & ~covered & _blocks(tid, tri_object, tri_normals, point_object[:, None], normals[:, None, :])
+        tid = cover.probe_tid[index, face, np.clip(row + dr, 0, n - 1), np.clip(col + dc, 0, n - 1)]
+        candidate = ask & (tid >= 0) & ~covered
+        candidate[candidate] = _blocks(cover, tid[candidate], cover.point_object[np.nonzero(candidate)[0]],
+                                       normals[np.nonzero(candidate)[0]])
         pick = np.nonzero(candidate)
         if not len(pick[0]):
             continue
-        t, inside, _ = cut_triangles(eyes[pick], u[pick], tid[pick], triangles, vertices)
-        ahead = (t > 0) & (t < d[pick] - eps[pick[0], 0])
+        t, inside = cut_planes(eyes[pick], u[pick], tid[pick], cover.planes)
+        ahead = (t > 0) & (t < depth[pick])
         covered[pick] = inside & ahead
         # Another object's triangles only (a rug over a floor): a thin part's far side is seen
         # whole by the texels around the ray.
-        miss = ahead & ~inside & (tri_object[tid[pick]] != point_object[pick[0]])
+        miss = ahead & ~inside & (cover.triangle_object[tid[pick]] != cover.point_object[pick[0]])
         missed[pick[0][miss], pick[1][miss], j] = tid[pick][miss]
     # Where no seen triangle holds the cut: the same objects' triangles up to COVER_RINGS edges
-    # around the seen ones (each tried once per pair).
+    # around the seen ones, each tried once per pair.
     need = np.nonzero(~covered & (missed >= 0).any(axis=2))
     for start in range(0, len(need[0]) if COVER_RINGS else 0, RING_CHUNK):  # bounded temporaries
         pairs = (need[0][start : start + RING_CHUNK], need[1][start : start + RING_CHUNK])
-        frontier = missed[pairs]  # (m, 9)
-        tried = frontier
-        found = np.zeros(len(pairs[0]), dtype=bool)
-        eye, ray_u, depth = eyes[pairs], u[pairs], d[pairs] - eps[pairs[0], 0]
-        for _ in range(COVER_RINGS):
-            parent = np.repeat(frontier, 3, axis=1)
-            ring = neighbours[np.maximum(frontier, 0)].reshape(len(frontier), -1)  # (m, 3k)
-            ring = np.where((parent >= 0) & (ring >= 0) & (tri_object[np.maximum(ring, 0)] == tri_object[np.maximum(parent, 0)]), ring, -1)
-            ring = _unique_per_row(ring, tried)
-            for k in range(ring.shape[1]):
-                sel = np.flatnonzero((ring[:, k] >= 0) & ~found)
-                if not len(sel):
-                    continue
-                t, inside, _ = cut_triangles(eye[sel], ray_u[sel], ring[sel, k], triangles, vertices)
-                found[sel[inside & (t > 0) & (t < depth[sel])]] = True
-            tried = np.concatenate([tried, ring], axis=1)
-            frontier = ring
+        found = _ring_search(cover, missed[pairs], eyes[pairs], u[pairs], depth[pairs])
         covered[pairs[0][found], pairs[1][found]] = True
     return covered
+
+
+def _ring_search(cover, seen, eye, u, depth):
+    """``(m,)``: whether each ray ``eye + t u`` (0 < t < depth) crosses a triangle up to
+    COVER_RINGS edges from its ``seen (m, k)`` ones (-1: none) and of the same object.
+    The (ray, triangle) pairs are kept flat, as keys ``ray * t + triangle``."""
+    count = np.int64(len(cover.planes))
+    rows, cols = np.nonzero(seen >= 0)
+    tried = _sorted_unique(rows * count + seen[rows, cols])
+    frontier = tried
+    found = np.zeros(len(seen), dtype=bool)
+    for _ in range(COVER_RINGS):
+        ray, parent = np.divmod(frontier, count)
+        ring = cover.neighbours[parent]  # (f, 3)
+        keep = (ring >= 0) & (cover.triangle_object[np.maximum(ring, 0)] == cover.triangle_object[parent][:, None])
+        keep &= ~found[ray][:, None]
+        keys = _sorted_unique(ray[:, None].repeat(3, axis=1)[keep] * count + ring[keep])
+        keys = keys[~_in_sorted(keys, tried)]
+        if not len(keys):
+            break
+        ray, tid = np.divmod(keys, count)
+        t, inside = cut_planes(eye[ray], u[ray], tid, cover.planes)
+        found[ray[inside & (t > 0) & (t < depth[ray])]] = True
+        tried = _sorted_unique(np.concatenate([tried, keys]))
+        frontier = keys
+    return found
+
+
+def _in_sorted(keys, sorted_keys):
+    """Whether each of ``keys`` is in the sorted array ``sorted_keys``."""
+    at = np.minimum(np.searchsorted(sorted_keys, keys), max(len(sorted_keys) - 1, 0))
+    return sorted_keys[at] == keys if len(sorted_keys) else np.zeros(len(keys), dtype=bool)
+
+
+def _sorted_unique(keys):
+    """``np.unique`` of an int array by sorting (numpy's hashed unique is many times slower
+    on millions of keys)."""
+    keys = np.sort(keys, kind="stable")  # timsort: the keys come in sorted runs
+    return keys[np.concatenate([[True], keys[1:] != keys[:-1]])] if len(keys) else keys

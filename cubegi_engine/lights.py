@@ -256,7 +256,7 @@ def _occluded(maps, face, row, col, origins, u, depth, cos, footprint, triangles
     tid = tid_map[f, r, c]
     seen = dist_map[f, r, c].astype(np.float64)
     back = back_map[f, r, c]
-    plane, _, _ = cut_triangles(origins[:, None, :], u[:, None, :], tid, triangles, vertices)
+    plane, _ = cut_triangles(origins[:, None, :], u[:, None, :], tid, triangles, vertices)
     own = np.any(triangles[np.maximum(tid, 0)] == point_ids[:, None, None], axis=2)
     depth = depth[:, None]
     # ``nearer`` and ``depth`` are exact (float64 plane cuts): their margin is a tenth of a

@@ -26,8 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import cubemap, nearfield, sh
-from .geometry import edge_neighbours
-from .grid import probes_in_front, visibility_weights
+from .grid import Cover, probes_in_front, visibility_weights
 from .nearfield import NEAR_REACH
 
 # A covered point in the open (see Transport._light_under) casts rays this many cells long,
@@ -156,11 +155,8 @@ class Transport:
             dist = capture.dist.reshape(p, 6, n, n)
             cover = None
             if scene.point_object is not None:
-                vertices = scene.points if proxy is None else proxy.points
-                p0 = vertices[triangles[:, 0]]
-                normals = np.cross(vertices[triangles[:, 1]] - p0, vertices[triangles[:, 2]] - p0)
-                cover = (capture.tid.reshape(p, 6, n, n), triangles, self.triangle_object, vertices, scene.point_object,
-                         normals, edge_neighbours(triangles))
+                cover = Cover.of(capture.tid.reshape(p, 6, n, n), triangles, scene.points if proxy is None else proxy.points,
+                                 self.triangle_object, scene.point_object)
             trilinear_weight = weight
             seen, behind = visibility_weights(grid, positions, dist, self.probe_valid, scene.points, scene.normals, index,
                                               weight, cover, both=True)

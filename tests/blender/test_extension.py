@@ -85,7 +85,7 @@ def test_the_built_zip_installs_bakes_and_uninstalls(tmp_path):
     assert "blender_manifest.toml" in names and "cubegi_engine/sh.py" in names and "cubegi_addon/operators.py" in names
     assert not [n for n in names if n.split("/")[0] in {"tests", "scripts", "benchmarks", "docs", ".ci", ".git"}]
     # Run from the source tree only: the command line, the demo and the benchmark.
-    for dev in ("cubegi_addon/demo.py", "cubegi_addon/bench_scenes.py", "cubegi_addon/benchmark.py",
+    for dev in ("cubegi_addon/demo.py", "cubegi_addon/bench_scenes.py", "cubegi_addon/public_scenes.py", "cubegi_addon/benchmark.py",
                 "cubegi_addon/scaling.py", "cubegi_engine/benchmark.py", "cubegi_engine/__main__.py"):
         assert dev not in names, dev
     env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "user"))

@@ -6,10 +6,11 @@ import golden
 import numpy as np
 import pytest
 
-# The bake is deterministic on one machine (two runs agree bit for bit); across machines and
-# GPU drivers float32 sums may be ordered differently, so allow a millionth of the scene's
-# brightest value.
-GOLDEN_TOL = 1e-6
+# The bake is deterministic on one machine (two runs agree bit for bit); across machines, GPU
+# drivers and numpy releases float32 sums may be ordered differently (numpy 2.5 moves one
+# vertex of the white box by 1.2e-6 of its light), so allow a hundred-thousandth of the
+# scene's brightest value: far below any change of the light model.
+GOLDEN_TOL = 1e-5
 
 
 @pytest.fixture(scope="module")

@@ -263,14 +263,73 @@ def test_edge_neighbours_pair_the_triangles_across_each_edge():
     assert (edge_neighbours(np.zeros((0, 3), dtype=np.int64)) == -1).all()
 
 
-def test_unique_per_row_keeps_each_new_id_once():
-    from cubegi.cubegi_engine.grid import _unique_per_row
+def test_a_ray_cuts_a_triangle_where_the_textbook_test_says():
+    """cut_planes (precomputed planes) and cut_triangles agree with Moller-Trumbore on
+    random rays and triangles, degenerate and grazing ones included."""
+    from cubegi.cubegi_engine.geometry import cut_planes, cut_triangles, triangle_planes
 
-    ids = np.array([[5, 3, 5, -1, 7], [1, 1, 2, 2, -1], [-1, -1, -1, -1, -1]])
-    tried = np.array([[3, -1], [9, 2], [4, 4]])
-    out = _unique_per_row(ids, tried)
-    assert [sorted(x for x in row if x >= 0) for row in out.tolist()] == [[5, 7], [1], []]
-    assert (out[:, :1] >= -1).all() and out.shape[1] == 2  # columns that are -1 everywhere dropped
+    rng = np.random.default_rng(3)
+    vertices = rng.normal(size=(300, 3))
+    triangles = rng.integers(0, 300, size=(100, 3))
+    triangles[0] = (4, 4, 7)  # no area
+    origins = rng.normal(size=(2000, 3)) * 3
+    tid = rng.integers(-1, 100, size=2000)
+    aim = vertices[triangles[np.maximum(tid, 0)]].mean(axis=1) + rng.normal(size=(2000, 3)) * 0.3
+    u = (aim - origins) / np.linalg.norm(aim - origins, axis=1, keepdims=True)
+    t, inside = cut_planes(origins, u, tid, triangle_planes(triangles, vertices))
+    t2, inside2 = cut_triangles(origins, u, tid, triangles, vertices)
+    np.testing.assert_array_equal(inside, inside2)
+    np.testing.assert_allclose(t, t2, rtol=1e-12, equal_nan=True)
+    a, b, c = (vertices[triangles[np.maximum(tid, 0)]][:, k] for k in range(3))
+    e1, e2 = b - a, c - a
+    p = np.cross(u, e2)
+    det = np.einsum("ic,ic->i", e1, p)
+    n = np.cross(e1, e2)
+    ok = (tid >= 0) & (np.abs(np.einsum("ic,ic->i", u, n)) > 1e-3 * np.linalg.norm(n, axis=1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = origins - a
+        bu = np.einsum("ic,ic->i", s, p) / det
+        q = np.cross(s, e1)
+        bv = np.einsum("ic,ic->i", u, q) / det
+        tt = np.einsum("ic,ic->i", e2, q) / det
+    far = ok & (np.minimum(np.minimum(bu, bv), 1 - bu - bv) > 1e-9) | (np.minimum(np.minimum(bu, bv), 1 - bu - bv) < -1e-9)
+    assert ok.sum() > 1000 and (inside & ok).sum() > 100 and not inside[~ok].any()
+    np.testing.assert_array_equal(inside[far & ok], ((bu >= 0) & (bv >= 0) & (bu + bv <= 1))[far & ok])
+    np.testing.assert_allclose(t[ok], tt[ok], rtol=1e-9, atol=1e-9)
+    assert np.isnan(t[~ok]).all()
+
+
+def test_the_cover_ring_search_finds_the_crossed_triangle_up_to_two_edges_away():
+    """A strip of triangles along x, one object; the ray crosses triangle 6. From triangle
+    4 (two edges away) it is found; from triangle 2 (four away) it is not; nor across
+    an object border."""
+    from cubegi.cubegi_engine.geometry import edge_neighbours, triangle_planes
+    from cubegi.cubegi_engine.grid import Cover, _ring_search
+
+    xs = np.arange(7.0)
+    vertices = np.concatenate([np.stack([xs, np.zeros(7), np.zeros(7)], 1), np.stack([xs, np.ones(7), np.zeros(7)], 1)])
+    triangles = []
+    for i in range(6):
+        triangles += [(i, i + 1, 7 + i), (i + 1, 8 + i, 7 + i)]
+    triangles = np.array(triangles)
+    eye = np.array([[3.6, 0.2, 5.0]] * 4)  # down onto triangle 6 (x in [3, 4], below the diagonal)
+    u = np.array([[0.0, 0.0, -1.0]] * 4)
+    depth = np.array([10.0, 10.0, 10.0, 4.0])  # the last stops above the strip
+    seen = np.array([[4, -1], [2, 2], [-1, 4], [4, 4]])
+    one = Cover(None, np.zeros(12, int), triangle_planes(triangles, vertices), edge_neighbours(triangles), None)
+    assert _ring_search(one, seen, eye, u, depth).tolist() == [True, False, True, False]
+    split = Cover(None, (np.arange(12) >= 5).astype(int), one.planes, one.neighbours, None)
+    assert _ring_search(split, seen, eye, u, depth).tolist() == [False, False, False, False]
+
+
+def test_sorted_unique_and_membership():
+    from cubegi.cubegi_engine.grid import _in_sorted, _sorted_unique
+
+    keys = np.array([9, 3, 3, 7, 9, 1], dtype=np.int64)
+    assert _sorted_unique(keys).tolist() == [1, 3, 7, 9]
+    assert _sorted_unique(keys[:0]).tolist() == []
+    assert _in_sorted(np.array([0, 3, 8, 9, 10]), np.array([1, 3, 7, 9])).tolist() == [False, True, False, True, False]
+    assert _in_sorted(np.array([2]), np.array([], dtype=np.int64)).tolist() == [False]
 
 
 def test_an_emitter_with_few_triangles_spreads_its_shadow_points_inside_them():

@@ -19,7 +19,7 @@ from ..cubegi_engine import __version__, metrics
 from ..cubegi_engine import benchmark as analysis
 from ..cubegi_engine.grid import fit_bounds
 from ..cubegi_engine.report import BakeReport
-from . import attributes, bench_scenes, demo, grid_objects, reference, scene_data, session
+from . import attributes, bench_scenes, demo, grid_objects, public_scenes, reference, scene_data, session
 
 SCENES = {
     "room": demo.build_room,
@@ -27,6 +27,21 @@ SCENES = {
     "courtyard": bench_scenes.courtyard,
     "white_box_0.95": bench_scenes.white_box,
     "thin_wall": bench_scenes.thin_wall,
+    # Public scenes authored outside CubeGI (see public_scenes; run where shared/scenes is here).
+    "breakfast_room": public_scenes.breakfast_room,
+    "cornell_original": public_scenes.cornell_original,
+}
+PUBLIC = ("breakfast_room", "cornell_original")
+# The Breakfast Room's Cycles passes take 2.6 s a sample on a 2-core machine: its full run
+# keeps a 256-sample reference, Cycles up to 64 samples and a short CubeGI sweep.
+LARGE = {
+    "breakfast_room": {
+        "reference_samples": 256,
+        "cycles_samples": (1, 4, 16, 64),
+        "cells_along_longest": (6, 12),
+        "cube_sizes": (16,),
+        "bounces": ((5, True),),
+    },
 }
 
 # Grid spacing is given as cells along the scene's longest side.
@@ -90,6 +105,8 @@ def _record(scene_name, method, settings, seconds, by_part, ours_direct, ours_in
 
 def run_scene(scene_name, config, cache_dir, log=print):
     """All runs of one scene: a list of records."""
+    if config is FULL:
+        config = {**config, **LARGE.get(scene_name, {})}
     SCENES[scene_name]()
     objects = _meshes()
     ref = cached_reference(cache_dir, scene_name, config["reference_samples"], objects, log)
@@ -116,6 +133,8 @@ def run_scene(scene_name, config, cache_dir, log=print):
         variants.append(("sky per vertex", {"sky_per_vertex": True}))
     for which, kw in variants:
         records.append(_cubegi_run(scene_name, objects, ref, areas, {"default": which}, log, repeat=config.get("default_repeats", 1), **kw))
+        if which == "after":
+            records[-1]["surfaces"] = _surfaces(objects, ref, scored)
     for k, samples in enumerate(config["cycles_samples"]):
         baked, seconds = reference.bake_reference(bpy.context, objects, samples=samples, seed=1 + k)
         direct, indirect = _stack(objects, baked["DIRECT"]), _stack(objects, baked["INDIRECT"])
@@ -128,6 +147,26 @@ def run_scene(scene_name, config, cache_dir, log=print):
             f"indirect RMSE {100 * e['indirect']['rel_rmse']:.1f}%, total RMSE {100 * e['total']['rel_rmse']:.1f}%"
         )
     return records
+
+
+def _surfaces(objects, ref, scored):
+    """Per object of the last bake: its area and its area-weighted mean direct and indirect
+    light, CubeGI's and the reference's (where the error sits, surface by surface)."""
+    out, start = {}, 0
+    for ob in objects:
+        count = len(ob.data.vertices)
+        sl = slice(start, start + count)
+        start += count
+        w = scored[ob.name]
+        if w.sum() <= 0:
+            continue
+        row = {"area": float(w.sum())}
+        for part, name in (("direct", attributes.DIRECT), ("indirect", attributes.INDIRECT)):
+            ours = attributes.read(ob.data, name).mean(axis=1)
+            theirs = np.asarray(ref[part][sl]).mean(axis=1)
+            row[part] = [float(np.average(ours, weights=w)), float(np.average(theirs, weights=w))]
+        out[ob.name] = row
+    return out
 
 
 def _cubegi_run(scene_name, objects, ref, areas, settings, log, repeat=1, **bake):
@@ -167,12 +206,19 @@ def run(out_dir, quick=False, scenes=None, log=print):
     unknown = [n for n in names if n not in SCENES]
     if unknown:
         raise ValueError(f"unknown benchmark scene(s) {', '.join(unknown)}; known: {', '.join(SCENES)}")
+    if public_scenes.scenes_dir() is None:
+        if scenes and set(names) & set(PUBLIC):
+            raise ValueError("the public scenes are not here: set CUBEGI_PUBLIC_SCENES to the folder of shared/scenes")
+        log(f"benchmark: the public scenes ({', '.join(PUBLIC)}) are not here and are left out (set CUBEGI_PUBLIC_SCENES)")
+        names = [n for n in names if n not in PUBLIC]
     t0 = time.perf_counter()
     records = []
     for name in names:
         records += run_scene(name, config, os.path.join(out_dir, "cache"), log)
     meta = {
         "cubegi": __version__,
+        **({"credits": "; ".join(public_scenes.CREDIT[n] for n in names if n in public_scenes.CREDIT)}
+           if set(names) & set(PUBLIC) else {}),
         "blender": bpy.app.version_string,
         "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, {platform.system()}",
         "gpu": _gpu_name(),

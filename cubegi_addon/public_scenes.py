@@ -137,10 +137,52 @@ def breakfast_room():
 def cornell_original(cuts=16):
     """McGuire's Cornell box, each quad cut into ``cuts`` x ``cuts`` so that per-vertex light
     has vertices to land on (the file's walls are single quads)."""
+    import shutil
+    import tempfile
+
     scene = _empty()
-    for ob in _import_obj(os.path.join(_folder("cornell-box"), "CornellBox-Original.obj")):
-        _subdivide(ob, cuts)
+    folder = _folder("cornell-box")
+    with tempfile.TemporaryDirectory(prefix="cubegi-cornell-") as tmp:
+        # The OBJ names its MTL as "scenes/CornellBox-Original.mtl" (its old repository's
+        # layout); the copy names the MTL beside it.
+        with open(os.path.join(folder, "CornellBox-Original.obj")) as fh:
+            text = fh.read().replace("mtllib scenes/CornellBox-Original.mtl", "mtllib CornellBox-Original.mtl")
+        with open(os.path.join(tmp, "CornellBox-Original.obj"), "w") as fh:
+            fh.write(text)
+        shutil.copy(os.path.join(folder, "CornellBox-Original.mtl"), tmp)
+        objects = _import_obj(os.path.join(tmp, "CornellBox-Original.obj"))
+    for ob in objects:
+        for part in _by_material(ob):
+            _subdivide(part, cuts)
     return scene
+
+
+def _by_material(ob):
+    """One object per material of ``ob``, named after it (the file's groups and materials do
+    not line up: its boxes' faces fall in the walls' groups), in place of ``ob``."""
+    import bmesh
+
+    parts = []
+    for k, mat in enumerate(ob.data.materials):
+        bm = bmesh.new()
+        bm.from_mesh(ob.data)
+        bmesh.ops.delete(bm, geom=[f for f in bm.faces if f.material_index != k], context="FACES")
+        if not bm.faces:
+            bm.free()
+            continue
+        for f in bm.faces:
+            f.material_index = 0
+        mesh = bpy.data.meshes.new(mat.name)
+        bm.to_mesh(mesh)
+        bm.free()
+        mesh.materials.append(mat)
+        part = bpy.data.objects.new(mat.name, mesh)
+        part.matrix_world = ob.matrix_world
+        bpy.context.scene.collection.objects.link(part)
+        parts.append(part)
+    bpy.data.objects.remove(ob)
+    bpy.context.view_layer.update()  # else the view layer still lists the removed object
+    return parts
 
 
 def _subdivide(ob, cuts):

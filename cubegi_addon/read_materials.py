@@ -22,6 +22,18 @@ def _srgb_to_linear(c):
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
+_BYTE_TO_LINEAR = _srgb_to_linear(np.arange(256) / 255.0)
+
+
+def _srgb_bytes_to_linear(px):
+    """``_srgb_to_linear`` of pixels, by table where they are bytes (k / 255, as Blender
+    hands over an 8-bit image); the same numbers, without a power per channel."""
+    k = np.rint(px * np.float32(255.0))
+    if np.all(np.abs(px * np.float32(255.0) - k) < 1e-3):
+        return _BYTE_TO_LINEAR[np.clip(k, 0, 255).astype(np.uint8)]
+    return _srgb_to_linear(px)
+
+
 def image_pixels(image):
     w, h = image.size
     if w == 0 or h == 0:
@@ -31,10 +43,10 @@ def image_pixels(image):
     px = px.reshape(h, w, image.channels)
     if image.channels < 3:
         px = np.repeat(px[..., :1], 3, axis=2)
-    rgb = px[..., :3].astype(np.float64)
+    rgb = px[..., :3]
     if not image.is_float and image.colorspace_settings.name == "sRGB":
-        rgb = _srgb_to_linear(rgb)
-    return rgb
+        return _srgb_bytes_to_linear(rgb)
+    return rgb.astype(np.float64)
 
 
 # The Add Shader that Show in Renders (materials.wire) puts between a material's own shader

@@ -174,6 +174,7 @@ def markdown(records, meta=None):
                         f"{_pct(x['record']['errors']['direct']['rel_rmse'])} | {x['speedup']:.1f}x |"
                     )
         lines.append("")
+    lines += _stages(records) + _surfaces(records)
     for scene in sorted({r["scene"] for r in records}):
         lines += [
             f"## {scene}",
@@ -192,6 +193,50 @@ def markdown(records, meta=None):
             )
         lines.append("")
     return "\n".join(lines)
+
+
+# The bake's stages in the order they run (BakeReport.timings); "tables" holds the near field.
+STAGES = ("collect", "placement", "simplify", "gpu_setup", "capture", "tables", "near_field", "direct", "bounces", "tail", "write")
+
+
+def _default_after(records):
+    return {r["scene"]: r for r in records if r["method"] == "cubegi" and r["settings"].get("default") == "after"}
+
+
+def _stages(records):
+    """The default bake's time per stage, per scene, with each stage's share of the bake."""
+    rows = {s: r["timings"] for s, r in _default_after(records).items() if r.get("timings")}
+    if not rows:
+        return []
+    lines = ["## The default bake, stage by stage (seconds, share of the bake)", "",
+             "| scene | total | " + " | ".join(STAGES) + " |", "|---|---|" + "---|" * len(STAGES)]
+    for scene, t in sorted(rows.items()):
+        total = t.get("total") or sum(t.get(k, 0.0) for k in STAGES)
+        cells = [f"{t[k]:.2f} ({100 * t[k] / total:.0f}%)" if k in t and total > 0 else "" for k in STAGES]
+        lines.append(f"| {scene} | {total:.2f} | " + " | ".join(cells) + " |")
+    return lines + ["", "The near field's time is part of the tables'.", ""]
+
+
+def _surfaces(records, shown=12):
+    """Per scene, the largest surfaces' mean light against the reference's (the default bake)."""
+    lines = []
+    for scene, r in sorted(_default_after(records).items()):
+        surfaces = r.get("surfaces")
+        if not surfaces:
+            continue
+        lines += [f"## {scene}: the default bake per surface (area-weighted mean, the {shown} largest)", "",
+                  "| object | area share | direct: CubeGI | Cycles | difference | indirect: CubeGI | Cycles | difference |",
+                  "|---|---|---|---|---|---|---|---|"]
+        total = sum(x["area"] for x in surfaces.values())
+        for name, x in sorted(surfaces.items(), key=lambda kv: -kv[1]["area"])[:shown]:
+            cells = []
+            for part in ("direct", "indirect"):
+                ours, theirs = x[part]
+                diff = f"{100 * (ours - theirs) / theirs:+.1f}%" if theirs > 0 else "n/a"
+                cells += [f"{ours:.4g}", f"{theirs:.4g}", diff]
+            lines.append(f"| {name} | {100 * x['area'] / total:.1f}% | " + " | ".join(cells) + " |")
+        lines.append("")
+    return lines
 
 
 def plot(records, path):

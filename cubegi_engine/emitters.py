@@ -55,6 +55,73 @@ def _two_sided_ff(points, normals, tri):
                       lights_mod.polygon_form_factor(points, normals, tri[::-1]))
 
 
+# Emissive triangles lie in one plane if their unit normals agree to this and their planes'
+# offsets to this share of the scene's size.
+FLAT_NORMAL, FLAT_OFFSET = 1e-6, 1e-6
+
+
+def _flat_groups(verts, radiance, owner, scale):
+    """The emissive triangles ``verts (e, 3, 3)`` in groups (index arrays) that share an
+    object, a radiance and a plane, facing one way: a subdivided panel is one group."""
+    cross = np.cross(verts[:, 1] - verts[:, 0], verts[:, 2] - verts[:, 0])
+    length = np.linalg.norm(cross, axis=1)
+    unit = cross / np.maximum(length, 1e-300)[:, None]
+    offset = np.einsum("ec,ec->e", unit, verts[:, 0])
+    key = np.concatenate([owner[:, None].astype(np.float64), np.round(unit / FLAT_NORMAL),
+                          np.round(offset / (FLAT_OFFSET * max(scale, 1e-300)))[:, None], radiance], axis=1)
+    key[length <= 0, 1:4] = np.arange(np.sum(length <= 0))[:, None] + 1e12  # no plane: alone
+    _, which = np.unique(key, axis=0, return_inverse=True)
+    order = np.argsort(which.ravel(), kind="stable")
+    bounds = np.flatnonzero(np.diff(which.ravel()[order])) + 1
+    return np.split(order, bounds)
+
+
+def _group_ff(points, normals, corner_ids, verts):
+    """The two-sided form factor ``(s,)`` of a flat group of triangles (corner indices
+    ``corner_ids (g, 3)``, positions ``verts (g, 3, 3)``): the sum of its triangles'. Lambert's
+    formula is a sum over edges, and an edge two triangles of the group share is walked once
+    each way: for a receiver whose tangent plane does not cut the group, only the group's
+    outline counts (a 16 x 16 panel: 64 edges, not 1,536). The receivers it cuts (clipped to
+    their hemispheres triangle by triangle) take the triangles one by one."""
+    if len(verts) == 1:
+        return _two_sided_ff(points, normals, verts[0])
+    edges = np.stack([corner_ids, np.roll(corner_ids, -1, axis=1)], axis=2).reshape(-1, 2).astype(np.int64)
+    ends = np.stack([verts, np.roll(verts, -1, axis=1)], axis=2).reshape(-1, 2, 3)
+    base = int(edges.max()) + 1
+    outline = ends[~np.isin(edges[:, 0] * base + edges[:, 1], edges[:, 1] * base + edges[:, 0])]  # (m, 2, 3)
+    out = np.zeros(len(points))
+    cut = np.zeros(len(points), dtype=bool)
+    step = max(1, (1 << 22) // len(outline))
+    for first in range(0, len(points), step):  # (step, m) heights at a time
+        sl = slice(first, first + step)
+        # A flat region's extremes along any direction lie on its outline.
+        height = normals[sl] @ outline[:, 0].T - np.einsum("sc,sc->s", normals[sl], points[sl])[:, None]
+        lo, hi = height.min(axis=1), height.max(axis=1)
+        cut[sl] = (lo < 0) & (hi > 0)
+        whole = np.flatnonzero(lo >= 0) + first  # wholly in front (wholly behind: none)
+        if len(whole):
+            out[whole] = np.clip(np.abs(_edge_sum(points[whole], normals[whole], outline)), 0.0, 1.0)
+    if cut.any():
+        for tri in verts:
+            out[cut] += _two_sided_ff(points[cut], normals[cut], tri)
+    return out
+
+
+def _edge_sum(points, normals, edges):
+    """Lambert's ``1/(2 pi) sum theta n . g`` over ``edges (m, 2, 3)`` (unclipped)."""
+    total = np.zeros(len(points))
+    for a, b in edges:
+        u = a - points
+        w = b - points
+        u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-30)
+        w /= np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-30)
+        cross = np.cross(w, u)
+        sin_t = np.linalg.norm(cross, axis=1)
+        theta = np.arctan2(sin_t, np.einsum("sc,sc->s", u, w))
+        total += theta * np.einsum("sc,sc->s", cross, normals) / np.maximum(sin_t, 1e-30)
+    return total / (2.0 * np.pi)
+
+
 def _into_faces(scene, step):
     """Every point moved ``step`` along its normal and ``step`` towards the centroids of its
     own triangles (into its faces)."""
@@ -77,10 +144,10 @@ def emitter_direct(scene, renderer, shadow_size, shadows=True):
         return out
     verts = scene.points[scene.triangles[ids]]  # (e, 3, 3)
     lifted = _into_faces(scene, RECEIVER_NUDGE * scene.scale)
-    for k in range(len(ids)):
-        out += _two_sided_ff(lifted, scene.normals, verts[k])[:, None] * radiance[k]
+    owner = scene.triangle_object()[ids]
+    for group in _flat_groups(verts, radiance, owner, scene.scale):
+        out += _group_ff(lifted, scene.normals, scene.triangles[ids[group]], verts[group])[:, None] * radiance[group[0]]
     if shadows:
-        owner = scene.triangle_object()[ids]
         vis = np.zeros(s)
         weight = np.zeros(s)
         lit = np.any(out > 0, axis=1)

@@ -343,3 +343,42 @@ def test_an_emitter_with_few_triangles_spreads_its_shadow_points_inside_them():
     first = pts[:, 0] >= pts[:, 1]  # the first triangle is x >= y
     assert first.sum() == 4 and (~first).sum() == 12
     assert (pts[:, :2] >= 0).all() and (pts[:, :2] <= 1).all()
+
+
+def test_a_subdivided_emitter_sends_what_its_triangles_send_one_by_one():
+    """The flat-group form factor (the outline's edges where a receiver's plane does not cut
+    the group) equals the sum over its triangles, for receivers in front of, behind, beside
+    and cut by the panel; a tilted panel and a lone triangle form groups of their own."""
+    from cubegi.cubegi_engine import emitters
+
+    n = 6
+    xs = np.linspace(-0.5, 0.5, n + 1)
+    grid = np.stack(np.meshgrid(xs, xs, indexing="ij"), -1).reshape(-1, 2)
+    verts = np.concatenate([grid, np.full((len(grid), 1), 1.0)], axis=1)
+    ids = np.arange(len(grid)).reshape(n + 1, n + 1)
+    tris = []
+    for i in range(n):
+        for j in range(n):
+            tris += [(ids[i, j], ids[i + 1, j], ids[i + 1, j + 1]), (ids[i, j], ids[i + 1, j + 1], ids[i, j + 1])]
+    tris = np.array(tris)
+    rng = np.random.default_rng(5)
+    points = rng.uniform(-1.5, 1.5, size=(400, 3))
+    points[:, 2] = rng.uniform(-0.5, 2.5, size=400)
+    normals = rng.normal(size=(400, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    normals[:100] = (0, 0, 1)  # facing it from below (and its back from above)
+    tri_verts = verts[tris]
+    want = sum(emitters._two_sided_ff(points, normals, t) for t in tri_verts)
+    got = emitters._group_ff(points, normals, tris, tri_verts)
+    heights = normals @ verts.T - np.einsum("sc,sc->s", normals, points)[:, None]
+    cut = (heights.min(axis=1) < 0) & (heights.max(axis=1) > 0)
+    assert cut.sum() > 50 and (~cut).sum() > 50 and (want > 0.01).sum() > 100
+    np.testing.assert_allclose(got, np.minimum(want, 1.0), atol=1e-9)
+    tilted = tri_verts[:1].copy()
+    tilted[0, 0, 2] += 0.3
+    both = np.concatenate([tri_verts, tilted])
+    groups = emitters._flat_groups(both, np.ones((len(both), 3)), np.zeros(len(both), int), 2.0)
+    assert sorted(len(g) for g in groups) == [1, len(tri_verts)]
+    other = emitters._flat_groups(tri_verts, np.ones((len(tri_verts), 3)) * (np.arange(len(tri_verts)) % 2)[:, None] + 1,
+                                  np.zeros(len(tri_verts), int), 2.0)
+    assert sorted(len(g) for g in other) == [n * n, n * n]  # two radiances: two groups

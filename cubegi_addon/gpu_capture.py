@@ -90,28 +90,34 @@ void main() {
   gl_Position = view_proj * vec4(pos, 1.0);
 }
 """
+# A triangle of a two-sided object (see SceneArrays.back) comes as tid = -(triangle + 1): its
+# back face is not drawn, for its twin facing the other way stands in the same place.
 _ID_FRAG = """
 void main() {
+  if (v_id < 0.0 && !gl_FrontFacing) discard;
   float dist = ortho > 0.5 ? dot(v_pos - eye, axis) : length(v_pos - eye);
-  float id = v_id + 1.0;
+  float id = (v_id < 0.0 ? -v_id - 1.0 : v_id) + 1.0;
   out_texel = vec4(gl_FrontFacing ? id : -id, v_bary, dist);
 }
 """
 _DEPTH_FRAG = """
 void main() {
+  if (v_id < 0.0 && !gl_FrontFacing) discard;
   float dist = ortho > 0.5 ? dot(v_pos - eye, axis) : length(v_pos - eye);
-  float id = v_id + 1.0;
+  float id = (v_id < 0.0 ? -v_id - 1.0 : v_id) + 1.0;
   out_texel = vec2(gl_FrontFacing ? id : -id, dist);
 }
 """
 _COLOUR_VERT = """
 void main() {
   v_colour = colour;
+  v_sheet = sheet;
   gl_Position = view_proj * vec4(pos, 1.0);
 }
 """
 _COLOUR_FRAG = """
 void main() {
+  if (v_sheet > 0.5 && !gl_FrontFacing) discard;
   out_texel = gl_FrontFacing ? vec4(v_colour, 1.0) : vec4(0.0, 0.0, 0.0, 1.0);
 }
 """
@@ -148,10 +154,12 @@ def _id_shader(with_bary=True):
 def _colour_shader():
     iface = gpu.types.GPUStageInterfaceInfo("cubegi_colour_iface")
     iface.smooth("VEC3", "v_colour")
+    iface.flat("FLOAT", "v_sheet")
     info = gpu.types.GPUShaderCreateInfo()
     info.push_constant("MAT4", "view_proj")
     info.vertex_in(0, "VEC3", "pos")
     info.vertex_in(1, "VEC3", "colour")
+    info.vertex_in(2, "FLOAT", "sheet")
     info.vertex_out(iface)
     info.fragment_out(0, "VEC4", "out_texel")
     info.vertex_source(_COLOUR_VERT)
@@ -187,7 +195,9 @@ def read_texture(texture, width, height, channels=4):
 class GpuRenderer:
     """Draws one fixed set of triangles into many square views (see the Renderer protocol).
 
-    points: ``(s, 3)`` world positions; triangles: ``(t, 3)`` point indices.
+    points: ``(s, 3)`` world positions; triangles: ``(t, 3)`` point indices; sheet: ``(t,)``
+    bool, triangles whose back faces are not drawn (two-sided objects: see
+    ``SceneArrays.back``).
 
     The GPU works in a unit frame: positions are uploaded as ``(p - centre) / size`` of the
     scene's bounding box, and every view is re-expressed in that frame (see :meth:`_local`).
@@ -195,7 +205,7 @@ class GpuRenderer:
     same texels, and distances come back in world units.
     """
 
-    def __init__(self, points, triangles, drawn=None):
+    def __init__(self, points, triangles, drawn=None, sheet=None):
         ensure_gpu()
         triangles = np.asarray(triangles)
         if len(triangles) > MAX_TRIANGLES:
@@ -215,15 +225,16 @@ class GpuRenderer:
         self.corner_pos = unit_pts[self.drawn].reshape(-1, 3)
         self.chunk_boxes = _chunk_boxes(self.corner_pos.reshape(-1, 3, 3), CULL_CHUNK) if t > CULL_CHUNK else None
         bary = np.tile(np.array([[0, 0], [1, 0], [0, 1]], dtype=np.float32), (t, 1))
-        tid = np.repeat(self.order.astype(np.float32), 3)
+        self.sheet = np.zeros(t, dtype=bool) if sheet is None else np.asarray(sheet, dtype=bool)[self.order]
+        self.tid = np.repeat(np.where(self.sheet, -(self.order + 1.0), self.order).astype(np.float32), 3)
         self.id_shader = _id_shader()
-        self.id_batch = batch_for_shader(self.id_shader, "TRIS", {"pos": self.corner_pos, "bary": bary, "tid": tid})
+        self.id_batch = batch_for_shader(self.id_shader, "TRIS", {"pos": self.corner_pos, "bary": bary, "tid": self.tid})
         self._colour_shader = None
 
-    def with_geometry(self, points, triangles, drawn=None):
+    def with_geometry(self, points, triangles, drawn=None, sheet=None):
         """A renderer of other triangles (the probes' simplified copy of the scene), drawing
-        those ``drawn`` (indices; all by default)."""
-        return GpuRenderer(points, triangles, drawn)
+        those ``drawn`` (indices; all by default); ``sheet``: as for the constructor."""
+        return GpuRenderer(points, triangles, drawn, sheet)
 
     def _local(self, view_proj):
         """A world view-projection as one for unit-frame positions, scaled to entries <= 1
@@ -327,7 +338,7 @@ class GpuRenderer:
         """The triangles for the depth-only shader (the same vertex layout, its own batch)."""
         if getattr(self, "depth_batch", None) is None:
             shader = _id_shader(False)
-            columns = {"pos": self.corner_pos, "tid": np.repeat(self.order.astype(np.float32), 3)}
+            columns = {"pos": self.corner_pos, "tid": self.tid}
             columns["bary"] = np.zeros((len(self.corner_pos), 2), dtype=np.float32)
             self.depth_batch = batch_for_shader(shader, "TRIS", compat.shader_columns(shader, columns))
         return self.depth_batch
@@ -337,7 +348,8 @@ class GpuRenderer:
             self._colour_shader = _colour_shader()
         shader = self._colour_shader
         colour = np.asarray(point_radiance, dtype=np.float32)[self.drawn].reshape(-1, 3)
-        batch = batch_for_shader(shader, "TRIS", {"pos": self.corner_pos, "colour": colour})
+        batch = batch_for_shader(shader, "TRIS", {"pos": self.corner_pos, "colour": colour,
+                                                  "sheet": np.repeat(self.sheet.astype(np.float32), 3)})
         out = np.empty((len(view_projs), size, size, 3), dtype=np.float32)
         local = [self._local(vp) for vp in view_projs]
         ranges = self._ranges(local)

@@ -82,7 +82,7 @@ def _renderer(kept):
     """The kept bake's renderer for shadow maps, made on first use (GPU batches of the
     static scene, freed with the kept bake)."""
     if kept.renderer is None:
-        kept.renderer = GpuRenderer(kept.arrays.points, kept.arrays.triangles)
+        kept.renderer = GpuRenderer(kept.arrays.points, kept.arrays.triangles, sheet=kept.arrays.sheet_triangles())
     return kept.renderer
 
 

@@ -129,7 +129,7 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
     t_collect = time.perf_counter() - t0
 
     t = time.perf_counter()
-    renderer = GpuRenderer(arrays.points, arrays.triangles)
+    renderer = GpuRenderer(arrays.points, arrays.triangles, sheet=arrays.sheet_triangles())
     t_setup = time.perf_counter() - t
     earlier = session.kept(context.scene)
     steps = engine_bake_steps(arrays, grid, renderer, settings, capture=earlier.result.capture if earlier else None,

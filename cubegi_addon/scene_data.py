@@ -135,6 +135,40 @@ def _shading_points(data):
     }
 
 
+def _is_open(data):
+    """Whether the mesh has an edge that only one of its faces uses (a sheet: a plane, a
+    slat, a lamp's quad), by its vertices (shading points split at seams are not edges)."""
+    tri = data["loop_vertex"][data["tri_loops"]]
+    if not len(tri):
+        return False
+    a = tri.ravel()
+    b = np.roll(tri, -1, axis=1).ravel()
+    edges = np.minimum(a, b) * (int(tri.max()) + 1) + np.maximum(a, b)
+    edges.sort()
+    single = np.ones(len(edges), dtype=bool)
+    same = edges[1:] == edges[:-1]
+    single[1:] &= ~same
+    single[:-1] &= ~same
+    return bool(single.any())
+
+
+def _with_back_side(pts, data):
+    """An open mesh's shading points with their back side added: Cycles shades both sides of
+    a surface, so each point of a sheet gets a twin facing the other way (its light is not
+    written; it lights others), and each triangle a twin over them, wound the other way
+    (see ``SceneArrays.back``). A closed mesh keeps one side (its inside is no surface)."""
+    n = len(pts["points"])
+    pts["back"] = np.zeros(n, dtype=bool)
+    if not _is_open(data):
+        return pts
+    for key in ("points", "albedo", "emission"):
+        pts[key] = np.concatenate([pts[key], pts[key]])
+    pts["normals"] = np.concatenate([pts["normals"], -pts["normals"]])
+    pts["triangles"] = np.concatenate([pts["triangles"], pts["triangles"][:, ::-1] + n])
+    pts["back"] = np.concatenate([pts["back"], np.ones(n, dtype=bool)])
+    return pts
+
+
 def _groups(vertex, normal, material):
     """``np.unique`` of the rows (vertex, normal x, y, z, material) with ``return_index`` and
     ``return_inverse``, in its order, by one stable sort on three integer keys (the normal's
@@ -354,7 +388,7 @@ def _collect(context, depsgraph):
         if data is None:
             continue
         _note_unread_visibility(original, notes)
-        pts = _shading_points(data)
+        pts = _with_back_side(_shading_points(data), data)
         pts["name"] = original.name
         parts.append(pts)
         loop_point = pts["loop_point"] + offset
@@ -410,6 +444,7 @@ def _collect(context, depsgraph):
         lights=lights,
         point_object=np.repeat(np.arange(len(parts)), [len(p["points"]) for p in parts]),
         object_names=[p["name"] for p in parts],
+        back=np.concatenate([p["back"] for p in parts]) if any(p["back"].any() for p in parts) else None,
     )
     arrays.dark = _set_aside_non_finite(arrays, parts, notes)
     return CollectedScene(arrays, targets, list(dict.fromkeys(notes)), moving)  # each note once

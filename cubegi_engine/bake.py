@@ -43,16 +43,19 @@ class Renderer(Protocol):
     for orthographic views; inf for nothing) and a back-face flag.
     ``render_colour(view_projs, size, point_radiance (s, 3))`` draws the scene coloured by
     per-point radiance (back faces black) and returns ``(v, n, n, 3)``.
-    ``with_geometry(points, triangles, drawn=None)``: a renderer of other triangles (a
-    simplified copy of the scene for the probes); ``drawn``: the indices of the triangles it
-    draws (the rest are left out), each still reported by its own index.
+    ``with_geometry(points, triangles, drawn=None, sheet=None)``: a renderer of other
+    triangles (a simplified copy of the scene for the probes); ``drawn``: the indices of the
+    triangles it draws (the rest are left out), each still reported by its own index;
+    ``sheet``: ``(t,)`` bool, triangles whose back faces are not drawn (two-sided objects,
+    whose twins stand there: ``SceneArrays.back``). A renderer of the scene itself is made
+    with the scene's ``sheet_triangles()``.
     """
 
     def render(self, view_projs, eyes, axes, size, with_bary=True): ...
 
     def render_colour(self, view_projs, size, point_radiance): ...
 
-    def with_geometry(self, points, triangles, drawn=None): ...
+    def with_geometry(self, points, triangles, drawn=None, sheet=None): ...
 
 
 @dataclass
@@ -177,7 +180,11 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
         if proxy is None and not small.any():
             drawer = renderer
         else:
-            drawer = renderer.with_geometry(shown[0], shown[1], None if not small.any() else np.flatnonzero(~small[shown[2]]))
+            sheet = scene.sheet_triangles()
+            if sheet is not None and proxy is not None:  # per object: the proxy keeps each object's
+                sheet = np.isin(proxy.triangle_object, np.unique(scene.triangle_object()[sheet]))
+            drawer = renderer.with_geometry(shown[0], shown[1], None if not small.any() else np.flatnonzero(~small[shown[2]]),
+                                            sheet)
         timings["simplify"] = time.perf_counter() - t
         drawn = f" ({len(proxy.triangles):,} of {len(scene.triangles):,} triangles)" if proxy is not None else ""
         yield Progress(Stage.CAPTURE, 0, total, f"capturing {grid.count} probes at {settings.cube_size}x{settings.cube_size}{drawn}")

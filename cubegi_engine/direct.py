@@ -250,7 +250,8 @@ def unit_sky_direct(scene, renderer, transport, per_vertex=False) -> np.ndarray:
     if transport.near is not None:
         alone &= ~transport.near.enclosed(len(alone))
     if alone.any():  # not the underside of a block standing on the ground
-        alone[alone] = ~nearfield.resting(scene.points, scene.normals, scene.triangles, scene.scale, np.flatnonzero(alone))
+        alone[alone] = ~nearfield.resting(scene.points, scene.normals, scene.triangles, scene.scale, np.flatnonzero(alone),
+                                                scene.twins())
     if per_vertex:  # every vertex its probes give any sky (one under a roof has none)
         alone |= ~transport.covered & (light.max(axis=1) > 0)
     if alone.any():

@@ -38,7 +38,8 @@ def emissive_triangles(scene):
     """``(triangle indices (e,), radiance (e, 3))``: triangles whose three corners emit, with
     the mean of their corners' emission."""
     corner = scene.emission[scene.triangles]  # (t, 3, 3)
-    emits = np.all(np.any(corner > 0, axis=2), axis=1)
+    # A sheet's twins emit what the sheet does, from the same place: counted once (both faces).
+    emits = np.all(np.any(corner > 0, axis=2), axis=1) & ~scene.back_triangles()
     return np.nonzero(emits)[0], corner[emits].mean(axis=1)
 
 

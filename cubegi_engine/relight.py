@@ -336,6 +336,8 @@ class SceneLight:
         weights = np.stack([s.weight for s in sources])  # (n, 3)
         albedo = np.tile(self.op.albedo[sup], (1, n))
         area = self.op.areas[sup]
+        unseen = np.asarray(self.transport.covered, dtype=bool)[sup]  # as solve.keep_total: not balanced
+        balanced = area * ~unseen
 
         def side_by_side(arrays):  # n arrays (r, 3) -> (r, 3n)
             return np.stack(arrays, axis=1).reshape(len(arrays[0]), 3 * n)
@@ -358,9 +360,9 @@ class SceneLight:
                     d = near.delta(base, part, albedo * (prev + base + d))
             if self.op.landing is not None:
                 probe = ((self.op.u @ c).reshape(n, 3) * weights).sum(axis=0)
-                added = ((area @ d).reshape(n, 3) * weights).sum(axis=0)
+                added = ((balanced @ d).reshape(n, 3) * weights).sum(axis=0)
                 scale[k] = energy_factor(probe, probe + added)
-            f = np.tile(scale[k], n)
+            f = np.where(unseen[:, None], 1.0, np.tile(scale[k], n)[None, :])
             deltas.append(f * d)  # what the near field adds on the support, scaled
             prev = f * (base + d)
         self.near_factors = scale

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["SceneArrays", "GeometryFingerprint", "same_sky_map"]
+__all__ = ["SceneArrays", "GeometryFingerprint", "Sheets", "same_sky_map"]
 
 
 @dataclass(frozen=True)
@@ -60,6 +60,10 @@ class SceneArrays:
     dark: np.ndarray | None = None  # (s,) bool: points that get no light (bad input set aside)
     object_names: list = field(default_factory=list)  # per point_object index
     sky_map: np.ndarray | None = None  # see above
+    # (s,) bool: the back side of a sheet (an open mesh): points that twin the object's own,
+    # facing the other way, and the triangles over them (wound the other way). They get and
+    # pass on light like any point, and are not written. None: every surface one-sided.
+    back: np.ndarray | None = None
 
     def zero_dark_points_inplace(self, light: np.ndarray) -> np.ndarray:
         """``light (s, 3)`` with the dark points' rows set to zero, in place; returned."""
@@ -86,6 +90,28 @@ class SceneArrays:
         if self.point_object is None or not len(self.triangles):
             return np.zeros(len(self.triangles), dtype=np.int64)
         return np.asarray(self.point_object, dtype=np.int64)[self.triangles[:, 0]]
+
+    def sheets(self) -> "Sheets | None":
+        """The scene's two-sided objects (see :attr:`back`), or None where there are none."""
+        if self.back is None or not self.back.any():
+            return None
+        return Sheets(np.asarray(self.back, dtype=bool), np.asarray(self.point_object, dtype=np.int64), self.triangles)
+
+    def sheet_triangles(self) -> np.ndarray | None:
+        """``(t,)`` bool: the triangles of two-sided objects (both twins), whose back faces are
+        not drawn (the twin stands there); None where there are none."""
+        sheets = self.sheets()
+        return None if sheets is None else sheets.triangles
+
+    def twins(self) -> np.ndarray | None:
+        sheets = self.sheets()
+        return None if sheets is None else sheets.twins
+
+    def back_triangles(self) -> np.ndarray:
+        """``(t,)`` bool: the twins over the back side (all False without sheets)."""
+        if self.back is None:
+            return np.zeros(len(self.triangles), dtype=bool)
+        return self.back[self.triangles[:, 0]]
 
     def point_areas(self) -> np.ndarray:
         """Each point's share of the surface: a third of its triangles' areas, ``(s,)``."""
@@ -119,6 +145,33 @@ class SceneArrays:
             out.append((names[k], h.hexdigest()))
             layout.append((names[k], int(sel.sum()), t.hexdigest()))
         return GeometryFingerprint(tuple(out), tuple(layout))
+
+
+class Sheets:
+    """The two-sided objects of a scene: ``back (s,)`` the points on a sheet's back side,
+    ``point_object (s,)``, over ``triangles (t, 3)``. A sheet object's points are its own
+    followed by their twins, in the same order."""
+
+    def __init__(self, back, point_object, triangles):
+        self.back, self.point_object = back, point_object
+        owner = point_object[triangles[:, 0]] if len(triangles) else np.zeros(0, dtype=np.int64)
+        two_sided = np.zeros(int(point_object.max(initial=0)) + 1, dtype=bool)
+        two_sided[point_object[back]] = True
+        self.triangle_object = owner
+        self.triangle_back = back[triangles[:, 0]] if len(triangles) else np.zeros(0, dtype=bool)
+        self.triangles = two_sided[owner]  # (t,) bool: triangles of two-sided objects
+        self.point_sheet = two_sided[point_object]  # (s,) bool: points of two-sided objects
+        self.twins = np.full(len(back), -1, dtype=np.int64)  # (s,): each point's twin, -1: none
+        ids = np.flatnonzero(back)
+        half = (np.bincount(point_object, minlength=len(two_sided)) // 2)[point_object[ids]]
+        self.twins[ids] = ids - half
+        self.twins[ids - half] = ids
+
+    def other_side(self, pair_p, pair_t) -> np.ndarray:
+        """``(m,)`` bool: whether triangle ``pair_t`` lies on the other side of the sheet that
+        point ``pair_p`` lies on (a ray from a sheet never meets its own far side)."""
+        return (self.point_sheet[pair_p] & (self.triangle_object[pair_t] == self.point_object[pair_p])
+                & (self.triangle_back[pair_t] != self.back[pair_p]))
 
 
 def same_sky_map(a, b) -> bool:

@@ -70,10 +70,16 @@ def energy_factor(target, got):
     return np.where((factor >= lo) & (factor <= hi), factor, 1.0)
 
 
-def keep_total(light, before, areas):
+def keep_total(light, before, areas, unseen=None):
     """``light (s, 3)`` scaled per channel to the area-weighted total of ``before``: the near
-    field moves where a bounce's light lands, the energy balance has said how much lands."""
-    return light * energy_factor((areas[:, None] * before).sum(axis=0), (areas[:, None] * light).sum(axis=0))
+    field moves where a bounce's light lands, the energy balance has said how much lands.
+    ``unseen (s,)``: points no probe sees (a ceiling 1 cm above a lamp), whose near-field light
+    the balance knows nothing of: neither counted nor scaled (the light trapped in a gap)."""
+    weights = areas if unseen is None else areas * ~unseen
+    out = light * energy_factor((weights[:, None] * before).sum(axis=0), (weights[:, None] * light).sum(axis=0))
+    if unseen is not None:
+        out[unseen] = light[unseen]
+    return out
 
 
 @dataclass
@@ -149,7 +155,7 @@ def solve_steps(scene, transport, direct, settings: BakeSettings | None = None, 
             gathered = scene.zero_dark_points_inplace(near.correct(
                 light, transport.interpolate_rows(coeffs * factor.astype(np.float32), near.rows, near.open_basis), albedo * seen_before))
             if landing is not None:
-                gathered = keep_total(gathered, light, areas)
+                gathered = keep_total(gathered, light, areas, transport.covered)
         t3 = time.perf_counter()
         mean = area_weighted_mean(light, areas)
         ratio = convergence.ratios(previous_mean, mean)
@@ -181,7 +187,7 @@ def solve_steps(scene, transport, direct, settings: BakeSettings | None = None, 
     if tail is not None and tail_coeffs is not None and near is not None:  # a solved tail: its near field too
         part = transport.interpolate_rows(tail_coeffs, near.rows, near.open_basis)
         fixed = near.correct_sum(tail, part, albedo, seen_before)
-        tail = keep_total(fixed, tail, areas) if landing is not None else fixed
+        tail = keep_total(fixed, tail, areas, transport.covered) if landing is not None else fixed
     if tail is not None:
         scene.zero_dark_points_inplace(tail)
     solution = LightSolution(direct, bounces, records, tail, report, bounce_coeffs, tail_coeffs)

@@ -186,7 +186,7 @@ class Transport:
                 lit_if_open = np.zeros(len(scene.points), dtype=bool)
                 lit_if_open[spare[0]] = True
             self.near = nearfield.build(scene.points, scene.normals, reach, scene.triangles, hidden=self.covered,
-                                        lit_if_open=lit_if_open)
+                                        lit_if_open=lit_if_open, sheets=scene.sheets())
         if spare is not None:
             # A point only probes behind its plane see (a block's underside below the lowest
             # probes) is lit by its near field where that encloses at least half its view (the
@@ -229,7 +229,7 @@ class Transport:
             which = np.zeros(s, dtype=bool)
             which[rows] = True
             return nearfield.build(scene.points, scene.normals, reach, scene.triangles, hidden=hidden, which=which,
-                                   hidden_as_given=True)
+                                   hidden_as_given=True, sheets=scene.sheets())
 
         far = rays(open_)
         under = np.isin(open_, far.rows[far.share >= UNDER_SHARE]) if far.count else np.zeros(len(open_), dtype=bool)

@@ -50,7 +50,7 @@ def _parser(prog="python -m cubegi_engine"):
     m = sub.add_parser("benchmark", help="measure CubeGI's error against run time, and Cycles' (writes results.json/.md and a plot)")
     m.add_argument("--out", default="out/benchmark", help="folder for the results (and the cached Cycles references)")
     m.add_argument("--quick", action="store_true", help="a small sweep that runs in a few minutes (a smoke test)")
-    m.add_argument("--scenes", nargs="+", help="only these scenes (default: all)")
+    m.add_argument("--scenes", nargs="+", help="only these scenes (default: all; with --quick, the scenes built in code, not the public ones)")
     m.add_argument(
         "--scaling", action="store_true",
         help="instead: bake the Room subdivided to 6K-1M vertices and with 50-2,000 probes, each in its own process, and "

@@ -137,10 +137,12 @@ def _shading_points(data):
 
 def _is_open(data):
     """Whether the mesh has an edge that only one of its faces uses (a sheet: a plane, a
-    slat, a lamp's quad), by its vertices (shading points split at seams are not edges)."""
-    tri = data["loop_vertex"][data["tri_loops"]]
-    if not len(tri):
+    slat, a lamp's quad), by where its vertices stand (shading points split at seams, and a
+    box whose sides are separate pieces meeting at its edges, are closed)."""
+    if not len(data["tri_loops"]):
         return False
+    _, welded = np.unique(data["co"], axis=0, return_inverse=True)
+    tri = welded.ravel()[data["loop_vertex"][data["tri_loops"]]]
     a = tri.ravel()
     b = np.roll(tri, -1, axis=1).ravel()
     edges = np.minimum(a, b) * (int(tri.max()) + 1) + np.maximum(a, b)

@@ -230,7 +230,7 @@ def _visibility(scene, renderer, size, verts, radiance, lit):
             continue
         v = lights_mod.shadow_visibility(
             pts[use], nrm[use], eye, cap.tid[k], cap.dist[k], cap.backface[k], scene.triangles, scene.points, ids[use],
-            scene.scale, reach=0, turn=turns[k],
+            scene.scale, reach=0, turn=turns[k], sides=scene.sides(),
         )
         num[ids[use]] += w[use] * v
         den[ids[use]] += w[use]

@@ -288,7 +288,8 @@ def probes_in_front(probe_pos, probe_valid, points, normals, index, weight):
     return w / np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
 
 
-def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals, index, weight, cover=None, both=False):
+def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals, index, weight, cover=None, both=False,
+                       sheet=None):
     """Trilinear weights with probes that cannot see a point, or are invalid, left out.
 
     A probe is kept for a point if the point, lifted off its surface along the normal by a
@@ -312,11 +313,13 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     probe's texel sees towards the point, whose plane the exact ray from the probe crosses
     in front of the point, inside that triangle, covers the point (a rug over a floor, a
     thin wall between rooms). A point that every probe misses and some other object covers
-    gets no probe light, instead of falling back to its plain weights.
+    gets no probe light, instead of falling back to its plain weights. ``sheet``: ``(s,)``
+    bool, points of two-sided sheets, which only probes in front of their plane light.
     """
     if len(points) > POINT_CHUNK:
         parts = [visibility_weights(grid, probe_pos, probe_dist, probe_valid, points[sl], normals[sl], index[sl], weight[sl],
-                                    None if cover is None else cover.rows(sl), both) for sl in chunks(len(points))]
+                                    None if cover is None else cover.rows(sl), both, None if sheet is None else sheet[sl])
+                 for sl in chunks(len(points))]
         if both:
             return tuple(np.concatenate(p) for p in zip(*parts))
         return np.concatenate(parts)
@@ -330,6 +333,11 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     # Tolerance: two texels' worth of angle at that distance plus a hundredth of a cell.
     tol = dist * (4.0 / n) + 0.01 * cell
     visible = dist <= seen + tol
+    if sheet is not None:
+        # A point of a two-sided sheet: a probe behind its plane is on the sheet's other side,
+        # whose own twin point it lights (the depth test cannot tell the two apart).
+        height_now = np.einsum("skc,sc->sk", probe_pos[index] - points[:, None, :], normals)
+        visible &= ~sheet[:, None] | (height_now > 0)
     valid = probe_valid[index]
     covered = np.zeros_like(visible)
     if cover is not None:

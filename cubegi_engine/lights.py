@@ -181,7 +181,7 @@ def unshadowed(light, points, normals):
 
 
 def shadow_visibility(points, normals, eye, face_tid, face_dist, face_back, triangles, vertices, point_ids, scale, reach=1,
-                      turn=None):
+                      turn=None, sides=None):
     """Whether each receiver sees ``eye``, from a depth cube map rendered at ``eye``.
 
     points, normals: ``(s, 3)``; face_tid: ``(6, n, n)`` triangle index seen per texel (-1:
@@ -189,7 +189,8 @@ def shadow_visibility(points, normals, eye, face_tid, face_dist, face_back, tria
     sees a back face; triangles: ``(t, 3)`` indices into vertices ``(v, 3)``; point_ids:
     ``(s,)`` index of each receiver in the point arrays; scale: scene size; reach: how many
     texels around the receiver's own are asked (0: its own only); turn: ``(3, 3)`` the cube
-    map's rotation, if it was drawn turned.
+    map's rotation, if it was drawn turned; sides: ``SceneArrays.sides()`` (two-sided sheets),
+    if any.
 
     The receiver is lifted off its surface by a quarter of a texel's footprint and looked up
     in the map (see :func:`_occluded`). Returns ``(s,)`` float64 in {0, 1}.
@@ -197,7 +198,7 @@ def shadow_visibility(points, normals, eye, face_tid, face_dist, face_back, tria
     if len(points) > POINT_CHUNK:
         return np.concatenate([
             shadow_visibility(points[sl], normals[sl], eye, face_tid, face_dist, face_back, triangles, vertices,
-                              point_ids[sl], scale, reach, turn)
+                              point_ids[sl], scale, reach, turn, sides)
             for sl in chunks(len(points))
         ])
     n = face_dist.shape[-1]
@@ -213,7 +214,8 @@ def shadow_visibility(points, normals, eye, face_tid, face_dist, face_back, tria
     cos = np.abs(np.einsum("sc,sc->s", normals, rel / np.maximum(d, 1e-300)[:, None]))
     maps = (face_tid, face_dist, face_back)
     origins = np.broadcast_to(eye, u.shape)
-    occluded = _occluded(maps, face, row, col, origins, u, d2, cos, footprint, triangles, vertices, point_ids, scale, reach)
+    occluded = _occluded(maps, face, row, col, origins, u, d2, cos, footprint, triangles, vertices, point_ids, scale, reach,
+                         sides)
     return (~occluded).astype(np.float64)
 
 
@@ -227,7 +229,8 @@ BIAS_FOOTPRINTS, BIAS_OF_DEPTH, SLOPE_OF_SCALE, MIN_COS = 0.1, 1e-5, 1e-4, 0.2
 LIFT = 0.25
 
 
-def _occluded(maps, face, row, col, origins, u, depth, cos, footprint, triangles, vertices, point_ids, scale, reach=1):
+def _occluded(maps, face, row, col, origins, u, depth, cos, footprint, triangles, vertices, point_ids, scale, reach=1,
+              sides=None):
     """Whether something lies between the light and each (lifted) receiver.
 
     The map says which triangles lie towards the light in the receiver's texel and its
@@ -256,6 +259,14 @@ def _occluded(maps, face, row, col, origins, u, depth, cos, footprint, triangles
     tid = tid_map[f, r, c]
     seen = dist_map[f, r, c].astype(np.float64)
     back = back_map[f, r, c]
+    if sides is not None:
+        # A sheet's face on the far side from the receiver's (a twin, for a receiver on the
+        # front or on a one-sided mesh) stands where a one-sided sheet's back face would be
+        # seen: the back-face rule holds for it.
+        tri_side, point_side = sides
+        ts = tri_side[np.maximum(tid, 0)]
+        ps = np.where(point_ids >= 0, point_side[np.maximum(point_ids, 0)], 0)[:, None]
+        back = back | ((tid >= 0) & (ts > 0) & ((ts == 2) != (ps == 2)))
     plane, _ = cut_triangles(origins[:, None, :], u[:, None, :], tid, triangles, vertices)
     own = np.any(triangles[np.maximum(tid, 0)] == point_ids[:, None, None], axis=2)
     depth = depth[:, None]
@@ -274,13 +285,14 @@ def _occluded(maps, face, row, col, origins, u, depth, cos, footprint, triangles
 
 
 def ortho_visibility(
-    points, normals, view_proj, axis, eye, tid_map, dist_map, back_map, triangles, vertices, point_ids, half_width, scale
+    points, normals, view_proj, axis, eye, tid_map, dist_map, back_map, triangles, vertices, point_ids, half_width, scale,
+    sides=None,
 ):
     """Like :func:`shadow_visibility` for a sun: one orthographic depth map along ``axis``."""
     if len(points) > POINT_CHUNK:
         return np.concatenate([
             ortho_visibility(points[sl], normals[sl], view_proj, axis, eye, tid_map, dist_map, back_map, triangles,
-                             vertices, point_ids[sl], half_width, scale)
+                             vertices, point_ids[sl], half_width, scale, sides)
             for sl in chunks(len(points))
         ])
     n = dist_map.shape[-1]
@@ -297,5 +309,6 @@ def ortho_visibility(
     u = np.broadcast_to(axis, lifted.shape)
     maps = (tid_map[None], dist_map[None], back_map[None])
     face = np.zeros(len(points), dtype=np.int64)
-    occluded = _occluded(maps, face, row, col, origins, u, depth, cos, footprint, triangles, vertices, point_ids, scale)
+    occluded = _occluded(maps, face, row, col, origins, u, depth, cos, footprint, triangles, vertices, point_ids, scale,
+                         sides=sides)
     return (~occluded | ~inside).astype(np.float64)

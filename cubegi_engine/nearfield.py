@@ -61,8 +61,8 @@ SLACK, COORD_SLACK, BARY_SLACK = 1e-5, 4e-6, 1e-5
 # Hits fade out over this last share of the reach.
 FADE = 0.25
 # A covered point counts as hidden from the near field's hits (its light stands for no
-# surface) where it lies on another surface (see resting); a covered point open over at
-# least this share of its view that the probes light after all (``lit_if_open``) never is.
+# surface) where at least this share of its view is closed in within reach, or where it
+# lies on another surface (see resting).
 HIDDEN_SHARE = 0.5
 # A hit on a triangle with a corner closed in (openness below OPENNESS_CLOSED: a floor point
 # under a block) and one in the open (above OPENNESS_OPEN) casts OPENNESS_RAYS rays of its
@@ -251,7 +251,8 @@ def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS
     covered points to decide it from. ``sheets``: the scene's two-sided objects
     (:class:`~cubegi_engine.scene.Sheets`): a ray meets a sheet's twin's front where it meets
     its back, so back faces of sheets are not hit, and a ray from a sheet never meets the
-    sheet's own far side (a slightly bent wall's twin lies in front of its points)."""
+    sheet's own far side (a slightly bent wall's twin lies in front of its points); a sheet's
+    back side, and a covered point whose rays meet one, are never hidden."""
     t0 = time.perf_counter()
     points = np.asarray(points, dtype=np.float64)
     normals = np.asarray(normals, dtype=np.float64)
@@ -310,19 +311,25 @@ def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS
     openness = np.ones(s)
     openness[cast] = 1.0 - fade.mean(axis=1)
     if hidden is not None:
-        # Hidden: covered (no probe light) and lying on another surface (under a wall standing
-        # on it, a block's underside on the ground): its light stands for no surface. A covered
-        # point with a gap in front of it, however thin, is a surface with light of its own:
-        # the ceiling 1 cm over a lamp, lit by it and by the lamp's top, which it lights back
-        # (McGuire's Cornell box: the ceiling's indirect light 0.10 -> 0.40 against Cycles'
-        # 0.56); so is a covered point open to its own view (a thick wall's outer face: no
-        # probe is outside), lit by the sky or the sun.
+        # Hidden: covered (no probe light) and closed in or lying on another surface (under a
+        # wall standing on it, a block's underside). A covered point open to its own view (a
+        # thick wall's outer face: no probe is outside) has light of its own (the sky's, the
+        # sun's), and a ray that lands beside it takes it. So has a sheet's back side and a
+        # covered point facing one across a gap: the ceiling 1 cm over a lamp's quad, lit by
+        # its top, which it lights back (McGuire's Cornell box: the ceiling's indirect light
+        # 0.10 -> 0.40 against Cycles' 0.56). A floor under a block standing 2 cm above it
+        # faces the block's own underside: hidden, as before.
         hidden = np.asarray(hidden, dtype=bool).copy()
         if not hidden_as_given:
             open_ = openness >= 1.0 - HIDDEN_SHARE
             if lit_if_open is not None:
                 hidden &= ~(open_ & lit_if_open)
-            ask = np.flatnonzero(hidden)
+            if sheets is not None:
+                # A sheet's back side, and a point facing one across a gap, are surfaces.
+                facing = sheets.back.copy()
+                facing[cast[point[sheets.back[corners].any(axis=1)]]] = True
+                hidden &= ~facing
+            ask = np.flatnonzero(hidden & open_)
             if len(ask):
                 scale = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
                 hidden[ask] = resting(points, normals, tri, scale, ask, None if sheets is None else sheets.twins)

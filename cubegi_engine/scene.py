@@ -92,10 +92,22 @@ class SceneArrays:
         return np.asarray(self.point_object, dtype=np.int64)[self.triangles[:, 0]]
 
     def sheets(self) -> "Sheets | None":
-        """The scene's two-sided objects (see :attr:`back`), or None where there are none."""
+        """The scene's two-sided objects (see :attr:`back`), or None where there are none;
+        made once per snapshot."""
         if self.back is None or not self.back.any():
             return None
-        return Sheets(np.asarray(self.back, dtype=bool), np.asarray(self.point_object, dtype=np.int64), self.triangles)
+        key = (id(self.back), id(self.triangles), id(self.point_object))
+        cached = self.__dict__.get("_sheets")
+        if cached is None or cached[0] != key:
+            cached = (key, Sheets(np.asarray(self.back, dtype=bool), np.asarray(self.point_object, dtype=np.int64), self.triangles))
+            self.__dict__["_sheets"] = cached
+        return cached[1]
+
+    def sides(self):
+        """``(triangle side (t,), point side (s,))`` int8 (0: one-sided, 1: a sheet's front,
+        2: its back) for the shadow tests (``lights.shadow_visibility``), or None."""
+        sheets = self.sheets()
+        return None if sheets is None else sheets.sides
 
     def sheet_triangles(self) -> np.ndarray | None:
         """``(t,)`` bool: the triangles of two-sided objects (both twins), whose back faces are
@@ -166,6 +178,8 @@ class Sheets:
         half = (np.bincount(point_object, minlength=len(two_sided)) // 2)[point_object[ids]]
         self.twins[ids] = ids - half
         self.twins[ids - half] = ids
+        point_side = np.where(back, 2, np.where(self.point_sheet, 1, 0)).astype(np.int8)
+        self.sides = (point_side[triangles[:, 0]] if len(triangles) else np.zeros(0, dtype=np.int8), point_side)
 
     def other_side(self, pair_p, pair_t) -> np.ndarray:
         """``(m,)`` bool: whether triangle ``pair_t`` lies on the other side of the sheet that

@@ -159,7 +159,8 @@ class Transport:
                                  self.triangle_object, scene.point_object)
             trilinear_weight = weight
             seen, behind = visibility_weights(grid, positions, dist, self.probe_valid, scene.points, scene.normals, index,
-                                              weight, cover, both=True)
+                                              weight, cover, both=True,
+                                              sheet=None if scene.sheets() is None else scene.sheets().point_sheet)
             alone = np.flatnonzero(~seen.any(axis=1) & behind.any(axis=1))
             if len(alone):
                 spare = (alone, behind[alone])

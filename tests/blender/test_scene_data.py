@@ -64,9 +64,12 @@ def test_albedo_from_colour_attribute_emission_and_fallback(empty_scene, cubegi)
     collected = _collect(cubegi)
     arr = collected.arrays
     x = arr.points[:, 0]
+    # Each quad is a sheet: its 4 points and their 4 twins (the back side), alike in albedo
+    # and emission (Cycles shades and lights both sides).
+    assert arr.back is not None and arr.back.sum() == len(arr.points) // 2
     np.testing.assert_allclose(arr.albedo[x < 1.5], [[0.1, 0.6, 0.3]] * (x < 1.5).sum(), atol=1e-6)
-    np.testing.assert_allclose(arr.emission[(x > 1.5) & (x < 3.5)], [[4.0, 2.0, 1.0]] * 4, atol=1e-6)
-    np.testing.assert_allclose(arr.albedo[x > 3.5], [[0.3, 0.2, 0.1]] * 4, atol=1e-6)
+    np.testing.assert_allclose(arr.emission[(x > 1.5) & (x < 3.5)], [[4.0, 2.0, 1.0]] * 8, atol=1e-6)
+    np.testing.assert_allclose(arr.albedo[x > 3.5], [[0.3, 0.2, 0.1]] * 8, atol=1e-6)
     assert any("Odd" in n for n in collected.notes)
     np.testing.assert_allclose(arr.sky, [0.2, 0.3, 0.4], atol=1e-6)
 
@@ -91,7 +94,7 @@ def test_modifiers_instances_and_hidden_objects(empty_scene, cubegi):
     collected = _collect(cubegi)
     baked = {t.object_name for t in collected.targets}
     assert baked == {"Deformed"}
-    x = collected.arrays.points[:, 0]
+    x = np.where(collected.arrays.back, np.nan, collected.arrays.points[:, 0])  # the front sides
     assert ((x >= 10) & (x <= 11)).sum() == 4  # the instance lights the scene
     assert not ((x >= 4) & (x <= 5)).any()  # hidden from render: not there
     assert collected.arrays.points[(x >= 2) & (x <= 3)][:, 2].max() == pytest.approx(0.25)  # displaced: strength x (1 - midlevel 0.5)

@@ -87,6 +87,9 @@ def simplify(scene, budget) -> CaptureProxy | None:
     no more than that (it is drawn as it is). Where objects touch, the points they keep as
     they are can take it past the budget (by 13% for rooms subdivided to 19K triangles given
     3,000); the report says what was drawn."""
+    sheets = scene.sheets() if hasattr(scene, "sheets") else None
+    if sheets is not None:
+        return _simplify_sheets(scene, sheets, budget)
     tris = np.asarray(scene.triangles)
     if budget is None or len(tris) <= budget:
         return None
@@ -117,6 +120,43 @@ def simplify(scene, budget) -> CaptureProxy | None:
         # grow, so the count need not fall: the fewest seen is kept.
         cell = cell * np.sqrt(got / max(budget - kept_whole, 1)) * 1.05
     return best
+
+
+def _simplify_sheets(scene, sheets, budget):
+    """:func:`simplify` of a scene with two-sided sheets: its front sides alone are simplified
+    (within the budget, as one-sided), then each sheet object's clusters and triangles get
+    twins facing the other way, over its back points (see ``SceneArrays.back``)."""
+    from dataclasses import replace
+
+    front = np.flatnonzero(~sheets.back)
+    index = np.full(len(scene.points), -1, dtype=np.int64)
+    index[front] = np.arange(len(front))
+    one_sided = replace(scene, points=scene.points[front], normals=scene.normals[front], albedo=scene.albedo[front],
+                        emission=scene.emission[front], triangles=index[scene.triangles[~sheets.triangle_back]],
+                        point_object=np.asarray(scene.point_object)[front], back=None,
+                        dark=None if scene.dark is None else scene.dark[front])
+    proxy = simplify(one_sided, budget)
+    if proxy is None:
+        return None
+    c = proxy.count
+    two_sided = np.zeros(int(np.max(scene.point_object, initial=0)) + 1, dtype=bool)
+    two_sided[np.asarray(scene.point_object)[sheets.back]] = True
+    cluster_object = np.zeros(c, dtype=np.int64)
+    cluster_object[proxy.cluster] = one_sided.point_object
+    mirrored = np.flatnonzero(two_sided[cluster_object])  # clusters of sheets
+    twin_of = np.full(c, -1, dtype=np.int64)
+    twin_of[mirrored] = c + np.arange(len(mirrored))
+    cluster = np.empty(len(scene.points), dtype=np.int64)
+    share = np.empty(len(scene.points))
+    cluster[front], share[front] = proxy.cluster, proxy.share
+    back = np.flatnonzero(sheets.back)
+    cluster[back] = twin_of[proxy.cluster[index[sheets.twins[back]]]]
+    share[back] = proxy.share[index[sheets.twins[back]]]
+    flip = two_sided[proxy.triangle_object]
+    triangles = np.concatenate([proxy.triangles, twin_of[proxy.triangles[flip][:, ::-1]]])
+    return CaptureProxy(np.concatenate([proxy.points, proxy.points[mirrored]]), triangles, cluster, share,
+                        np.concatenate([proxy.triangle_object, proxy.triangle_object[flip]]), proxy.cell,
+                        len(scene.triangles))
 
 
 class _Prepared:
@@ -211,7 +251,10 @@ def _contact(prep, cell, ijk):
     floor) does not count: both are clustered, each on its own."""
     points, normals, owner, rel = prep.points, prep.normals, prep.owner, prep.rel
     out = np.zeros(len(points), dtype=bool)
-    for obj in np.flatnonzero(cell > 0):
+    simplified = np.flatnonzero(cell > 0)
+    # The triangles larger than the smallest cell, once (few: a scene's walls and floors).
+    larger = np.flatnonzero(prep.tri_extent > cell[simplified].min()) if len(simplified) else np.zeros(0, dtype=np.int64)
+    for obj in simplified:
         mine = prep.members[obj]
         h = cell[obj]
         lo, hi = points[mine].min(axis=0) - h, points[mine].max(axis=0) + h
@@ -233,9 +276,9 @@ def _contact(prep, cell, ijk):
         touched = np.zeros(len(cells), dtype=bool)
         touched[at[found][across]] = True
         # Other objects' triangles larger than a cell, whose vertices may lie far outside.
-        big = (prep.tri_owner != obj) & (prep.tri_extent > h)
-        big &= np.all(prep.tri_lo <= hi, axis=1) & np.all(prep.tri_hi >= lo, axis=1)
-        if big.any():
+        big = larger[(prep.tri_owner[larger] != obj) & (prep.tri_extent[larger] > h)]
+        big = big[np.all(prep.tri_lo[big] <= hi, axis=1) & np.all(prep.tri_hi[big] >= lo, axis=1)]
+        if len(big):
             centres = points[mine[first]] - rel[mine[first]] + (ijk[mine[first]] + 0.5) * h
             c = points[prep.tris[big]]
             touched |= near_any_triangle(centres, 0.5 * np.sqrt(3.0) * h, c[:, 0], c[:, 1], c[:, 2],

@@ -225,7 +225,8 @@ def run(out_dir, quick=False, scenes=None, log=print):
         "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, {platform.system()}",
         "gpu": _gpu_name(),
         "mode": "quick" if quick else "full",
-        "reference samples": config["reference_samples"],
+        "reference samples": ", ".join(f"{n} {LARGE.get(n, {}).get('reference_samples', config['reference_samples'])}"
+                                       for n in names) if not quick else config["reference_samples"],
         "wall seconds": round(time.perf_counter() - t0, 1),
     }
     with open(os.path.join(out_dir, "results.json"), "w") as fh:

@@ -116,6 +116,8 @@ class SceneArrays:
         return None if sheets is None else sheets.triangles
 
     def twins(self) -> np.ndarray | None:
+        """``(s,)``: each point's twin on the other side of its sheet (-1: none); None
+        without sheets."""
         sheets = self.sheets()
         return None if sheets is None else sheets.twins
 

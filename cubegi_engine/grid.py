@@ -333,17 +333,18 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     # Tolerance: two texels' worth of angle at that distance plus a hundredth of a cell.
     tol = dist * (4.0 / n) + 0.01 * cell
     visible = dist <= seen + tol
+    eyes = probe_pos[index]
+    # How far each probe stands in front of the point's tangent plane.
+    height = np.einsum("skc,sc->sk", eyes - points[:, None, :], normals)
     if sheet is not None:
         # A point of a two-sided sheet: a probe behind its plane is on the sheet's other side,
         # whose own twin point it lights (the depth test cannot tell the two apart).
-        height_now = np.einsum("skc,sc->sk", probe_pos[index] - points[:, None, :], normals)
-        visible &= ~sheet[:, None] | (height_now > 0)
+        visible &= ~sheet[:, None] | (height > 0)
     valid = probe_valid[index]
     covered = np.zeros_like(visible)
     if cover is not None:
         # The pairs that light the point are asked first; a point that none of them lights
         # after that is dark if any other probe's ray to it is covered too (see ``dark``).
-        eyes = probe_pos[index]
         ask = visible & valid & (weight > 0)
         covered = _covered(cover, eyes, points, normals, index, face, row, col, n, cell, ask)
         unlit = np.flatnonzero((weight * (ask & ~covered)).sum(axis=1) <= 1e-9)
@@ -353,7 +354,6 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
         visible &= ~covered
     # A probe more than BEHIND cells behind the point's tangent plane sees its hemisphere from
     # the far side: at a convex edge nothing hides it.
-    height = np.einsum("skc,sc->sk", probe_pos[index] - points[:, None, :], normals)
     seen_by = weight * (visible & valid)
     w = seen_by * (height >= -BEHIND * cell)
     total = w.sum(axis=1, keepdims=True)
@@ -432,8 +432,8 @@ def _covered(cover, eyes, points, normals, index, face, row, col, n, cell, ask):
     for j, (dr, dc) in enumerate((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)):
         tid = cover.probe_tid[index, face, np.clip(row + dr, 0, n - 1), np.clip(col + dc, 0, n - 1)]
         candidate = ask & (tid >= 0) & ~covered
-        candidate[candidate] = _blocks(cover, tid[candidate], cover.point_object[np.nonzero(candidate)[0]],
-                                       normals[np.nonzero(candidate)[0]])
+        rows = np.nonzero(candidate)[0]
+        candidate[candidate] = _blocks(cover, tid[candidate], cover.point_object[rows], normals[rows])
         pick = np.nonzero(candidate)
         if not len(pick[0]):
             continue

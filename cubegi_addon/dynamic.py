@@ -2,7 +2,7 @@
 (the engine side is :mod:`cubegi_engine.moving`)."""
 
 from ..cubegi_engine.moving import light_moving
-from . import attributes
+from . import attributes, session
 from .gpu_capture import GpuRenderer
 
 
@@ -18,11 +18,9 @@ def moving_layers(obj, target, field, lights, shadows, settings, lit):
 
 def write_moving(context, kept):
     """Light and write every dynamic object from the kept probe field."""
-    import bpy
-
-    for obj, target in kept.moving or ():
-        mesh = bpy.data.meshes.get(target.mesh_name)
-        if mesh is None or len(mesh.vertices) != target.vertex_count:
+    moving = kept.moving or []
+    for (obj, target), mesh in zip(moving, session.target_meshes([t for _, t in moving])):
+        if mesh is None:
             continue
         for name, values in moving_layers(obj, target, kept.result.field, kept.arrays.lights, kept.result.shadows,
                                           kept.settings, kept.lit).items():

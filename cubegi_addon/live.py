@@ -6,11 +6,13 @@
 | a light moved, turned, resized, its cone or shadow setting; a new light | that light's direct light (its shadow map), then one solve of every bounce |
 | a light removed | it leaves the sum, then the balance |
 | a material's colour or emission (``materials=True``: reads the meshes' materials) | the bounce operator is rebuilt for the new albedo; emitters projected again |
-| geometry (a mesh edited or moved, an object added) | :func:`update` refuses (Bake again); Live bakes again once edits pause, and the bake re-captures only the probes the moved objects concern |
+| geometry (a mesh moved or edited, in Edit Mode too, a modifier, an object added or deleted) | :func:`update` refuses and names the objects (Bake again); Live bakes again once edits pause and the scene is in Object Mode, and the bake re-captures only the probes the moved objects concern |
+| undo, redo | the kept bake is used while the restored file holds its light (the file's ``bake_id``), else dropped; Live then brings the light up to date with the restored scene |
 
 The engine side is :class:`cubegi_engine.relight.SceneLight`, made from the kept bake on
-first use and kept with it (:mod:`.session`). The attributes are written in place, the
-probe light on the grid objects and the kept probe field follow.
+first use and kept with it (:mod:`.session`). The attributes are written in place (to the
+meshes found by their objects' ``session_uid``: renaming changes nothing), the probe light
+on the grid objects and the kept probe field follow.
 """
 
 import time
@@ -60,7 +62,7 @@ def state_of(context):
     """The kept bake of the context's scene with its SceneLight (made now if needed)."""
     kept = session.kept(context.scene)
     if kept is None:
-        raise BakeError("nothing to update: bake first (a file load, undo or Clear drops what a bake keeps)")
+        raise BakeError("nothing to update: bake first (a file load, Clear, or an undo past the bake drops what a bake keeps)")
     if kept.light is None:
         arrays, settings = kept.arrays, kept.settings
 
@@ -86,9 +88,11 @@ def _renderer(kept):
     return kept.renderer
 
 
-def update(context, materials=False, write=True, settle=True, bounce_layers=True):
+def update(context, materials=False, write=True, settle=True, bounce_layers=True, geometry=True):
     """Bring the baked light up to date with the scene's lights, world (and with
     ``materials``, the materials' colours and emission). Returns an :class:`Update`.
+    Refuses (BakeError, nothing written) if the static geometry changed since the bake
+    (``geometry=False``: not checked; Live checks each edit as it comes instead).
 
     ``settle=False``: a power or colour edit is applied as a weighted sum alone, with the
     energy balance's factors as they were and the bounce layers left for the next settled
@@ -100,6 +104,11 @@ def update(context, materials=False, write=True, settle=True, bounce_layers=True
     if kept is None:
         state_of(context)  # refuses with the reason
     t = time.perf_counter()
+    if geometry:
+        changes = geometry_changes(context.view_layer, context.evaluated_depsgraph_get(), kept)
+        if changes:
+            raise BakeError(f"the geometry changed since the bake ({', '.join(changes)}): Bake again (an update keeps "
+                            "the capture, which only a bake redraws)")
     lights, sky, pattern, _ = scene_data.scene_lights(context)
     report.seconds["read"] = time.perf_counter() - t
     if not same_sky_map(kept.arrays.sky_map, pattern):
@@ -143,6 +152,20 @@ def update(context, materials=False, write=True, settle=True, bounce_layers=True
     return report
 
 
+def geometry_changes(view_layer, depsgraph, kept, only=None):
+    """How the static geometry differs from the kept bake's, one phrase per object ("Block
+    moved or edited", "Table deleted", "Chair added"); empty if alike. With ``only`` (a set
+    of ``session_uid``) only those objects' shapes are compared (and every object's
+    membership)."""
+    now = scene_data.static_shapes(view_layer, depsgraph, only)
+    before = kept.shapes or {}
+    changes = [f"{name} deleted or hidden from renders" for uid, (name, _) in before.items() if uid not in now]
+    changes += [f"{name} added" for uid, (name, _) in now.items() if uid not in before]
+    changes += [f"{name} moved or edited" for uid, (name, digest) in now.items()
+                if uid in before and digest is not None and digest != before[uid][1]]
+    return changes
+
+
 def _same_lights(arrays, lights, sky):
     """True if ``lights`` and ``sky`` are what the kept bake was made (or last updated) with."""
     before = arrays.lights
@@ -184,7 +207,7 @@ def _update_lights(state, lights, sky, report):
 def _update_materials(context, kept, report):
     collected = scene_data.collect(context)
     arrays = collected.arrays
-    if arrays.fingerprint().changed(kept.arrays.fingerprint()):
+    if not arrays.fingerprint().same_geometry(kept.arrays.fingerprint()):
         raise BakeError("the geometry changed since the bake: Bake again (an update keeps the capture, which only a bake redraws)")
     state = kept.light
     albedo = np.where(arrays.dark[:, None], 0.0, arrays.albedo) if arrays.dark is not None else arrays.albedo
@@ -222,11 +245,8 @@ def write_light(context, kept, bounces=True, field=True):
         layers[attributes.bounce_name(k)] = state.bounce(k)
     if kept.lit:
         layers[attributes.LIT] = arrays.albedo * (indirect if kept.lit == "INDIRECT" else direct + indirect)
-    import bpy
-
-    for target in kept.targets:
-        mesh = bpy.data.meshes.get(target.mesh_name)
-        if mesh is None or len(mesh.vertices) != target.vertex_count:
+    for target, mesh in zip(kept.targets, session.target_meshes(kept.targets)):
+        if mesh is None:
             continue
         for name, values in layers.items():
             attributes.put(mesh, name, attributes.vertex_values(target, values))
@@ -250,10 +270,13 @@ _status = {"writing": False}
 
 
 def _kinds(depsgraph, kept):
-    """What a depsgraph update touched: a subset of {"light", "materials", "geometry"}."""
+    """What a depsgraph update touched: a subset of {"light", "materials", "dynamic",
+    "geometry"}. Geometry is judged in Object Mode only (an Edit Mode change reaches the
+    mesh when Edit Mode ends, which is an update of its own), by the shapes of the objects
+    updated and by which objects render (CubeGI's own writes leave both as they were)."""
     import bpy
 
-    kinds = set()
+    kinds, updated = set(), set()
     for u in depsgraph.updates:
         data = u.id
         if isinstance(data, (bpy.types.Light, bpy.types.World)):
@@ -263,11 +286,13 @@ def _kinds(depsgraph, kept):
                 kinds.add("light")
             elif data.type == "MESH" and data.original.cubegi.dynamic and (u.is_updated_transform or u.is_updated_geometry):
                 kinds.add("dynamic")
-            elif data.type == "MESH" and u.is_updated_transform and data.name in kept.placements:
-                if kept.placements[data.name] != session.placement(data.original):
-                    kinds.add("geometry")
+            elif u.is_updated_transform or u.is_updated_geometry:
+                updated.add(data.original.session_uid)
         elif isinstance(data, (bpy.types.Material, bpy.types.ShaderNodeTree)):
             kinds.add("materials")
+    active = depsgraph.view_layer.objects.active
+    if (active is None or active.mode == "OBJECT") and geometry_changes(depsgraph.view_layer, depsgraph, kept, updated):
+        kinds.add("geometry")
     return kinds
 
 
@@ -287,6 +312,26 @@ def on_depsgraph_update(scene, depsgraph):
         return
     _pending.update(scene=scene, instant=_pending["instant"] or "light" in kinds, settle=True)
     _pending["materials"] |= "materials" in kinds
+    _schedule(0.0)
+
+
+def on_undo(*_):
+    """After an undo or redo: keep what the restored file still holds the light of
+    (:func:`.session.after_undo`); with Live on, bring that light up to date with the
+    restored scene (bake again if its geometry is another), or say why Live stopped."""
+    import bpy
+
+    kept = dict((scene.session_uid, scene) for scene, _ in session.after_undo())
+    scene = bpy.context.scene
+    if scene is None or not getattr(scene, "cubegi", None) or not scene.cubegi.live:
+        return
+    if scene.session_uid not in kept:
+        stop()
+        scene.cubegi.last_update = "Live is waiting: undo or redo went back to light another bake made; Bake again"
+        return
+    view_layer = bpy.context.view_layer
+    rebake = bool(geometry_changes(view_layer, bpy.context.evaluated_depsgraph_get(), session.kept(scene)))
+    _pending.update(scene=scene, instant=False, settle=True, materials=True, rebake=rebake)
     _schedule(0.0)
 
 
@@ -324,14 +369,14 @@ def run_pending():
     try:
         if _pending["instant"]:
             _pending["instant"] = False
-            scene.cubegi.last_update = update(context, settle=False).line()
+            scene.cubegi.last_update = update(context, settle=False, geometry=False).line()
             return SETTLE_SECONDS
         materials, rebake = _pending["materials"], _pending["rebake"]
         _pending.update(scene=None, settle=False, materials=False, rebake=False)
         if rebake:
             scene.cubegi.last_update = _rebake(context)
         else:
-            scene.cubegi.last_update = update(context, materials=materials).line()
+            scene.cubegi.last_update = update(context, materials=materials, geometry=False).line()
     except BakeError as exc:
         scene.cubegi.last_update = f"not updated: {exc}"
     finally:
@@ -370,13 +415,16 @@ def register():
 
     bpy.app.handlers.depsgraph_update_post.append(_persistent_update)
     bpy.app.handlers.frame_change_post.append(_persistent_frame)
+    bpy.app.handlers.undo_post.append(_persistent_undo)
+    bpy.app.handlers.redo_post.append(_persistent_undo)
 
 
 def unregister():
     import bpy
 
     stop()
-    for handlers, fn in ((bpy.app.handlers.depsgraph_update_post, _persistent_update), (bpy.app.handlers.frame_change_post, _persistent_frame)):
+    for handlers, fn in ((bpy.app.handlers.depsgraph_update_post, _persistent_update), (bpy.app.handlers.frame_change_post, _persistent_frame),
+                         (bpy.app.handlers.undo_post, _persistent_undo), (bpy.app.handlers.redo_post, _persistent_undo)):
         if fn in handlers:
             handlers.remove(fn)
 
@@ -389,3 +437,4 @@ def _persistent(fn):
 
 _persistent_update = _persistent(on_depsgraph_update)
 _persistent_frame = _persistent(on_frame_change)
+_persistent_undo = _persistent(on_undo)

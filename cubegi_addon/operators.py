@@ -441,7 +441,7 @@ class CUBEGI_OT_update_light(bpy.types.Operator):
     def poll(cls, context):
         return _poll(
             cls, context,
-            lambda c: None if session.kept(c.scene) is not None else "Bake first: nothing is kept to update (file loads and undo drop it)",
+            lambda c: None if session.kept(c.scene) is not None else "Bake first: nothing is kept to update (a file load drops it)",
         )
 
     def execute(self, context):

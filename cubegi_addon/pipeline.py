@@ -8,6 +8,7 @@ attributes back.
 """
 
 import time
+import uuid
 
 import bpy
 import numpy as np
@@ -166,9 +167,11 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
     if objects:
         grid_objects.store_probe_light(objects, result.field.whole())
         probe_view.forget_drawing()
+    context.scene.cubegi.bake_id = uuid.uuid4().hex
     session.keep(context.scene, session.Kept(
         arrays, collected.targets, result, settings, lit, placements=session.placements(arrays.object_names), moving=collected.moving,
-        resolution=resolution,
+        resolution=resolution, bake_id=context.scene.cubegi.bake_id,
+        shapes=scene_data.static_shapes(context.view_layer, context.evaluated_depsgraph_get()),
     ))
     t_write = t_layers + time.perf_counter() - t
 

@@ -122,6 +122,10 @@ class CubeGISceneSettings(bpy.types.PropertyGroup):
         default=False, update=live.on_live_toggle,
     )
     last_update: StringProperty(name="Last Update", description="What the last update did", default="")
+    bake_id: StringProperty(
+        name="Bake", description="Which bake made the light in this file (set by each bake; an undo step holds it, so "
+        "the kept bake is used after undo only while it is the file's)", default="", options={"HIDDEN"},
+    )
     animation_cache: StringProperty(
         name="Animation Cache", description="Folder of a baked animation's light, one file per frame (set by Bake "
         "Animation); each frame's light is shown when the frame changes", default="", subtype="DIR_PATH",

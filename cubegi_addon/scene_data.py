@@ -11,6 +11,7 @@ material) of each mesh, so a flat-shaded corner gets the light of each of its fa
 Cycles bake of the face corners does); a vertex's value is the mean over its corners.
 """
 
+import hashlib
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -26,7 +27,8 @@ class MeshTarget:
     """Where one object's baked light goes: its original mesh, and how its corners map.
 
     loop_point: ``(corners,)`` global shading-point index of each corner; loop_vertex:
-    ``(corners,)`` the corner's vertex; vertex_count: vertices in the mesh.
+    ``(corners,)`` the corner's vertex; vertex_count: vertices in the mesh; object_uid: the
+    object's ``session_uid``, by which kept bakes find it again (names can change).
     """
 
     object_name: str
@@ -34,6 +36,7 @@ class MeshTarget:
     loop_point: np.ndarray
     loop_vertex: np.ndarray
     vertex_count: int
+    object_uid: int = None
 
 
 @dataclass
@@ -303,8 +306,12 @@ def _note_unread_visibility(ob, notes):
 
 
 def _is_dynamic(inst, original):
-    settings = getattr(original, "cubegi", None)
-    return original.type == "MESH" and not inst.is_instance and settings is not None and settings.dynamic
+    return original.type == "MESH" and not inst.is_instance and _dynamic_setting(original)
+
+
+def _dynamic_setting(ob):
+    settings = getattr(ob, "cubegi", None)
+    return settings is not None and settings.dynamic
 
 
 def _moving_object(ob, inst, original, notes):
@@ -322,7 +329,8 @@ def _moving_object(ob, inst, original, notes):
         pts["points"], pts["normals"], pts["albedo"], pts["emission"], pts["triangles"].astype(np.int64),
         point_object=np.zeros(n, dtype=np.int64), object_names=[original.name],
     )
-    return arrays, MeshTarget(original.name, mesh.name, pts["loop_point"], data["loop_vertex"], len(mesh.vertices))
+    return arrays, MeshTarget(original.name, mesh.name, pts["loop_point"], data["loop_vertex"], len(mesh.vertices),
+                              original.session_uid)
 
 
 def moving_objects(context):
@@ -348,6 +356,58 @@ def static_object_names(context):
             if ob.type == "MESH" and not _is_dynamic(inst, original):
                 names.add(original.name)
     return names
+
+
+def static_shapes(view_layer, depsgraph, only=None):
+    """Where the static geometry that renders stands, as ``depsgraph`` (the viewport's)
+    evaluates it, without reading a material: ``{session_uid: (name, digest)}`` of every
+    object that renders and is not dynamic; the digest covers its world matrix and its
+    evaluated vertices and corner normals (a mesh), its bounds (curves, text, metaballs) or
+    its instanced collection (an Empty that instances geometry). With ``only`` (a set of ``session_uid``) the
+    others' digests are None (their membership alone is read).
+
+    For updates (:mod:`.live`): the kept bake's shapes tell a user's edit (a move, an Edit
+    Mode change, a modifier, an object deleted or added) from CubeGI's own attribute writes,
+    which leave them as they were."""
+    visible = _render_visible_objects(view_layer)
+    out = {}
+    for ob in view_layer.objects:
+        if ob.hide_render or ob.name not in visible:
+            continue
+        if ob.type == "EMPTY" and not _instances_geometry(ob):
+            continue
+        if ob.type not in NON_MESH_GEOMETRY | {"MESH", "EMPTY"} or (ob.type == "MESH" and _dynamic_setting(ob)):
+            continue
+        uid = ob.session_uid
+        out[uid] = (ob.name, None if only is not None and uid not in only else _shape_digest(ob, depsgraph))
+    return out
+
+
+def _instances_geometry(empty):
+    """True if an Empty instances a collection that holds geometry (not lights alone)."""
+    collection = empty.instance_collection if empty.instance_type == "COLLECTION" else None
+    return collection is not None and any(o.type in NON_MESH_GEOMETRY | {"MESH"} for o in collection.all_objects)
+
+
+def _shape_digest(ob, depsgraph):
+    h = hashlib.blake2b(digest_size=16)
+    h.update(np.array(ob.matrix_world, dtype=np.float64).tobytes())
+    if ob.type == "EMPTY":
+        h.update(np.int64(ob.instance_collection.session_uid).tobytes())
+        return h.hexdigest()
+    evaluated = ob.evaluated_get(depsgraph)
+    if ob.type != "MESH":
+        h.update(np.array([corner[:] for corner in evaluated.bound_box], dtype=np.float64).tobytes())
+        return h.hexdigest()
+    mesh = evaluated.data
+    co = np.empty(len(mesh.vertices) * 3, dtype=np.float32)
+    mesh.vertices.foreach_get("co", co)
+    normals = np.empty(len(mesh.loops) * 3, dtype=np.float32)
+    mesh.corner_normals.foreach_get("vector", normals)
+    h.update(np.int64(len(mesh.polygons)).tobytes())
+    h.update(co.tobytes())
+    h.update(normals.tobytes())
+    return h.hexdigest()
 
 
 def scene_lights(context):
@@ -421,7 +481,8 @@ def _collect(context, depsgraph):
             )
             continue
         claimed_meshes.add(mesh.name)
-        targets.append(MeshTarget(original.name, mesh.name, loop_point, data["loop_vertex"], len(mesh.vertices)))
+        targets.append(MeshTarget(original.name, mesh.name, loop_point, data["loop_vertex"], len(mesh.vertices),
+                                  original.session_uid))
 
     for name, kind in non_mesh.items():
         if name in with_surface:

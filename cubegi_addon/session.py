@@ -3,8 +3,10 @@ and probe field (:class:`Kept`), so that the next bake of an unchanged geometry 
 capture, and later updates (light edits, moving objects) start from them.
 
 Kept in this module's memory only (never in the file): keyed by the scene's
-``session_uid``, freed when a file is loaded, on undo and redo (the data they describe may
-be gone), when the add-on is unregistered, and by :func:`forget`. Bounded: at most
+``session_uid``, freed when a file is loaded, when the add-on is unregistered, by
+:func:`forget`, and after an undo or redo that leaves the file without this bake's light
+(:func:`after_undo`: the file's ``bake_id`` is another bake's, or a baked mesh is gone).
+Blender data are found again by ``session_uid``, which names, undo and redo keep. Bounded: at most
 :data:`MAX_KEPT_SCENES` scenes and :func:`budget` bytes in all, the least recently baked
 dropped first; a bake larger than the budget alone is not kept.
 """
@@ -38,6 +40,8 @@ class Kept:
     renderer: object = None
     unsettled: bool = False  # an instant update left the balance and bounce layers behind
     placements: dict = None  # object name -> world matrix at the bake (see live.placements)
+    shapes: dict = None  # session_uid -> (name, digest): the static geometry at the bake (scene_data.static_shapes)
+    bake_id: str = ""  # the scene's cubegi.bake_id this bake wrote
     moving: list = None  # [(SceneArrays, MeshTarget)] of the dynamic objects as last lit
     resolution: tuple = None  # the grid resolution the bake was asked for (None: the scene's)
 
@@ -105,12 +109,42 @@ def kept_bytes():
     return sum(k.nbytes for k in _kept.values())
 
 
+def target_meshes(targets):
+    """The mesh of each target (a MeshTarget) now, found by its object's ``session_uid``
+    (a renamed object or mesh is still found), or None where the object is gone or its mesh
+    no longer has the target's vertices."""
+    by_uid = {ob.session_uid: ob for ob in bpy.data.objects}
+    out = []
+    for target in targets:
+        ob = by_uid.get(target.object_uid)
+        mesh = ob.data if ob is not None and ob.type == "MESH" else None
+        out.append(mesh if mesh is not None and len(mesh.vertices) == target.vertex_count else None)
+    return out
+
+
+def after_undo():
+    """After an undo or redo: drop each kept bake whose light the file no longer holds (the
+    scene is gone, its ``bake_id`` is another bake's, or a baked mesh is gone); the others
+    are marked unsettled (the restored attributes may hold an earlier update's light: the
+    next update writes them all). Returns ``[(scene, kept)]`` of those kept."""
+    scenes = {scene.session_uid: scene for scene in bpy.data.scenes}
+    out = []
+    for uid, kept in list(_kept.items()):
+        scene = scenes.get(uid)
+        if scene is None or scene.cubegi.bake_id != kept.bake_id or None in target_meshes(kept.targets):
+            _kept.pop(uid)
+            continue
+        kept.unsettled = True
+        out.append((scene, kept))
+    return out
+
+
 @bpy.app.handlers.persistent
 def _forget_all(*_):
     forget()
 
 
-HANDLER_LISTS = ("load_pre", "undo_post", "redo_post")
+HANDLER_LISTS = ("load_pre",)
 
 
 def register():

@@ -31,6 +31,11 @@ class GeometryFingerprint:
         mine, theirs = dict(self.objects), dict(other.objects)
         return {n for n in mine.keys() | theirs.keys() if mine.get(n) != theirs.get(n)}
 
+    def same_geometry(self, other: "GeometryFingerprint") -> bool:
+        """True if the objects' geometry is alike, object for object in the same order,
+        whatever their names (a renamed object is the same geometry)."""
+        return [d for _, d in self.objects] == [d for _, d in other.objects]
+
     def same_layout(self, other: "GeometryFingerprint") -> bool:
         """True if only positions and normals differ (objects, order, counts, triangles alike)."""
         return self.layout == other.layout

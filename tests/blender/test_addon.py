@@ -36,6 +36,7 @@ def test_unregister_leaves_nothing_behind_and_register_restores_everything(cubeg
     assert len(classes) == 14 and all(c.is_registered for c in classes)
     handlers = [(addon.session.HANDLER_LISTS, addon.session._forget_all),
                 (("depsgraph_update_post",), addon.live._persistent_update), (("frame_change_post",), addon.live._persistent_frame),
+                (("undo_post", "redo_post"), addon.live._persistent_undo),
                 (("frame_change_post",), addon.animation.on_frame_change)]
     menu = bpy.types.VIEW3D_MT_add
     assert addon.probe_view._handle is not None

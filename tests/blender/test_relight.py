@@ -2,6 +2,7 @@
 light, the world, a material's colour or emission) gives what a full bake of the changed
 scene gives, without drawing a probe; Live applies edits as the user makes them."""
 
+import bmesh
 import bpy
 import numpy as np
 import pytest
@@ -168,13 +169,55 @@ def test_an_environment_image_updates_with_its_strength_and_refuses_a_new_image(
     np.testing.assert_array_equal(read(bpy.data.objects["Ground"].data, "CubeGI_total"), before)
 
 
-def test_geometry_edits_are_refused_and_change_nothing(room):
+def _edit_mode_move(name, dz):
+    ob = bpy.data.objects[name]
+    bpy.context.view_layer.objects.active = ob
+    ob.select_set(True)
+    bpy.ops.object.mode_set(mode="EDIT")
+    bm = bmesh.from_edit_mesh(ob.data)
+    for v in bm.verts:
+        v.co.z += dz
+    bmesh.update_edit_mesh(ob.data)
+    bpy.ops.object.mode_set(mode="OBJECT")
+
+
+def _add_crate():
+    v, f = scenes.box_mesh((0.8, -1.5, 0.0), (1.4, -0.9, 0.6), (2, 2, 2), inward=False)
+    scenes.mesh_object("Crate", v, f, bpy.data.materials["White"])
+
+
+GEOMETRY_EDITS = {
+    "moved": (lambda: setattr(bpy.data.objects["Block"], "location", (0.3, 0.0, 0.0)), "Block moved or edited"),
+    "edited in Edit Mode": (lambda: _edit_mode_move("Block", 0.3), "Block moved or edited"),
+    "a modifier added": (lambda: bpy.data.objects["Block"].modifiers.new("Twist", "SIMPLE_DEFORM"), "Block moved or edited"),
+    "deleted": (lambda: bpy.data.objects.remove(bpy.data.objects["Block"]), "Block deleted or hidden from renders"),
+    "added": (_add_crate, "Crate added"),
+}
+
+
+@pytest.mark.parametrize("edit", list(GEOMETRY_EDITS))
+@pytest.mark.parametrize("materials", [False, True], ids=["lights", "materials"])
+def test_geometry_edits_are_refused_naming_the_object_and_change_nothing(room, edit, materials):
     assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
-    baked = _light()
-    bpy.data.objects["Block"].location.x += 0.3
-    with pytest.raises(RuntimeError, match="the geometry changed since the bake: Bake again"):
-        bpy.ops.cubegi.update_light(materials=True)
-    _assert_same(_light(), baked, tol=0.0)
+    read = __import__("cubegi").cubegi_addon.attributes.read
+    baked = {a: read(bpy.data.objects["Room"].data, a) for a in LAYERS}
+    make, phrase = GEOMETRY_EDITS[edit]
+    make()
+    with pytest.raises(RuntimeError, match=rf"the geometry changed since the bake \({phrase}\): Bake again"):
+        bpy.ops.cubegi.update_light(materials=materials)
+    _assert_same({a: read(bpy.data.objects["Room"].data, a) for a in LAYERS}, baked, tol=0.0)
+
+
+def test_renamed_objects_and_meshes_get_their_updated_light(room):
+    assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
+    bpy.data.objects["Block"].data.name = "Renamed mesh"
+    bpy.data.objects["Room"].name = "Renamed room"
+    bpy.data.lights["point"].energy *= 3.0
+    for materials in (False, True):
+        assert bpy.ops.cubegi.update_light(materials=materials) == {"FINISHED"}
+    bpy.data.objects["Renamed room"].name = "Room"  # _light reads by these names
+    updated = _light()
+    _assert_same(updated, _full_bake(room))
 
 
 def test_live_applies_edits_on_depsgraph_updates_and_frames(room):
@@ -265,3 +308,103 @@ def test_instanced_lamps_are_as_many_lights_in_every_update(instanced_lamps, edi
     assert report.path == ("weights" if edit == "power" else "lights"), report
     updated = _light()
     _assert_same(updated, _full_bake(instanced_lamps))
+
+
+def _settle(live):
+    """Run what Live's timer would run (background mode runs no timers) until nothing is left."""
+    for _ in range(4):
+        if live.run_pending() is None:
+            return
+
+
+def test_live_bakes_again_after_an_edit_mode_change_or_a_deletion_once_in_object_mode(room):
+    live = room.cubegi_addon.live
+    scene = bpy.context.scene
+    assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
+    scene.cubegi.live = True
+    live.stop()
+    bpy.context.evaluated_depsgraph_get()
+    assert live._pending["scene"] is None  # the bake's own writes are no edit
+    # Edit Mode: nothing while the mesh is being edited; a bake once it is back in Object Mode.
+    ob = bpy.data.objects["Block"]
+    bpy.context.view_layer.objects.active = ob
+    bpy.ops.object.mode_set(mode="EDIT")
+    bm = bmesh.from_edit_mesh(ob.data)
+    for v in bm.verts:
+        v.co.z += 0.3
+    bmesh.update_edit_mesh(ob.data)
+    bpy.context.evaluated_depsgraph_get()
+    assert not live._pending["rebake"]
+    bpy.ops.object.mode_set(mode="OBJECT")
+    bpy.context.evaluated_depsgraph_get()
+    assert live._pending["rebake"]
+    _settle(live)
+    assert scene.cubegi.last_update.startswith("baked again in"), scene.cubegi.last_update
+    edited = _light()
+    scene.cubegi.live = False
+    _assert_same(edited, _full_bake(room))
+    # A deleted object: the room is baked again without it (its shadow goes).
+    scene.cubegi.live = True
+    read = room.cubegi_addon.attributes.read
+    bpy.data.objects.remove(bpy.data.objects["Block"])
+    bpy.context.evaluated_depsgraph_get()
+    assert live._pending["rebake"]
+    _settle(live)
+    assert scene.cubegi.last_update.startswith("baked again in"), scene.cubegi.last_update
+    after = {a: read(bpy.data.objects["Room"].data, a) for a in LAYERS}
+    scene.cubegi.live = False
+    room.cubegi_addon.session.forget()
+    assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
+    _assert_same(after, {a: read(bpy.data.objects["Room"].data, a) for a in LAYERS})
+
+
+def test_undo_and_redo_keep_live_working_and_an_undone_bake_is_not_updated(room):
+    live, session = room.cubegi_addon.live, room.cubegi_addon.session
+    bpy.ops.ed.undo_push(message="before the bake")
+    assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
+    bpy.context.scene.cubegi.live = True
+    bpy.ops.ed.undo_push(message="baked, Live on")
+    for lamp, factor in (("point", 3.0), ("spot", 0.25)):
+        bpy.data.lights[lamp].energy *= factor
+        bpy.context.evaluated_depsgraph_get()
+        _settle(live)
+        bpy.ops.ed.undo_push(message=f"{lamp} x{factor}")
+    # Undo, then redo: the kept bake is still the file's; Live brings the light up to each
+    # restored scene (before: the kept bake was dropped and Live, still on, did nothing).
+    seen = []
+    for step in (bpy.ops.ed.undo, bpy.ops.ed.redo):
+        step()
+        scene = bpy.context.scene
+        assert session.kept(scene) is not None and scene.cubegi.live
+        assert live._pending["scene"] == scene
+        _settle(live)
+        seen.append(((bpy.data.lights["point"].energy, bpy.data.lights["spot"].energy), _light()))
+    assert [powers for powers, _ in seen] == [(360.0, 200.0), (360.0, 50.0)]
+    # An edit after them is applied as before.
+    bpy.data.lights["point"].energy = 240.0
+    bpy.context.evaluated_depsgraph_get()
+    _settle(live)
+    seen.append(((240.0, 50.0), _light()))
+    scene.cubegi.live = False
+    for (point, spot), light in seen:
+        bpy.data.lights["point"].energy, bpy.data.lights["spot"].energy = point, spot
+        _assert_same(light, _full_bake(room))
+    # Undo back past the bake: the file holds no light of the kept bake; it is dropped, and
+    # Live (on in that step) says why it does nothing.
+    for _ in range(20):
+        if not bpy.context.scene.cubegi.bake_id:
+            break
+        bpy.ops.ed.undo()
+    scene = bpy.context.scene
+    assert not scene.cubegi.bake_id and session.kept(scene) is None
+    # Two bakes with Live on, the second undone: the first's light is the file's, not the kept
+    # (second) bake's: it is dropped and Live says so.
+    assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
+    bpy.context.scene.cubegi.live = True
+    bpy.ops.ed.undo_push(message="first bake")
+    assert bpy.ops.cubegi.bake(**{**SETTINGS, "bounces": 2}) == {"FINISHED"}
+    bpy.ops.ed.undo_push(message="second bake")
+    bpy.ops.ed.undo()
+    scene = bpy.context.scene
+    assert session.kept(scene) is None and scene.cubegi.live
+    assert scene.cubegi.last_update.startswith("Live is waiting: undo or redo went back to light another bake made")

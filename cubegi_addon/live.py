@@ -321,11 +321,11 @@ def on_undo(*_):
     restored scene (bake again if its geometry is another), or say why Live stopped."""
     import bpy
 
-    kept = dict((scene.session_uid, scene) for scene, _ in session.after_undo())
+    still_kept = {scene.session_uid for scene, _ in session.after_undo()}
     scene = bpy.context.scene
     if scene is None or not getattr(scene, "cubegi", None) or not scene.cubegi.live:
         return
-    if scene.session_uid not in kept:
+    if scene.session_uid not in still_kept:
         stop()
         scene.cubegi.last_update = "Live is waiting: undo or redo went back to light another bake made; Bake again"
         return

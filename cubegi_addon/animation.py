@@ -19,11 +19,14 @@ import time
 import bpy
 import numpy as np
 
-from ..cubegi_engine.errors import BakeError
+from ..cubegi_engine.errors import BakeError, Interrupted
 from ..cubegi_engine.records import Progress, Stage
-from . import attributes, files, live, pipeline, session
+from . import attributes, files, interrupts, live, pipeline, session
 
 FRAME_FILE = "frame_{:04d}.npz"
+# In a cache folder baked on a cluster: what its frames were baked from (the input's content,
+# the options, the version), for a re-run to skip. Any other bake into the folder removes it.
+KEY_FILE = "cubegi_cache.json"
 # Scene.cubegi.animation_cache holds the cache folder (relative to the .blend, "//...").
 
 
@@ -89,16 +92,30 @@ def _bake_frames(context, settings, frames, folder, resolution, lit):
     os.makedirs(folder, exist_ok=True)
     records = []
     t_all = time.perf_counter()
-    for k, frame in enumerate(frames):
-        yield Progress(Stage.BOUNCE, k, len(frames), f"frame {frame} ({k + 1}/{len(frames)})")
-        t = time.perf_counter()
-        scene.frame_set(frame)
-        path, detail = _frame(context, settings, resolution, lit, first=k == 0)
-        arrays = frame_arrays(scene)
-        files.write_all([(frame_path(folder, frame), _npz(arrays))])
-        direct, indirect = _mean(arrays)
-        records.append({"frame": frame, "seconds": time.perf_counter() - t, "path": path, **detail,
-                        "mean_direct": direct, "mean_indirect": indirect})
+    try:
+        for k, frame in enumerate(frames):
+            yield Progress(Stage.BOUNCE, k, len(frames), f"frame {frame} ({k + 1}/{len(frames)})")
+            t = time.perf_counter()
+            scene.frame_set(frame)
+            path, detail = _frame(context, settings, resolution, lit, first=k == 0)
+            arrays = frame_arrays(scene)
+            if not records and os.path.exists(os.path.join(folder, KEY_FILE)):
+                os.remove(os.path.join(folder, KEY_FILE))  # its frames are about to change
+            direct, indirect = _mean(arrays)
+            record = {"frame": frame, "seconds": time.perf_counter() - t, "path": path, **detail,
+                      "mean_direct": direct, "mean_indirect": indirect}
+            try:
+                files.write_all([(frame_path(folder, frame), _npz(arrays))])
+            except KeyboardInterrupt as exc:
+                if getattr(exc, "written", None):  # the frame is in place
+                    records.append(record)
+                raise
+            records.append(record)
+    except KeyboardInterrupt as exc:
+        if not records:
+            raise
+        span = f"frame {records[0]['frame']}" if len(records) == 1 else f"frames {records[0]['frame']}-{records[-1]['frame']}"
+        raise Interrupted.keeping(exc, f"the light of {span} is baked and kept in {folder} (each frame whole)") from None
     yield Progress(Stage.TAIL, len(frames), len(frames), f"baked {len(frames)} frames")
     return {"frames": records, "seconds": time.perf_counter() - t_all, "cache": folder}
 
@@ -195,6 +212,7 @@ def detach_cache(scene):
 
 
 @bpy.app.handlers.persistent
+@interrupts.blender_callback
 def on_frame_change(scene, depsgraph=None):
     """With a baked animation cache on the scene, show each frame's light (scrubbing,
     playback, ``blender -b -a`` renders)."""

@@ -10,11 +10,12 @@ written. Outputs are written whole or not at all (:mod:`.files`).
 import argparse
 import json
 import os
+import signal
 import sys
 
-from ..cubegi_engine.errors import BakeError
+from ..cubegi_engine.errors import BakeError, Interrupted
 from ..cubegi_engine.settings import QUALITY, BakeSettings
-from . import files
+from . import files, interrupts
 
 # Set to 1 to see the traceback of a failure that is CubeGI's own defect.
 DEBUG_ENV = "CUBEGI_DEBUG"
@@ -252,6 +253,7 @@ def _check_io(args):
 
 
 def _print_progress(step):
+    interrupts.check()  # an interrupt that came in a Blender handler
     print(f"cubegi: [{step.done}/{step.total}] {step.message}", flush=True)
 
 
@@ -364,8 +366,12 @@ def cmd_bake_animation(args):
     scene = bpy.context.scene
     first, last = args.frames or (scene.frame_start, scene.frame_end)
     settings, lit = _file_settings(bpy, args), _file_lit(bpy, args)
-    result = run(bake_animation_steps(bpy.context, settings, range(first, last + 1), folder,
-                                      tuple(args.grid) if args.grid else None, lit), _print_progress)
+    try:
+        result = run(bake_animation_steps(bpy.context, settings, range(first, last + 1), folder,
+                                          tuple(args.grid) if args.grid else None, lit), _print_progress)
+    except KeyboardInterrupt as exc:
+        kept = getattr(exc, "kept", None)
+        raise Interrupted.keeping(exc, kept and f"{kept}; {dst} was not written; a run again bakes every frame") from None
     scene.cubegi.animation_cache = folder
     scene.frame_set(first)  # the saved file shows the first frame's light
     scene.cubegi.animation_cache = "//" + os.path.basename(folder)  # beside the output
@@ -454,9 +460,17 @@ def _from_source_tree(name):
                         f"installed extension, which leaves out its {name} module") from None
 
 
+def _written_before():
+    """What an interrupted command had written (each file whole), in words."""
+    if not files.written:
+        return "nothing was written"
+    return f"{', '.join(files.written)} {'was' if len(files.written) == 1 else 'were'} written (whole) before it stopped"
+
+
 def main(argv=None, prog="python -m cubegi_engine"):
-    """Run the command line; returns the exit status (0 done, 2 refused, 3 CubeGI failed).
-    The same for ``python -m cubegi_engine`` and ``blender -c cubegi`` (:mod:`.command`)."""
+    """Run the command line; returns the exit status (0 done, 2 refused, 3 CubeGI failed,
+    128 + the signal when interrupted). The same for ``python -m cubegi_engine`` and
+    ``blender -c cubegi`` (:mod:`.command`)."""
     try:
         args = _parser(prog).parse_args(argv)
     except SystemExit as exc:  # --help, or a usage error argparse has printed
@@ -464,13 +478,17 @@ def main(argv=None, prog="python -m cubegi_engine"):
     try:
         commands = {"bake": cmd_bake, "bake-animation": cmd_bake_animation, "batch": cmd_batch, "demo": cmd_demo,
                     "benchmark": cmd_benchmark}
-        commands[args.command](args)
+        files.written.clear()
+        with interrupts.interruptible():
+            commands[args.command](args)
     except BakeError as exc:
         print(f"cubegi: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("cubegi: interrupted; nothing was written", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", signal.SIGINT)
+        how = "interrupted" if signum == signal.SIGINT else f"stopped by {signal.Signals(signum).name}"
+        print(f"cubegi: {how}; {getattr(exc, 'kept', None) or _written_before()}", file=sys.stderr)
+        return 128 + signum
     except MemoryError:  # the scene is larger than this machine's memory: the user's situation, not a defect
         print("cubegi: error: out of memory: the scene is too large for this machine at these settings; bake with fewer "
               "probes (--quality draft, --cells), a smaller --capture-triangles, or on a machine with more memory; "

@@ -21,13 +21,15 @@ import json
 import math
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 from ..cubegi_engine import __version__
-from ..cubegi_engine.errors import BakeError
+from ..cubegi_engine.errors import BakeError, Interrupted
 from . import files
 
 # The source tree every worker runs ``python -m cubegi_engine`` from.
@@ -45,17 +47,22 @@ RETRIES = 2
 PROGRESS_SECONDS = 5.0
 # The field of a bake's report that holds what it was made from (job_key).
 KEY_FIELD = "batch_key"
+# The exit statuses of a bake stopped by Ctrl-C or SIGTERM (its own 128 + signal, or the
+# signal's where it came before the command line's handlers): it wrote nothing.
+STOPPED = {-signal.SIGINT, -signal.SIGTERM, 128 + signal.SIGINT, 128 + signal.SIGTERM}
+# Seconds an interrupted job waits for its workers to finish the bakes under way (which stop
+# on the same Ctrl-C) before it closes them.
+STOP_SECONDS = 10
 # Seconds to wait for a scheduler to answer before the batch is refused.
 SCHEDULER_TIMEOUT = 10
 SUMMARY = "batch.json"
-# In an animation cache folder: what its frames were baked from (job_key), for a re-run.
-CACHE_KEY_FILE = "cubegi_cache.json"
 
 
 def _client(workers=None, scheduler=None):
     """A Dask client: to ``scheduler`` if given, else to a LocalCluster of ``workers``
     processes of one thread each (each bake is a process of its own anyway)."""
     try:
+        import dask
         from distributed import Client, LocalCluster
     except ImportError:
         raise BakeError("baking on a cluster needs dask and distributed: pip install dask distributed") from None
@@ -66,13 +73,27 @@ def _client(workers=None, scheduler=None):
             reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise BakeError(f"cannot reach the Dask scheduler at {scheduler} ({reason}); start it (dask scheduler) or "
                             "check the address") from None
-    cluster = LocalCluster(n_workers=int(workers or 2), threads_per_worker=1, processes=True, dashboard_address=None)
+    # The workers start with Ctrl-C ignored (an inherited disposition): Ctrl-C reaches every
+    # process of the terminal's group, and a worker would end with a traceback of its own.
+    # The bakes they run stop on it (the command line catches it); this process closes the
+    # cluster.
+    ignore = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if ignore else None
+    try:
+        # One task on a worker at a time (none waits there behind a bake): the tasks a worker
+        # is processing are then the bakes it runs (see _stop).
+        with dask.config.set({"distributed.scheduler.worker-saturation": 1.0}):
+            cluster = LocalCluster(n_workers=int(workers or 2), threads_per_worker=1, processes=True, dashboard_address=None)
+    finally:
+        if ignore:
+            signal.signal(signal.SIGINT, previous)
     return Client(cluster), cluster
 
 
 def _close(client, cluster):
-    """Close the client (and the local cluster); the progress bar's feed ends with a logged
-    CancelledError that means nothing: it is kept off the terminal."""
+    """Close the client (and the local cluster); its closing chatter (logged cancellations)
+    is kept off the terminal. Returns the KeyboardInterrupt of a Ctrl-C while closing, or
+    None (the local workers are daemon processes: they end with this one)."""
     import logging
 
     log = logging.getLogger("distributed")
@@ -82,8 +103,11 @@ def _close(client, cluster):
         client.close()
         if cluster is not None:
             cluster.close()
+    except KeyboardInterrupt as exc:
+        return exc
     finally:
         log.setLevel(level)
+    return None
 
 
 def _submit(client, args, timeout=BAKE_TIMEOUT):
@@ -95,7 +119,8 @@ def _submit(client, args, timeout=BAKE_TIMEOUT):
 
 
 def _outcome(future):
-    """``(status, error)`` of a finished task: its process's exit, or the task's failure."""
+    """``(status, error)`` of a finished task: its process's exit ("done", "interrupted",
+    "failed"), or the task's failure."""
     if future.status != "finished":
         exc = future.exception()
         if isinstance(exc, subprocess.TimeoutExpired):
@@ -104,31 +129,56 @@ def _outcome(future):
     r = future.result()
     if r.returncode == 0:
         return "done", None
+    if r.returncode in STOPPED:
+        return "interrupted", None
     errors = [ln for ln in r.stderr.splitlines() if ln.startswith("cubegi: error:")]
     if errors:
         return "failed", errors[-1].removeprefix("cubegi: error: ")
     return "failed", f"the bake's process ended with status {r.returncode} (a crash; the other bakes went on)"
 
 
-def _wait(futures, log):
-    """Wait for every task: a progress bar on a terminal, else a line now and then."""
-    from distributed import progress, wait
+def _wait(client, futures, log, finished):
+    """Wait for every task, calling ``finished(k, future)`` as the ``k``-th finishes (in the
+    order they finish), with a line every PROGRESS_SECONDS. Returns None, or the
+    KeyboardInterrupt (Ctrl-C, SIGTERM) that stopped it, once the tasks not started are
+    cancelled and the bakes under way have ended (:func:`_stop`; ``finished`` is called for
+    those that finished)."""
+    from distributed import wait
 
     t0 = time.perf_counter()
-    if sys.stdout.isatty():
-        progress(futures)
-        print(flush=True)
-        return time.perf_counter() - t0
-    while True:
-        done = sum(f.done() for f in futures)
-        if done == len(futures):
-            break
-        log(f"{done}/{len(futures)} done after {time.perf_counter() - t0:.0f} s")
-        try:
-            wait(futures, timeout=PROGRESS_SECONDS)
-        except TimeoutError:
-            pass
-    return time.perf_counter() - t0
+    left = dict(enumerate(futures))
+    stopped = None
+    try:
+        while left:
+            try:
+                wait(list(left.values()), timeout=PROGRESS_SECONDS, return_when="FIRST_COMPLETED")
+            except TimeoutError:
+                pass
+            done = [k for k, f in left.items() if f.done()]
+            for k in done:
+                finished(k, left.pop(k))
+            if not done:
+                log(f"{len(futures) - len(left)}/{len(futures)} done after {time.perf_counter() - t0:.0f} s")
+    except KeyboardInterrupt as exc:  # the bakes under way stop too: they get the same Ctrl-C
+        stopped = exc
+        _stop(client, list(left.values()))
+        for k in [k for k, f in left.items() if f.status == "finished"]:
+            finished(k, left.pop(k))
+    return stopped
+
+
+def _stop(client, futures):
+    """After an interrupt: cancel the tasks no worker has started, and give the bakes under
+    way up to STOP_SECONDS to end (they stop on the same Ctrl-C), so that closing the workers
+    cuts no task short (a worker closed mid-task logs it, and its bake would run on)."""
+    from distributed import wait
+
+    try:
+        running = {key for keys in client.processing().values() for key in keys}
+        client.cancel([f for f in futures if f.key not in running and not f.done()])
+        wait([f for f in futures if f.key in running], timeout=STOP_SECONDS)
+    except (TimeoutError, KeyboardInterrupt):  # a bake that does not stop, or a second Ctrl-C: close now
+        pass
 
 
 def _paths(src, out_dir):
@@ -207,6 +257,7 @@ def batch(inputs, out_dir, options, workers=None, scheduler=None, log=print, ref
             records[src] = _record(src, out_dir, "skipped")
         else:
             todo.append(src)
+    stopped = None
     if todo:
         client, cluster = _client(workers, scheduler)
         try:
@@ -214,18 +265,29 @@ def batch(inputs, out_dir, options, workers=None, scheduler=None, log=print, ref
                 log(f"batch: the Dask dashboard: {client.dashboard_link}")
             futures = [_submit(client, ["bake", src, "-o", _paths(src, out_dir)[0], "--report", _paths(src, out_dir)[1], *options])
                        for src in todo]
-            _wait(futures, lambda m: log(f"batch: {m}"))
-            for src, fut in zip(todo, futures):
-                status, error = _outcome(fut)
+
+            def finished(k, future):
+                src = todo[k]
+                status, error = _outcome(future)
                 if status == "done":
-                    _stamp(_paths(src, out_dir)[1], keys[src])
+                    _stamp(_paths(src, out_dir)[1], keys[src])  # as each finishes: an interrupted batch resumes
                 records[src] = _record(src, out_dir, status, error)
+                log(f"batch: {os.path.basename(src)} {status} ({sum(s in records for s in todo)}/{len(todo)})")
+
+            stopped = _wait(client, futures, lambda m: log(f"batch: {m}"), finished)
         finally:
-            _close(client, cluster)
+            stopped = _close(client, cluster) or stopped
+        for src in todo:
+            records.setdefault(src, _record(src, out_dir, "interrupted"))
     summary = {"files": [records[os.path.realpath(f)] for f in inputs], "seconds": round(time.perf_counter() - t0, 3),
                "workers": None if scheduler else int(workers or 2), "scheduler": scheduler}
     text = json.dumps(summary, indent=2, allow_nan=False)
     files.write_all([(os.path.join(out_dir, SUMMARY), files.text(text))])
+    if stopped is not None:
+        done = [os.path.basename(src) for src in todo if records[src]["status"] == "done"]
+        raise Interrupted.keeping(stopped, f"{len(done)} of {len(todo)} files are baked into {out_dir}"
+                                  + (f" ({', '.join(done)}; each whole, with its report; a run again skips them)" if done else "")
+                                  + f"; {SUMMARY} lists the rest as interrupted")
     return summary
 
 
@@ -256,13 +318,13 @@ def bake_animation(src, out, first, last, options, workers=None, scheduler=None,
     and ``OUT.blend`` as one machine writes them (the first chunk writes the .blend). Returns
     ``{"frames": [...], "chunks": [...], "seconds": ..., "up_to_date": bool}``. A chunk whose
     frames are all in the cache already (a second run) is not baked again, while the cache's
-    key (:data:`CACHE_KEY_FILE`: the input's content, the options, the version) is this run's;
-    with another key every frame is baked again."""
-    from .animation import cache_folder, frame_path
+    key (:data:`.animation.KEY_FILE`: the input's content, the options, the version) is this
+    run's; with another key every frame is baked again."""
+    from .animation import KEY_FILE, cache_folder, frame_path
 
     cache = cache_folder(out)
     os.makedirs(cache, exist_ok=True)
-    key, key_path = job_key(src, options), os.path.join(cache, CACHE_KEY_FILE)
+    key, key_path = job_key(src, options), os.path.join(cache, KEY_FILE)
     try:
         with open(key_path) as fh:
             same = json.load(fh) == key
@@ -276,7 +338,7 @@ def bake_animation(src, out, first, last, options, workers=None, scheduler=None,
         os.remove(key_path)  # frames of two keys may mix until every chunk is done: no key meanwhile
     t0 = time.perf_counter()
     scratch = tempfile.mkdtemp(prefix=".cubegi-chunks-", dir=os.path.dirname(out))
-    results = []
+    results, stopped = [], None
     try:
         if todo:
             client, cluster = _client(workers, scheduler)
@@ -287,21 +349,29 @@ def bake_animation(src, out, first, last, options, workers=None, scheduler=None,
                     reports.append(os.path.join(scratch, f"chunk_{k}.json"))
                     futures.append(_submit(client, ["bake-animation", src, "-o", blend, "--frames", str(a), str(b),
                                                     "--cache-dir", cache, "--report", reports[-1], *options]))
-                _wait(futures, lambda m: log(f"bake-animation: {m}"))
-                for (a, b), fut, report in zip(todo, futures, reports):
-                    status, error = _outcome(fut)
+                finished = {}
+
+                def chunk_finished(k, future):
+                    status, error = _outcome(future)
                     frames = []
                     if status == "done":
-                        with open(report) as fh:
+                        with open(reports[k]) as fh:
                             frames = json.load(fh)["frames"]
-                    results.append({"first": a, "last": b, "status": status, "error": error, "frames": frames})
+                    finished[k] = {"first": todo[k][0], "last": todo[k][1], "status": status, "error": error, "frames": frames}
+
+                stopped = _wait(client, futures, lambda m: log(f"bake-animation: {m}"), chunk_finished)
+                results = [finished[k] for k in sorted(finished)]
             finally:
-                _close(client, cluster)
+                stopped = _close(client, cluster) or stopped
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
+    if stopped is not None:
+        wrote = "was written" if any(r["first"] == first and r["status"] == "done" for r in results) else "was not written"
+        raise Interrupted.keeping(stopped, f"the frames baked so far are kept in {cache} (each frame whole); {out} {wrote}; "
+                                           "a run again bakes every frame")
     failed = [r for r in results if r["status"] != "done"]
     if failed:
-        raise BakeError(f"frames {failed[0]['first']}-{failed[0]['last']} failed: {failed[0]['error']}")
+        raise BakeError(f"frames {failed[0]['first']}-{failed[0]['last']} failed: {failed[0]['error'] or failed[0]['status']}")
     if todo or not same:
         text = json.dumps(key, indent=2)
         files.write_all([(key_path, files.text(text))])

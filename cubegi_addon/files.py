@@ -14,14 +14,20 @@ Rules, for every path CubeGI writes:
   folder is removed in every case, so nothing half-written and no backup file stays.
 """
 
+import collections
 import os
 import shutil
 import stat
 import tempfile
 
 from ..cubegi_engine.errors import BakeError
+from . import interrupts
 
-__all__ = ["writable_target", "same_file", "write_all", "text"]
+__all__ = ["writable_target", "same_file", "write_all", "text", "written"]
+
+# The last paths :func:`write_all` put in place in this process, in order: the command line
+# clears it and names them when it is interrupted after some were written.
+written = collections.deque(maxlen=64)
 
 
 def text(content):
@@ -76,23 +82,33 @@ def write_all(jobs):
 
     Each ``write`` fills a temporary path in a private folder beside its target; once all
     have succeeded they are renamed over their targets. A failure (a full disk, a write
-    error) raises a BakeError and leaves every target as it was.
+    error) raises a BakeError and leaves every target as it was; the temporary folders go in
+    every case. Under :func:`.interrupts.interruptible`, an interrupt (Ctrl-C, SIGTERM) that
+    comes while the files are written waits for the write to end (the save itself is
+    Blender's C code, which a signal does not stop either): then it is raised as an
+    Interrupted whose ``written`` lists the files put in place.
     """
-    staged = []
-    try:
-        for path, write in jobs:
-            folder = tempfile.mkdtemp(prefix=".cubegi-", dir=os.path.dirname(path))
-            tmp = os.path.join(folder, os.path.basename(path))
-            staged.append((folder, tmp, path))
-            try:
-                write(tmp)
-            except (OSError, RuntimeError) as exc:
-                reason = getattr(exc, "strerror", None) or str(exc).strip().splitlines()[-1]
-                raise BakeError(f"could not write {path!r}: {reason}") from None
-            if not os.path.isfile(tmp):
-                raise BakeError(f"could not write {path!r}")
-        for _, tmp, path in staged:
-            os.replace(tmp, path)
-    finally:
-        for folder, _, _ in staged:
-            shutil.rmtree(folder, ignore_errors=True)
+    interrupts.check()
+    staged, done = [], []
+    with interrupts.deferred(written=done):
+        try:
+            for path, write in jobs:
+                folder = tempfile.mkdtemp(prefix=".cubegi-", dir=os.path.dirname(path))
+                tmp = os.path.join(folder, os.path.basename(path))
+                staged.append((folder, tmp, path))
+                try:
+                    write(tmp)
+                except (OSError, RuntimeError) as exc:
+                    reason = getattr(exc, "strerror", None) or str(exc).strip().splitlines()[-1]
+                    raise BakeError(f"could not write {path!r}: {reason}") from None
+                if not os.path.isfile(tmp):
+                    raise BakeError(f"could not write {path!r}")
+            for _, tmp, path in staged:
+                os.replace(tmp, path)
+                written.append(path)
+                done.append(path)
+        finally:
+            for folder, _, _ in staged:
+                shutil.rmtree(folder, ignore_errors=True)
+
+

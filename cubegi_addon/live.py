@@ -26,7 +26,7 @@ from ..cubegi_engine.emitters import emitter_direct
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.lights import light_keys
 from ..cubegi_engine.scene import same_sky_map
-from . import attributes, dynamic, grid_objects, probe_view, scene_data, session
+from . import attributes, dynamic, grid_objects, interrupts, probe_view, scene_data, session
 from .gpu_capture import GpuRenderer
 
 # Light fields whose change needs the light's direct light drawn again (not its colour).
@@ -432,7 +432,7 @@ def unregister():
 def _persistent(fn):
     import bpy
 
-    return bpy.app.handlers.persistent(fn)
+    return bpy.app.handlers.persistent(interrupts.blender_callback(fn))
 
 
 _persistent_update = _persistent(on_depsgraph_update)

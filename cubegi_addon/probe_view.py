@@ -13,7 +13,7 @@ import numpy as np
 from gpu_extras.batch import batch_for_shader
 
 from ..cubegi_engine.spheres import probe_spheres
-from . import grid_objects, prefs
+from . import grid_objects, interrupts, prefs
 
 PROBE_COLOUR = (0.9, 0.75, 0.2, 1.0)
 INSIDE_COLOUR = (0.9, 0.15, 0.1, 1.0)
@@ -88,6 +88,7 @@ def draw(scene=None):
 
 
 @bpy.app.handlers.persistent
+@interrupts.blender_callback
 def _forget_all(*_):
     """Undo, redo and loading a file can change the stored light behind the cache's back."""
     _cache.clear()

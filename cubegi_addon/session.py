@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import bpy
 
+from . import interrupts
+
 MAX_KEPT_SCENES = 4
 # At most this share of the machine's memory, and never more than MAX_KEPT_BYTES.
 KEPT_SHARE = 0.125
@@ -140,6 +142,7 @@ def after_undo():
 
 
 @bpy.app.handlers.persistent
+@interrupts.blender_callback
 def _forget_all(*_):
     forget()
 

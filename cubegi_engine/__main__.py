@@ -59,5 +59,16 @@ def _unregister_at_exit(module):
 
 
 if __name__ == "__main__":
-    load_extension(register=False)
-    sys.exit(importlib.import_module(f"{PACKAGE}.cubegi_addon.cli").main())
+    import signal
+
+    # A cluster worker starts its bakes with Ctrl-C ignored (cubegi_addon.cluster): a bake
+    # stops on it all the same, from its first step (importing bpy takes a second or two).
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        load_extension(register=False)
+        cli = importlib.import_module(f"{PACKAGE}.cubegi_addon.cli")
+    except KeyboardInterrupt:  # Ctrl-C while Blender loads
+        print("cubegi: interrupted; nothing was written", file=sys.stderr)
+        sys.exit(128 + signal.SIGINT)
+    sys.exit(cli.main())

@@ -4,6 +4,7 @@ renders of an animation show each frame's light."""
 
 import json
 import os
+import signal
 import subprocess
 import sys
 
@@ -11,6 +12,7 @@ import bpy
 import numpy as np
 import pytest
 import scenes
+from interrupt import interrupt_cli
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 # The cache is what the update path computes; a full bake of the same frame agrees to the
@@ -170,6 +172,32 @@ def test_an_object_keyframed_into_and_out_of_renders_casts_its_shadow_only_while
         assert bpy.ops.cubegi.bake(grid=(3, 3, 2), cube_size=16, bounces=3) == {"FINISHED"}
         np.testing.assert_allclose(read(bpy.data.objects["Room"].data, "CubeGI_direct"), cached, rtol=0,
                                    atol=SOLVE_TOL * float(cached.max()), err_msg=f"frame {frame}")
+
+
+def test_ctrl_c_mid_animation_keeps_the_finished_frames_and_says_so(empty_scene, cubegi, tmp_path):
+    """Ctrl-C during ``bake-animation``: status 130 and one line naming the frames whose light
+    is kept (each file whole) and saying the output was not written (before: "nothing was
+    written", with the frames there). A cluster run's key in the folder goes: its frames
+    changed."""
+    src = _animated_room(tmp_path, dynamic=False)
+    bpy.context.scene.frame_end = 200
+    bpy.ops.wm.save_as_mainfile(filepath=str(src))
+    out = tmp_path / "out.blend"
+    cache = tmp_path / "out.cubegi"
+    cache.mkdir()
+    (cache / cubegi.cubegi_addon.animation.KEY_FILE).write_text("{}")
+    rc, _, err = interrupt_cli(["bake-animation", src, "-o", out, *FAST], lambda: len(list(cache.glob("frame_*.npz"))) >= 3)
+    assert rc == 128 + signal.SIGINT, err
+    frames = sorted(int(p.stem.split("_")[1]) for p in cache.glob("frame_*.npz"))
+    lines = [ln for ln in err.splitlines() if ln.startswith("cubegi:")]
+    assert lines == [f"cubegi: interrupted; the light of frames 1-{frames[-1]} is baked and kept in {cache} (each frame "
+                     f"whole); {out} was not written; a run again bakes every frame"], err
+    assert frames == list(range(1, frames[-1] + 1)) and len(frames) >= 3
+    for frame in frames:
+        with np.load(cache / f"frame_{frame:04d}.npz") as data:
+            assert set(data.files) == {"Room:direct", "Room:indirect", "Block:direct", "Block:indirect"}
+    assert not out.exists() and not [n for n in os.listdir(tmp_path) if n.startswith(".cubegi")]  # no temporary folder
+    assert sorted(os.listdir(cache)) == [f"frame_{f:04d}.npz" for f in frames]  # the key is gone
 
 
 def test_the_cache_in_the_add_on_never_shows_stale_light_without_a_word(empty_scene, cubegi, tmp_path):

@@ -15,6 +15,7 @@ import bpy
 import numpy as np
 import pytest
 import scenes
+from interrupt import interrupt_cli, still_running
 
 pytest.importorskip("distributed")
 
@@ -198,3 +199,63 @@ def test_an_unreachable_scheduler_is_refused_in_one_line(three_files, tmp_path):
     assert r.returncode == 2, r.stderr
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "cannot reach the Dask scheduler" in lines[0] and "please report" not in lines[0], r.stderr
+
+
+def test_ctrl_c_in_a_batch_stops_every_bake_keeps_the_finished_ones_and_prints_no_traceback(three_files, tmp_path):
+    """Ctrl-C reaches the command, its Dask workers and their bakes (a terminal's process
+    group): status 130, one line naming the files baked (whole, with their reports; a run
+    again skips them), ``batch.json`` listing the rest as interrupted, no traceback from any
+    process (before: a traceback from each worker and "nothing was written"), no bake left
+    running."""
+    paths, _ = three_files
+    inputs = []
+    for k in range(8):  # eight inputs on two workers: some are done, some under way, some not started
+        inputs.append(tmp_path / f"in{k}.blend")
+        inputs[-1].write_bytes(paths[k % 3].read_bytes())
+    out = tmp_path / "out"
+    rc, stdout, err = interrupt_cli(["batch", *inputs, "--out-dir", out, "--workers", "2", *FAST],
+                                    lambda: any(out.glob("*.json")))
+    assert rc == 128 + signal.SIGINT, stdout + err
+    assert err.splitlines() and all(ln.startswith("cubegi: ") for ln in err.splitlines()), err  # one line, nothing else
+    summary = json.loads((out / "batch.json").read_text())
+    status = {os.path.basename(f["file"]): f["status"] for f in summary["files"]}
+    done = sorted(n for n, s in status.items() if s == "done")
+    assert done and set(status.values()) <= {"done", "interrupted"} and len(done) < len(inputs), [(f["status"], f["error"]) for f in summary["files"]]
+    assert err.splitlines() == [f"cubegi: interrupted; {len(done)} of {len(inputs)} files are baked into {out} "
+                                f"({', '.join(n for n in status if n in done)}; each whole, with its report; a run again "
+                                "skips them); batch.json lists the rest as interrupted"]
+    for name, s in status.items():
+        stem = name.removesuffix(".blend")
+        assert (out / f"{stem}.blend").exists() == (s == "done") or s == "interrupted", name
+    assert not [n for n in os.listdir(out) if n.startswith(".cubegi")]
+    time.sleep(1.0)
+    assert still_running(str(tmp_path)) == []  # no bake runs on
+    again = _cli("batch", *inputs, "--out-dir", out, "--workers", "2", *FAST)
+    assert again.returncode == 0, again.stderr
+    rerun = {os.path.basename(f["file"]): f["status"] for f in json.loads((out / "batch.json").read_text())["files"]}
+    assert rerun == {n: "skipped" if n in done else "done" for n in status}
+
+
+def test_ctrl_c_in_an_animation_on_a_cluster_keeps_the_frames_and_says_so(empty_scene, cubegi, tmp_path):
+    v, f = scenes.box_mesh((-2, -2, 0), (2, 2, 2.5), (6, 6, 4), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    lamp = scenes.add_light("POINT", (1.2, -1.2, 2.0), 150.0)
+    lamp.keyframe_insert("location", frame=1)
+    lamp.location = (-1.2, 1.2, 1.6)
+    lamp.keyframe_insert("location", frame=400)
+    src = tmp_path / "anim.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(src))
+    out = tmp_path / "out.blend"
+    cache = tmp_path / "out.cubegi"
+    rc, stdout, err = interrupt_cli(["bake-animation", src, "-o", out, "--frames", "1", "400", "--workers", "2", *FAST],
+                                    lambda: len(list(cache.glob("frame_*.npz"))) >= 4)
+    assert rc == 128 + signal.SIGINT, stdout + err
+    assert err.splitlines() == [f"cubegi: interrupted; the frames baked so far are kept in {cache} (each frame whole); "
+                                f"{out} was not written; a run again bakes every frame"], err
+    for frame in cache.glob("frame_*.npz"):
+        with np.load(frame) as data:
+            assert set(data.files) == {"Room:direct", "Room:indirect"}
+    assert not out.exists() and not (cache / cubegi.cubegi_addon.animation.KEY_FILE).exists()
+    assert not [n for n in os.listdir(tmp_path) if n.startswith(".cubegi")]
+    time.sleep(1.0)
+    assert still_running(str(tmp_path)) == []

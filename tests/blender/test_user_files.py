@@ -2,7 +2,9 @@
 device node, nor a file reached through links), CubeGI's ownership of only the attributes
 it made, and outputs that keep everything of the user's and leave no stray files."""
 
+import json
 import os
+import signal
 import stat
 import subprocess
 import sys
@@ -117,6 +119,100 @@ def test_a_failed_write_leaves_every_target_as_it_was(tmp_path, cubegi):
         files.write_all([(str(first), lambda tmp: open(tmp, "w").write("new a")), (str(second), full)])
     assert first.read_text() == "old a" and not second.exists()
     assert sorted(os.listdir(tmp_path)) == ["a.txt"]  # no temporary folder left
+
+
+# A bake process that gets SIGTERM while it saves: the save itself is Blender's, the signal
+# comes from the process itself right after it, so that it lands in the save's step every run.
+_TERM_DURING_SAVE = """
+import importlib, os, signal, sys
+sys.path.insert(0, {root!r})
+from cubegi_engine.__main__ import load_extension
+load_extension(register=False)
+cli = importlib.import_module("cubegi.cubegi_addon.cli")
+save = cli._save_blend
+
+def save_then_term(compressed):
+    write = save(compressed)
+
+    def write_and_term(tmp):
+        write(tmp)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    return write_and_term
+
+cli._save_blend = save_then_term
+sys.exit(cli.main(sys.argv[1:]))
+"""
+
+
+def test_sigterm_while_saving_finishes_the_save_and_leaves_no_temporary_folder(saved, tmp_path):
+    """SIGTERM during the save (a job scheduler's stop): the write ends (every file whole),
+    then the command stops with status 143 and one line naming what it wrote; no hidden
+    ``.cubegi-*`` folder stays (before: the process ended mid-save and left it)."""
+    out, report = tmp_path / "out" / "out.blend", tmp_path / "out" / "out.json"
+    out.parent.mkdir()
+    before = saved.read_bytes()
+    r = subprocess.run([sys.executable, "-c", _TERM_DURING_SAVE.format(root=ROOT), "bake", str(saved), "-o", str(out),
+                        "--report", str(report), *FAST], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 128 + signal.SIGTERM, r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("cubegi:")]
+    assert lines == [f"cubegi: stopped by SIGTERM; {out}, {report} were written (whole) before it stopped"], r.stderr
+    assert sorted(os.listdir(out.parent)) == ["out.blend", "out.json"] and saved.read_bytes() == before
+    assert json.loads(report.read_text())["output"] == str(out)
+    bpy.ops.wm.open_mainfile(filepath=str(out))
+    assert "CubeGI" in bpy.data.objects["Room"].data.attributes
+
+
+@pytest.mark.parametrize("when", ["writing", "renaming"])
+def test_an_interrupt_while_files_are_written_waits_for_the_write_to_end(tmp_path, cubegi, monkeypatch, when):
+    """All or none: a signal while a job's files are written or renamed into place waits
+    until the last is in place; then the interrupt goes on, naming them."""
+    files, interrupts = cubegi.cubegi_addon.files, cubegi.cubegi_addon.interrupts
+    first, second = tmp_path / "a.txt", tmp_path / "b.txt"
+    first.write_text("old a")
+    second.write_text("old b")
+    replace = os.replace
+
+    def replace_then_term(src, dst):
+        replace(src, dst)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    def write_then_term(tmp):
+        files.text("new b")(tmp)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    if when == "renaming":
+        monkeypatch.setattr(files.os, "replace", replace_then_term)
+    with interrupts.interruptible(), pytest.raises(cubegi.cubegi_engine.errors.Interrupted) as stop:
+        files.write_all([(str(first), files.text("new a")), (str(second), write_then_term if when == "writing" else files.text("new b"))])
+    assert stop.value.signum == signal.SIGTERM and stop.value.written == [str(first), str(second)]
+    assert (first.read_text(), second.read_text()) == ("new a", "new b")  # both, not one
+    assert sorted(os.listdir(tmp_path)) == ["a.txt", "b.txt"]  # no temporary folder left
+    assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL  # the handler is the command line's only while it runs
+
+
+def test_an_interrupt_in_a_blender_handler_waits_for_the_next_step(empty_scene, cubegi):
+    """Blender prints and drops an exception raised in a handler (here frame_change_post): an
+    interrupt that comes there waits for the next progress step instead of being lost."""
+    interrupts = cubegi.cubegi_addon.interrupts
+    seen = []
+
+    @interrupts.blender_callback
+    def handler(scene, depsgraph=None):
+        os.kill(os.getpid(), signal.SIGINT)
+        seen.append(scene.frame_current)  # runs on: the interrupt waits
+
+    bpy.app.handlers.frame_change_post.append(handler)
+    try:
+        with interrupts.interruptible():
+            bpy.context.scene.frame_set(2)
+            assert seen == [2]
+            with pytest.raises(cubegi.cubegi_engine.errors.Interrupted) as stop:
+                interrupts.check()
+    finally:
+        bpy.app.handlers.frame_change_post.remove(handler)
+    assert stop.value.signum == signal.SIGINT
+    interrupts.check()  # raised once only
 
 
 def test_the_operators_report_path_is_checked_before_the_bake(empty_scene, cubegi, tmp_path):

@@ -71,17 +71,25 @@ print("INSTALLED-BAKE-OK", where)
 
 @pytest.mark.smoke
 def test_the_built_zip_installs_bakes_and_uninstalls(tmp_path):
-    """The build command makes a zip without the dev files; Blender installs it into a
-    temporary user folder, the installed copy bakes, and uninstalling removes it all."""
-    r = subprocess.run(
-        [sys.executable, os.path.join(ROOT, "scripts", "build_extension.py"), str(tmp_path / "dist")],
-        capture_output=True, text=True,
-    )
+    """``scripts/build.sh`` makes the zip with no Blender, bpy or virtual environment (a bare
+    PATH): file for file what Blender's own tool builds from the same manifest, without the
+    dev files. Blender installs it into a temporary user folder, the installed copy bakes,
+    and uninstalling removes it all."""
+    r = subprocess.run(["bash", os.path.join(ROOT, "scripts", "build.sh"), str(tmp_path / "dist")], capture_output=True,
+                       text=True, env={"PATH": "/usr/bin:/bin", "HOME": str(tmp_path)})
     assert r.returncode == 0, r.stderr
     zip_path = r.stdout.strip().splitlines()[-1]
+    assert os.path.basename(zip_path) == "cubegi-0.1.0.zip"
     import zipfile
 
-    names = zipfile.ZipFile(zip_path).namelist()
+    tool = os.path.join(bpy.utils.system_resource("SCRIPTS"), "addons_core", "bl_pkg", "cli", "blender_ext.py")
+    (tmp_path / "blender").mkdir()
+    subprocess.run([sys.executable, tool, "build", "--source-dir", ROOT, "--output-dir", str(tmp_path / "blender")], check=True,
+                   capture_output=True)
+    ours, blenders = zipfile.ZipFile(zip_path), zipfile.ZipFile(tmp_path / "blender" / "cubegi-0.1.0.zip")
+    names = ours.namelist()
+    assert sorted(names) == sorted(blenders.namelist())
+    assert all(ours.read(n) == blenders.read(n) for n in names)
     assert "blender_manifest.toml" in names and "cubegi_engine/sh.py" in names and "cubegi_addon/operators.py" in names
     assert not [n for n in names if n.split("/")[0] in {"tests", "scripts", "benchmarks", "docs", ".ci", ".git"}]
     # Run from the source tree only: the command line, the demo and the benchmark.

@@ -72,7 +72,7 @@ def _mean(arrays):
 _baking = set()
 
 
-def bake_animation_steps(context, settings, frames, folder, resolution=None, lit=None):
+def bake_animation_steps(context, settings, frames, folder, resolution=None, lit=None, only=None):
     """Bake frames ``frames`` (an iterable of ints) into ``folder``; a generator of Progress
     (one per frame), returning ``{"frames": [...], ...}`` (see the module docstring). The
     scene's cache link is the caller's to set: a bake refused or failed leaves it as it was."""
@@ -82,12 +82,12 @@ def bake_animation_steps(context, settings, frames, folder, resolution=None, lit
         raise BakeError("no frames to bake")
     _baking.add(scene.session_uid)
     try:
-        return (yield from _bake_frames(context, settings, frames, folder, resolution, lit))
+        return (yield from _bake_frames(context, settings, frames, folder, resolution, lit, only))
     finally:
         _baking.discard(scene.session_uid)
 
 
-def _bake_frames(context, settings, frames, folder, resolution, lit):
+def _bake_frames(context, settings, frames, folder, resolution, lit, only):
     scene = context.scene
     os.makedirs(folder, exist_ok=True)
     records = []
@@ -97,7 +97,7 @@ def _bake_frames(context, settings, frames, folder, resolution, lit):
             yield Progress(Stage.BOUNCE, k, len(frames), f"frame {frame} ({k + 1}/{len(frames)})")
             t = time.perf_counter()
             scene.frame_set(frame)
-            path, detail = _frame(context, settings, resolution, lit, first=k == 0)
+            path, detail = _frame(context, settings, resolution, lit, only, first=k == 0)
             arrays = frame_arrays(scene)
             if not records and os.path.exists(os.path.join(folder, KEY_FILE)):
                 os.remove(os.path.join(folder, KEY_FILE))  # its frames are about to change
@@ -153,7 +153,7 @@ def _static_changed(context, kept):
     return bool(scene_data.collect(context).arrays.fingerprint().changed(kept.arrays.fingerprint()))
 
 
-def _frame(context, settings, resolution, lit, first):
+def _frame(context, settings, resolution, lit, only, first):
     """Bring the attributes to the current frame; ``(path, details)``."""
     kept = session.kept(context.scene)
     if not first and kept is not None and not _static_changed(context, kept):
@@ -162,7 +162,7 @@ def _frame(context, settings, resolution, lit, first):
             return report.path, {"changed": report.changed}
         except BakeError:  # the static geometry changed: a full bake
             pass
-    report = pipeline.bake(context, settings, resolution, lit=lit)
+    report = pipeline.bake(context, settings, resolution, lit=lit, only=only)
     details = {"probes": report.grid["probes"], "capture_reused": report.capture_reused}
     if report.probes_recaptured is not None:
         return "recapture", dict(details, probes_recaptured=report.probes_recaptured)

@@ -112,6 +112,11 @@ def _bake_options(p, demo=False):
             "--dynamic", nargs="+", metavar="NAME", default=[],
             help="objects left out of the capture and lit from the probe field (they move without a new bake)",
         )
+        p.add_argument(
+            "--only", nargs="+", metavar="NAME",
+            help="write light into these mesh objects only; the others light and shadow them as in a full bake and keep "
+            "the light they have (as Bake Selected)",
+        )
 
 
 def _cluster_options(p):
@@ -143,6 +148,8 @@ def _forwarded(args):
         words += ["--lit", args.lit]
     if getattr(args, "dynamic", None):
         words += ["--dynamic", *args.dynamic]
+    if getattr(args, "only", None):
+        words += ["--only", *args.only]
     return words
 
 
@@ -310,6 +317,16 @@ def _mark_dynamic(bpy, names):
         bpy.data.objects[name].cubegi.dynamic = True
 
 
+def _only(bpy, names):
+    """The ``--only`` names as a set (None without the option), each a mesh object of the file."""
+    if not names:
+        return None
+    missing = [n for n in names if n not in bpy.data.objects or bpy.data.objects[n].type != "MESH"]
+    if missing:
+        raise BakeError(f"--only: no mesh object named {', '.join(map(repr, missing))} in the file")
+    return set(names)
+
+
 def cmd_bake(args):
     settings = _settings(args)
     src, compressed, dst, report_path = _check_io(args)
@@ -327,7 +344,8 @@ def cmd_bake(args):
 
     detach_cache(bpy.context.scene)  # the output shows this bake's light, not an older animation's
     report = pipeline.bake(bpy.context, settings, tuple(args.grid) if args.grid else None, lit=lit,
-                           reference_samples=args.reference_samples if args.reference else None, progress=_print_progress)
+                           reference_samples=args.reference_samples if args.reference else None, progress=_print_progress,
+                           only=_only(bpy, args.only))
     report.input, report.output = src, dst
     jobs = [(dst, _save_blend(compressed))]
     if report_path:
@@ -368,7 +386,7 @@ def cmd_bake_animation(args):
     settings, lit = _file_settings(bpy, args), _file_lit(bpy, args)
     try:
         result = run(bake_animation_steps(bpy.context, settings, range(first, last + 1), folder,
-                                          tuple(args.grid) if args.grid else None, lit), _print_progress)
+                                          tuple(args.grid) if args.grid else None, lit, only=_only(bpy, args.only)), _print_progress)
     except KeyboardInterrupt as exc:
         kept = getattr(exc, "kept", None)
         raise Interrupted.keeping(exc, kept and f"{kept}; {dst} was not written; a run again bakes every frame") from None

@@ -205,7 +205,7 @@ def _update_lights(state, lights, sky, report):
 
 
 def _update_materials(context, kept, report):
-    collected = scene_data.collect(context)
+    collected = scene_data.collect(context, only=kept.only)
     arrays = collected.arrays
     if not arrays.fingerprint().same_geometry(kept.arrays.fingerprint()):
         raise BakeError("the geometry changed since the bake: Bake again (an update keeps the capture, which only a bake redraws)")
@@ -225,7 +225,7 @@ def _update_materials(context, kept, report):
 def _moved_objects(context, kept):
     """Names of the dynamic objects whose vertices moved since they were last lit; the
     kept arrays are brought up to date."""
-    now = scene_data.moving_objects(context)
+    now = scene_data.moving_objects(context, only=kept.only)
     before = {t.object_name: a for a, t in kept.moving}
     moved = [t.object_name for a, t in now if t.object_name not in before or not (
         np.array_equal(a.points, before[t.object_name].points) and np.array_equal(a.normals, before[t.object_name].normals))]
@@ -391,7 +391,7 @@ def _rebake(context):
 
     kept = session.kept(context.scene)
     t = time.perf_counter()
-    report = pipeline.bake(context, kept.settings, kept.resolution, lit=kept.lit)
+    report = pipeline.bake(context, kept.settings, kept.resolution, lit=kept.lit, only=kept.only)
     drawn = report.probes_recaptured if report.probes_recaptured is not None else report.grid["probes"]
     return f"baked again in {1000 * (time.perf_counter() - t):.0f} ms: geometry moved, {drawn} of {report.grid['probes']} probes re-captured"
 

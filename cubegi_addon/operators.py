@@ -49,10 +49,10 @@ class BakeJob(StepJob):
     """One bake, a step at a time. The light so far is on the meshes after every step;
     :meth:`cancel` (or a failure) puts every mesh back as it was."""
 
-    def __init__(self, context, settings, resolution=None, lit="NONE", reference_samples=None, progressive=True):
+    def __init__(self, context, settings, resolution=None, lit="NONE", reference_samples=None, progressive=True, only=None):
         super().__init__(pipeline.bake_steps(
             context, settings, resolution, lit=None if lit == "NONE" else lit, reference_samples=reference_samples,
-            progressive=progressive,
+            progressive=progressive, only=only,
         ))
 
 
@@ -193,6 +193,17 @@ class CUBEGI_OT_bake(_ModalJob, bpy.types.Operator):
     )
     lit: EnumProperty(name="Lit Colour", description="Also write CubeGI_lit (default: the scene's setting)", items=props.LIT_ITEMS, default="NONE")
     report_path: StringProperty(name="Report", description="Write the bake report (JSON) to this file", default="", subtype="FILE_PATH")
+    selected_only: BoolProperty(
+        name="Selected Only", description="Bake light into the selected meshes only; the rest light and shadow them and "
+        "keep the light they have", default=False, options={"SKIP_SAVE"},
+    )
+
+    @classmethod
+    def description(cls, context, properties):
+        if properties.selected_only:
+            return ("Bake light into the selected meshes only: every other object lights and shadows them as in a full "
+                    "bake and keeps the light it has")
+        return cls.__doc__
 
     @classmethod
     def poll(cls, context):
@@ -205,7 +216,13 @@ class CUBEGI_OT_bake(_ModalJob, bpy.types.Operator):
         report_path = None
         if self.report_path:
             report_path = files.writable_target(bpy.path.abspath(self.report_path), "report", _open_file(bpy.data.filepath))
-        job = BakeJob(context, _settings_from(self, context.scene).validate(), resolution, lit, self.reference_samples or None, progressive)
+        only = None
+        if self.selected_only:
+            only = {ob.name for ob in context.selected_objects if ob.type == "MESH"}
+            if not only:
+                raise BakeError("select the meshes to bake: Bake Selected bakes the selected meshes only")
+        job = BakeJob(context, _settings_from(self, context.scene).validate(), resolution, lit, self.reference_samples or None, progressive,
+                      only=only)
         job.report_path = report_path
         return job
 

@@ -45,7 +45,10 @@ class VIEW3D_PT_cubegi(_SidebarTab, bpy.types.Panel):
             col.prop(ob.cubegi, "show_probes")
             col.prop(ob.cubegi, "show_irradiance")
         elif ob is not None and ob.type == "MESH":
-            layout.prop(ob.cubegi, "dynamic")
+            col = layout.column(heading=ob.name)
+            col.prop(ob.cubegi, "receive")
+            col.prop(ob.cubegi, "contribute")
+            col.prop(ob.cubegi, "dynamic")
         else:
             col.label(text=f"{len(grids)} probe grid objects" if grids else "Fitted to the scene (no grid object)")
         col.operator("cubegi.add_probe_grid", icon="LIGHTPROBE_VOLUME")
@@ -65,6 +68,7 @@ class VIEW3D_PT_cubegi(_SidebarTab, bpy.types.Panel):
         layout.prop(settings, "lit")
         row = layout.row(align=True)
         row.operator("cubegi.bake", icon="RENDER_STILL")
+        row.operator("cubegi.bake", text="Bake Selected", icon="RESTRICT_SELECT_OFF").selected_only = True
         row.operator("cubegi.clear", icon="TRASH")
         row = layout.row(align=True)
         row.operator("cubegi.update_light", icon="LIGHT")

@@ -81,13 +81,16 @@ def _each(steps, action):
         yield step
 
 
-def bake(context, settings=None, resolution=None, lit=None, reference_samples=None, progress=None):
+def bake(context, settings=None, resolution=None, lit=None, reference_samples=None, progress=None, only=None):
     """Bake the context's scene in one go; returns the :class:`BakeReport`."""
-    return run(bake_steps(context, settings, resolution, lit, reference_samples), progress)
+    return run(bake_steps(context, settings, resolution, lit, reference_samples, only=only), progress)
 
 
-def bake_steps(context, settings=None, resolution=None, lit=None, reference_samples=None, progressive=False):
+def bake_steps(context, settings=None, resolution=None, lit=None, reference_samples=None, progressive=False, only=None):
     """Bake the context's scene. A generator of engine Progress; returns the BakeReport.
+
+    ``only``: the names of the objects to write light into (Bake Selected, ``--only``);
+    every other object lights and shadows them as before and keeps the light it has.
 
     ``lit``: None, "ALL" (``CubeGI_lit`` = albedo x all light) or "INDIRECT" (albedo x
     indirect light). With ``reference_samples``, Cycles also bakes the same light into
@@ -101,18 +104,21 @@ def bake_steps(context, settings=None, resolution=None, lit=None, reference_samp
         raise BakeError(f"lit colour must be one of ALL, INDIRECT or none, got {lit!r}")
     preview = Preview() if progressive else None
     try:
-        return (yield from _bake_steps(context, settings, resolution, lit, reference_samples, preview))
+        return (yield from _bake_steps(context, settings, resolution, lit, reference_samples, preview, only))
     except BaseException:
         if preview is not None:
             preview.undo()
         raise
 
 
-def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
+def _bake_steps(context, settings, resolution, lit, reference_samples, preview, only):
     t0 = time.perf_counter()
-    collected = scene_data.collect(context)
+    collected = scene_data.collect(context, only=only)
     arrays = collected.arrays
-    if not collected.targets:
+    if not collected.targets and not collected.moving:
+        if only is not None:
+            raise BakeError(f"none of the objects to bake ({', '.join(sorted(only)) or 'none selected'}) is a mesh that "
+                            "renders and receives light")
         raise BakeError("no mesh in the scene can receive baked light")
     attributes.check_clashes(
         [(bpy.data.objects[t.object_name], bpy.data.meshes[t.mesh_name]) for t in collected.targets],
@@ -170,7 +176,7 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
     context.scene.cubegi.bake_id = uuid.uuid4().hex
     session.keep(context.scene, session.Kept(
         arrays, collected.targets, result, settings, lit, placements=session.placements(arrays.object_names), moving=collected.moving,
-        resolution=resolution, bake_id=context.scene.cubegi.bake_id,
+        resolution=resolution, bake_id=context.scene.cubegi.bake_id, only=None if only is None else frozenset(only),
         shapes=scene_data.static_shapes(context.view_layer, context.evaluated_depsgraph_get()),
     ))
     t_write = t_layers + time.perf_counter() - t
@@ -179,7 +185,8 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview):
     # CubeGI's own time: everything but the Cycles reference.
     total = time.perf_counter() - t0 - (reference_report["seconds"] if reference_report else 0.0)
     timings.update(collect=t_collect, gpu_setup=t_setup, write=t_write, total=total)
-    return _report(settings, lit, grid, grid_source, collected, result, timings, reference_report, list(layers_per_target[0]))
+    names = list(layers_per_target[0] if layers_per_target else moving[0][1])
+    return _report(settings, lit, grid, grid_source, collected, result, timings, reference_report, names)
 
 
 # Points no probe lights are noted above this share (of the points that are not set aside).

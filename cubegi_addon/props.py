@@ -141,6 +141,15 @@ class CubeGIObjectSettings(bpy.types.PropertyGroup):
         "Turning it on or off needs a new bake",
         default=False, update=lambda settings, context: session.forget(context.scene),
     )
+    receive: BoolProperty(
+        name="Receive", description="Bake CubeGI's light into this mesh (off: it keeps the light it has, and still lights "
+        "and shadows the rest)", default=True,
+    )
+    contribute: BoolProperty(
+        name="Contribute", description="This object shadows the rest, passes light on and is seen by the probes (off: it "
+        "is lit as a dynamic object is, invisible to the probes and to shadows)",
+        default=True, update=lambda settings, context: session.forget(context.scene),
+    )
     resolution: IntVectorProperty(
         name="Resolution", description="Probes along X, Y and Z", size=3, default=(4, 4, 2), min=1, max=256
     )

@@ -266,18 +266,20 @@ def _as_rendered(view_layer, geometry=True):
             put_back()
 
 
-def collect(context, depsgraph=None):
+def collect(context, depsgraph=None, only=None):
     """The scene's arrays and the meshes to write back to.
 
     Every mesh-like object that renders contributes geometry (modifiers applied, world
-    transforms, instances), whatever the viewport shows (see :func:`_as_rendered`);
-    original, non-instanced mesh objects whose evaluated vertex count matches their mesh
-    receive the baked light.
+    transforms, instances), whatever the viewport shows (see :func:`_as_rendered`), unless
+    its Contribute is off (then it is lit as a dynamic object is); original, non-instanced
+    mesh objects whose evaluated vertex count matches their mesh receive the baked light,
+    unless their Receive is off or ``only`` (object names: Bake Selected, ``--only``) leaves
+    them out.
     """
     if depsgraph is not None:
-        return _collect(context, depsgraph)
+        return _collect(context, depsgraph, only)
     with _as_rendered(context.view_layer):
-        return _collect(context, context.evaluated_depsgraph_get())
+        return _collect(context, context.evaluated_depsgraph_get(), only)
 
 
 def _rendered_instances(context, depsgraph):
@@ -310,8 +312,16 @@ def _is_dynamic(inst, original):
 
 
 def _dynamic_setting(ob):
+    """True if ``ob`` stays out of the capture and the shadows: Dynamic on, or Contribute off."""
     settings = getattr(ob, "cubegi", None)
-    return settings is not None and settings.dynamic
+    return settings is not None and (settings.dynamic or not settings.contribute)
+
+
+def receives(ob, only=None):
+    """True if a bake writes its light into ``ob``: its Receive is on and ``only`` (a set of
+    object names, or None for all) names it."""
+    settings = getattr(ob, "cubegi", None)
+    return (settings is None or settings.receive) and (only is None or ob.name in only)
 
 
 def _moving_object(ob, inst, original, notes):
@@ -333,13 +343,13 @@ def _moving_object(ob, inst, original, notes):
                               original.session_uid)
 
 
-def moving_objects(context):
-    """The dynamic objects as they stand now: ``[(SceneArrays, MeshTarget)]`` (reads only
-    them: for updates of moving objects, see :mod:`.live`)."""
+def moving_objects(context, only=None):
+    """The dynamic objects that receive light, as they stand now: ``[(SceneArrays,
+    MeshTarget)]`` (reads only them: for updates of moving objects, see :mod:`.live`)."""
     notes, out = [], []
     with _as_rendered(context.view_layer):
         for inst, ob, original, _ in _rendered_instances(context, context.evaluated_depsgraph_get()):
-            if ob.type == "MESH" and _is_dynamic(inst, original):
+            if ob.type == "MESH" and _is_dynamic(inst, original) and receives(original, only):
                 part = _moving_object(ob, inst, original, notes)
                 if part is not None:
                     out.append(part)
@@ -423,7 +433,7 @@ def scene_lights(context):
     return lights, sky, pattern, notes
 
 
-def _collect(context, depsgraph):
+def _collect(context, depsgraph, only):
     scene = context.scene
     notes = []
     parts, targets, lights, moving = [], [], [], []
@@ -442,6 +452,8 @@ def _collect(context, depsgraph):
         if ob.type != "MESH":
             continue
         if _is_dynamic(inst, original):
+            if not receives(original, only):  # neither lights the rest nor is lit
+                continue
             part = _moving_object(ob, inst, original, notes)
             if part is not None:
                 moving.append(part)
@@ -457,6 +469,8 @@ def _collect(context, depsgraph):
         offset += len(pts["points"])
         if original.type != "MESH":
             with_surface.add(original.name)
+            continue
+        if not receives(original, only):  # it lights and shadows the rest, and keeps the light it has
             continue
         if inst.is_instance:
             notes.append(

@@ -46,6 +46,7 @@ class Kept:
     bake_id: str = ""  # the scene's cubegi.bake_id this bake wrote
     moving: list = None  # [(SceneArrays, MeshTarget)] of the dynamic objects as last lit
     resolution: tuple = None  # the grid resolution the bake was asked for (None: the scene's)
+    only: frozenset = None  # the names of the objects the bake wrote light into, if it was asked for some (Bake Selected)
 
     @property
     def nbytes(self):

@@ -223,8 +223,8 @@ def _settings(args):
 
 def _file_settings(bpy, args):
     """The settings of a bake of the open file: the arguments given, then the file's own
-    CubeGI settings (Quality, Near Field, ...). Shadow-map sizes are BakeSettings' (not this
-    machine's Preferences, which would bake one file differently on two machines)."""
+    CubeGI settings (Quality, Near Field, shadow-map sizes, ...): one file bakes the same on
+    every machine."""
     from . import props
 
     return _validated(lambda: props.bake_settings(bpy.context.scene, _given(args), conserve_energy=not args.no_energy_conservation))

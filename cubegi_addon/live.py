@@ -30,7 +30,8 @@ from . import attributes, dynamic, grid_objects, interrupts, probe_view, scene_d
 from .gpu_capture import GpuRenderer
 
 # Light fields whose change needs the light's direct light drawn again (not its colour).
-PLACEMENT = ("kind", "position", "direction", "radius", "spot_size", "spot_blend", "polygon", "area", "casts_shadow", "samples")
+PLACEMENT = ("kind", "position", "direction", "radius", "spot_size", "spot_blend", "polygon", "area", "casts_shadow", "samples",
+             "shadow_size")
 
 
 @dataclass

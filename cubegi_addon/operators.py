@@ -19,7 +19,7 @@ def _settings_from(op, scene):
     """The operator's settings where the call set them, else the scene's (props.bake_settings)."""
     given = {name: getattr(op, name) for name in (*props.BAKE_FIELDS, "quality")
              if hasattr(op, name) and op.properties.is_property_set(name)}
-    return props.bake_settings(scene, given, **prefs.capture_settings())
+    return props.bake_settings(scene, given)
 
 
 class StepJob:

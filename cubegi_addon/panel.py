@@ -44,6 +44,8 @@ class VIEW3D_PT_cubegi(_SidebarTab, bpy.types.Panel):
             col.prop(ob.cubegi, "resolution")
             col.prop(ob.cubegi, "show_probes")
             col.prop(ob.cubegi, "show_irradiance")
+        elif ob is not None and ob.type == "LIGHT":
+            layout.prop(ob.data.cubegi, "shadow_size")
         elif ob is not None and ob.type == "MESH":
             col = layout.column(heading=ob.name)
             col.prop(ob.cubegi, "receive")
@@ -61,6 +63,10 @@ class VIEW3D_PT_cubegi(_SidebarTab, bpy.types.Panel):
         col.prop(settings, "near_field")
         col.prop(settings, "move_probes")
         col.prop(settings, "sky_per_vertex")
+        col = layout.column(heading="Shadows")
+        col.prop(settings, "shadow_size")
+        col.prop(settings, "sun_shadow_size")
+        col.prop(settings, "area_shadow_size")
         col = layout.column(heading="Bounces")
         col.prop(settings, "bounces")
         col.prop(settings, "tolerance")

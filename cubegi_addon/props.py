@@ -1,4 +1,6 @@
-"""CubeGI's settings on scenes (``Scene.cubegi``) and probe grid objects (``Object.cubegi``)."""
+"""CubeGI's settings on scenes (``Scene.cubegi``), objects (``Object.cubegi``: probe grids,
+Receive, Contribute, Dynamic) and lights (``Light.cubegi``: the shadow-map size), all saved in
+the file."""
 
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, IntVectorProperty, PointerProperty, StringProperty
@@ -22,7 +24,7 @@ QUALITY_ITEMS = (
 
 # The scene settings a bake reads (BakeSettings fields of the same names).
 BAKE_FIELDS = ("cube_size", "bounces", "cells", "visibility", "tolerance", "add_tail", "capture_triangles", "near_field",
-               "move_probes", "sky_per_vertex")
+               "move_probes", "sky_per_vertex", "shadow_size", "sun_shadow_size", "area_shadow_size")
 
 
 def bake_settings(scene, given=None, **fixed):
@@ -104,6 +106,18 @@ class CubeGISceneSettings(bpy.types.PropertyGroup):
         "time (it grows with vertices x directions)",
         default=BakeSettings.sky_per_vertex,
     )
+    shadow_size: IntProperty(
+        name="Point and Spot Shadows", description="Shadow cube-map face size of point and spot lights, in texels",
+        default=BakeSettings.shadow_size, min=16, max=4096, subtype="PIXEL",
+    )
+    sun_shadow_size: IntProperty(
+        name="Sun Shadows", description="Shadow map size of sun lights, in texels", default=BakeSettings.sun_shadow_size,
+        min=16, max=8192, subtype="PIXEL",
+    )
+    area_shadow_size: IntProperty(
+        name="Area Shadows", description="Shadow map size of each sample point of an area light, in texels",
+        default=BakeSettings.area_shadow_size, min=16, max=2048, subtype="PIXEL",
+    )
     lit: EnumProperty(
         name="Lit Colour", description="Also write CubeGI_lit, the lit colour that glTF export carries as COLOR_0",
         items=LIT_ITEMS, default="NONE",
@@ -159,7 +173,14 @@ class CubeGIObjectSettings(bpy.types.PropertyGroup):
     )
 
 
-classes = (CubeGISceneSettings, CubeGIObjectSettings)
+class CubeGILightSettings(bpy.types.PropertyGroup):
+    shadow_size: IntProperty(
+        name="CubeGI Shadow Size", description="This light's shadow-map size in texels (0: the scene's for its type)",
+        default=0, min=0, max=8192, subtype="PIXEL",
+    )
+
+
+classes = (CubeGISceneSettings, CubeGIObjectSettings, CubeGILightSettings)
 _register, _unregister = bpy.utils.register_classes_factory(classes)
 
 
@@ -167,9 +188,11 @@ def register():
     _register()
     bpy.types.Scene.cubegi = PointerProperty(type=CubeGISceneSettings)
     bpy.types.Object.cubegi = PointerProperty(type=CubeGIObjectSettings)
+    bpy.types.Light.cubegi = PointerProperty(type=CubeGILightSettings)
 
 
 def unregister():
+    del bpy.types.Light.cubegi
     del bpy.types.Object.cubegi
     del bpy.types.Scene.cubegi
     _unregister()

@@ -35,8 +35,9 @@ def _light(ob_eval, matrix, key, notes):
             notes.append(f"light {ob_eval.name}: its Temperature ({data.temperature:g} K) is approximated; below "
                          f"{BLACKBODY_ACCURATE_FROM:g} K its colour drifts from Cycles' (too much green: 3x at 1000 K)")
     _note_unread_light_options(ob_eval, data, notes)
+    own = getattr(data.original, "cubegi", None)
     common = dict(colour=colour, position=pos, direction=direction, casts_shadow=bool(data.use_shadow), name=ob_eval.name,
-                  key=key)
+                  key=key, shadow_size=int(own.shadow_size) if own is not None else 0)
     if data.type == "POINT":
         return Light("POINT", radius=float(data.shadow_soft_size), **common)
     if data.type == "SPOT":

@@ -115,7 +115,8 @@ class Shadow:
 
 def draw_shadow(scene, renderer, settings, light, size=None) -> Shadow:
     """Draw ``light``'s depth maps of ``scene`` (see :class:`Shadow`); ``size``: the maps'
-    edge (default: the settings' for the light's kind)."""
+    edge (default: the light's own ``shadow_size``, else the settings' for its kind)."""
+    size = size or light.shadow_size or None
     shadow = Shadow(light, scene.triangles, scene.points, scene.scale, sides=scene.sides())
     if light.kind == "SUN":
         lo, hi = scene.bounds()

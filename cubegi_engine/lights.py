@@ -40,6 +40,7 @@ class Light:
     name: what notes and reports call it. key: its identity among the scene's lights,
     assigned once by the scene reader (each instance of a light its own; see
     :func:`light_keys`), the key of its direct light and of its source in relighting.
+    shadow_size: its shadow maps' edge in texels (0: the bake settings' for its kind).
     """
 
     kind: str
@@ -55,6 +56,7 @@ class Light:
     name: str = ""
     samples: np.ndarray = field(default=None)
     key: str = ""
+    shadow_size: int = 0
 
 
 def light_keys(lights):

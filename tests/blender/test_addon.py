@@ -3,6 +3,7 @@ cancelled midway, undone), the display layers, the probe spheres, the material w
 the preferences."""
 
 import json
+import types
 
 import bpy
 import numpy as np
@@ -33,7 +34,7 @@ NAMED = (
 def test_unregister_leaves_nothing_behind_and_register_restores_everything(cubegi):
     addon = cubegi.cubegi_addon
     classes = [c for m in (addon.prefs, addon.props, addon.operators, addon.panel) for c in m.classes]
-    assert len(classes) == 14 and all(c.is_registered for c in classes)
+    assert len(classes) == 15 and all(c.is_registered for c in classes)
     handlers = [(addon.session.HANDLER_LISTS, addon.session._forget_all),
                 (("depsgraph_update_post",), addon.live._persistent_update), (("frame_change_post",), addon.live._persistent_frame),
                 (("undo_post", "redo_post"), addon.live._persistent_undo),
@@ -256,7 +257,7 @@ class _Layout:
     """Records what a panel's draw puts in its layout."""
 
     def __init__(self):
-        self.props, self.operators, self.labels = [], [], []
+        self.props, self.operators, self.labels, self.operator_props = [], [], [], []
 
     def column(self, **_):
         return self
@@ -268,6 +269,8 @@ class _Layout:
 
     def operator(self, idname, **_):
         self.operators.append(idname)
+        self.operator_props.append(types.SimpleNamespace())
+        return self.operator_props[-1]  # the button's operator properties, as Blender returns them
 
     def label(self, text="", **_):
         self.labels.append(text)
@@ -283,8 +286,16 @@ def test_the_panels_show_grid_and_bake_settings_display_choice_and_the_last_repo
     grid = next(o for o in bpy.context.scene.objects if o.type == "EMPTY")
     bpy.context.view_layer.objects.active = grid
     main = _draw("VIEW3D_PT_cubegi")
-    assert {"resolution", "show_probes", "show_irradiance", "cube_size", "bounces", "tolerance", "add_tail", "visibility", "lit"} <= set(main.props)
-    assert main.operators == ["cubegi.add_probe_grid", "cubegi.bake", "cubegi.clear", "cubegi.update_light", "cubegi.bake_animation"]
+    assert {"resolution", "show_probes", "show_irradiance", "cube_size", "bounces", "tolerance", "add_tail", "visibility", "lit",
+            "shadow_size", "sun_shadow_size", "area_shadow_size"} <= set(main.props)
+    assert main.operators == ["cubegi.add_probe_grid", "cubegi.bake", "cubegi.bake", "cubegi.clear", "cubegi.update_light",
+                              "cubegi.bake_animation"]
+    assert vars(main.operator_props[2]) == {"selected_only": True}  # Bake Selected
+    bpy.context.view_layer.objects.active = next(o for o in bpy.context.scene.objects if o.type == "MESH")
+    assert {"receive", "contribute", "dynamic"} <= set(_draw("VIEW3D_PT_cubegi").props)
+    bpy.context.view_layer.objects.active = next(o for o in bpy.context.scene.objects if o.type == "LIGHT")
+    assert "shadow_size" in _draw("VIEW3D_PT_cubegi").props[:1]
+    bpy.context.view_layer.objects.active = grid
     shown = _draw("VIEW3D_PT_cubegi_display")
     assert shown.props == ["display"] and shown.operators == ["cubegi.wire_materials", "cubegi.unwire_materials"]
     bpy.context.scene.cubegi.display = "BOUNCE"
@@ -295,20 +306,53 @@ def test_the_panels_show_grid_and_bake_settings_display_choice_and_the_last_repo
     assert "3 bounces in" in text and "bounce 3:" in text and "estimated missing indirect light after bounce 3" in text
 
 
-def test_preferences_set_new_grids_and_the_capture(box, monkeypatch):
+def test_preferences_set_new_grids_only(box, monkeypatch):
     prefs = box.cubegi_addon.prefs
-    defaults = prefs.get()
-    assert tuple(defaults.grid_resolution) == (4, 4, 2) and defaults.shadow_size == 512
+    assert tuple(prefs.get().grid_resolution) == (4, 4, 2)
 
     class Mine:
         grid_resolution = (3, 1, 2)
-        shadow_size, sun_shadow_size, area_shadow_size, sphere_scale = 64, 128, 32, 0.2
+        sphere_scale = 0.2
 
     monkeypatch.setattr(prefs, "get", lambda context=None: Mine())
     assert bpy.ops.cubegi.add_probe_grid() == {"FINISHED"}
     assert tuple(bpy.context.active_object.cubegi.resolution) == (3, 1, 2)
-    assert bpy.ops.cubegi.bake(bounces=1, cube_size=8) == {"FINISHED"}
-    assert json.loads(bpy.context.scene.cubegi.last_report)["settings"]["shadow_size"] == 64
+    assert not {"shadow_size", "sun_shadow_size", "area_shadow_size"} & set(prefs.CubeGIPreferences.__annotations__)  # the file's
+
+
+def test_shadow_map_sizes_are_the_files_per_scene_and_per_light(empty_scene, cubegi):
+    """Shadow-map sizes are saved in the file (the scene's per light type, and a light's own),
+    so one file bakes the same on every machine (before: this machine's Preferences). A
+    light's own size is what the scene's same size gives; an update after it changes redraws
+    that light's shadow and equals a fresh bake."""
+    v, f = scenes.box_mesh((-2, -2, 0), (2, 2, 2.5), (16, 16, 4), inward=True)
+    room = scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    v, f = scenes.box_mesh((-0.6, -0.4, 0.0), (0.3, 0.5, 0.9), (3, 3, 3), inward=False)
+    scenes.mesh_object("Block", v, f, scenes.material("Red", (0.7, 0.1, 0.1)))
+    lamp = scenes.add_light("POINT", (1.0, 1.0, 2.0), 200.0, shadow_soft_size=0.0)  # hard: one cube map of shadow_size
+    read = cubegi.cubegi_addon.attributes.read
+    kwargs = dict(grid=(3, 3, 2), cube_size=8, bounces=1)
+
+    def direct():
+        return read(room.data, "CubeGI_direct").copy()
+
+    scene = bpy.context.scene.cubegi
+    assert scene.shadow_size == 512 and lamp.data.cubegi.shadow_size == 0
+    assert bpy.ops.cubegi.bake(**kwargs) == {"FINISHED"}
+    fine = direct()
+    assert json.loads(scene.last_report)["settings"]["shadow_size"] == 512
+    scene.shadow_size = 16
+    assert bpy.ops.cubegi.bake(**kwargs) == {"FINISHED"}
+    coarse = direct()
+    assert json.loads(scene.last_report)["settings"]["shadow_size"] == 16
+    assert np.abs(coarse - fine).max() > 1e-3 * fine.max()  # the size matters here (the block's shadow edge)
+    scene.shadow_size = 512
+    lamp.data.cubegi.shadow_size = 16
+    assert bpy.ops.cubegi.bake(**kwargs) == {"FINISHED"}
+    np.testing.assert_array_equal(direct(), coarse)
+    lamp.data.cubegi.shadow_size = 0
+    assert bpy.ops.cubegi.update_light() == {"FINISHED"}
+    np.testing.assert_allclose(direct(), fine, rtol=0, atol=1e-5 * fine.max())
 
 
 class _Event:
@@ -326,6 +370,7 @@ def _modal_operator(cubegi, **props):
     messages = []
     props.setdefault("lit", "NONE")
     props.setdefault("report_path", "")
+    props.setdefault("selected_only", False)
     op = types.SimpleNamespace(
         grid=(0, 0, 0), reference_samples=0, report=lambda kind, text: messages.append((kind, text)), **props
     )

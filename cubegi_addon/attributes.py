@@ -4,7 +4,8 @@ Output contract: FLOAT_COLOR attributes on the POINT domain, ``CubeGI_direct``,
 ``CubeGI_bounce_1`` .. ``CubeGI_bounce_N``, ``CubeGI`` (the sum of the bounces: the indirect
 light) and ``CubeGI_total`` (direct plus indirect), holding diffuse light (irradiance / pi);
 optionally ``CubeGI_lit``, the lit colour (albedo times direct plus indirect light) for
-display and export. A bake with a Cycles reference also writes ``CubeGI_ref_direct`` and
+display and export. Where the view layer has light groups, ``CubeGI_group_<name>`` per group:
+the light (direct plus indirect) of that group's lights, world and emitters. A bake with a Cycles reference also writes ``CubeGI_ref_direct`` and
 ``CubeGI_ref_indirect`` (the same quantities from Cycles); a bake without one leaves
 earlier reference attributes alone.
 
@@ -29,12 +30,18 @@ REF_DIRECT = "CubeGI_ref_direct"
 REF_INDIRECT = "CubeGI_ref_indirect"
 OWNED_KEY = "_cubegi_attributes"
 TYPE, DOMAIN = "FLOAT_COLOR", "POINT"
-_OWN = re.compile(r"^CubeGI(_direct|_total|_lit|_bounce_\d+)?$")
+_OWN = re.compile(r"^CubeGI(_direct|_total|_lit|_bounce_\d+|_group_.+)?$")
+GROUP_PREFIX = "CubeGI_group_"
 _REF = re.compile(r"^CubeGI_ref_(direct|indirect)$")
 
 
 def bounce_name(k):
     return f"CubeGI_bounce_{k}"
+
+
+def group_name(group):
+    """The attribute of light group ``group``'s light."""
+    return GROUP_PREFIX + group
 
 
 def is_own(name):
@@ -92,9 +99,9 @@ def check_clashes(pairs, names):
         raise BakeError(f"{problems[0]}{more}; CubeGI writes only its own attributes: rename it, then bake again")
 
 
-def bake_names(bounces, lit=False, reference=False):
+def bake_names(bounces, lit=False, reference=False, groups=()):
     """Every name a bake with these options may write."""
-    names = [DIRECT, INDIRECT, TOTAL] + [bounce_name(k) for k in range(1, int(bounces) + 1)]
+    names = [DIRECT, INDIRECT, TOTAL] + [bounce_name(k) for k in range(1, int(bounces) + 1)] + [group_name(g) for g in groups]
     if lit:
         names.append(LIT)
     if reference:

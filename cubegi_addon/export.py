@@ -11,9 +11,10 @@ names start with an underscore, and Blender's exporter writes a mesh attribute s
 | ``_CUBEGI_LIGHT`` | VEC3 float | all the light (``CubeGI_total``: direct + indirect), linear, irradiance / pi |
 | ``_CUBEGI_INDIRECT`` | VEC3 float | the indirect light alone (``CubeGI``) |
 | ``COLOR_0`` | VEC4 | the light scaled by ``2^exposure`` and clamped to [0, 1], for a viewer that shows vertex colours |
+| ``_CUBEGI_LIGHT_<GROUP>`` | VEC3 float | per light group of the view layer (``CubeGI_group_<name>``): that group's light alone, linear |
 
 ``asset.extras.cubegi`` holds ``exposure`` (chosen so that 99% of the vertices' light is at most 1
-in ``COLOR_0``) and the attribute names. An engine lights a diffuse surface as
+in ``COLOR_0``) and the attribute names (``groups``: light group -> its attribute). An engine lights a diffuse surface as
 ``base_color * _CUBEGI_LIGHT`` (``docs/export.md``).
 
 The user's meshes are as they were afterwards: the attributes the export adds are removed
@@ -22,6 +23,7 @@ again, also when it fails.
 
 import json
 import math
+import re
 import struct
 
 import bpy
@@ -54,6 +56,20 @@ def display_exposure(lights):
     return -math.log2(level) if level > 0 and math.isfinite(level) else 0.0
 
 
+def group_attributes(groups):
+    """``{light group: glTF attribute}``: ``_CUBEGI_LIGHT_`` and the name in capitals, anything
+    but letters and digits as ``_`` (a number added where two would be the same)."""
+    out, used = {}, set()
+    for group in sorted(groups):
+        name = LIGHT + "_" + re.sub(r"[^A-Za-z0-9]", "_", group).upper()
+        candidate, k = name, 2
+        while candidate in used:
+            candidate, k = f"{name}_{k}", k + 1
+        used.add(candidate)
+        out[group] = candidate
+    return out
+
+
 def write_glb(context, path):
     """Export the scene to the glTF binary ``path`` with the baked light (module docstring);
     returns the exposure. A BakeError if nothing in the scene holds a bake."""
@@ -62,11 +78,15 @@ def write_glb(context, path):
         raise BakeError("nothing in the scene holds CubeGI's light: bake first")
     lights = {m.name_full: attributes.read(m, attributes.TOTAL) for m in meshes}
     exposure = display_exposure(list(lights.values()))
+    prefix = attributes.GROUP_PREFIX
+    groups = group_attributes({n[len(prefix):] for m in meshes for n in attributes.owned(m) if n.startswith(prefix)})
     added = []
     try:
         for mesh in meshes:
             light = lights[mesh.name_full]
-            for name, values in ((LIGHT, light), (INDIRECT, attributes.read(mesh, attributes.INDIRECT))):
+            layers = [(LIGHT, light), (INDIRECT, attributes.read(mesh, attributes.INDIRECT))]
+            layers += [(groups[n[len(prefix):]], attributes.read(mesh, n)) for n in sorted(attributes.owned(mesh)) if n.startswith(prefix)]
+            for name, values in layers:
                 mesh.attributes.new(name, "FLOAT_VECTOR", "POINT").data.foreach_set("vector", values.astype(np.float32).ravel())
                 added.append((mesh, name))
             rgba = np.ones((len(light), 4), dtype=np.float32)
@@ -88,7 +108,7 @@ def write_glb(context, path):
                 mesh.attributes.remove(mesh.attributes[name])
                 attributes.put_colour_names(mesh, names)
     _add_asset_extras(path, {"cubegi": {
-        "exposure": exposure, "light": LIGHT, "indirect": INDIRECT,
+        "exposure": exposure, "light": LIGHT, "indirect": INDIRECT, "groups": groups,
         "color_0": f"{LIGHT} x 2^exposure, clamped to [0, 1]",
         "units": "diffuse light (irradiance / pi), linear: a surface shows base_color x light",
     }})

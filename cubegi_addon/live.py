@@ -26,7 +26,7 @@ from ..cubegi_engine.emitters import emitter_direct
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.lights import light_keys
 from ..cubegi_engine.scene import same_sky_map
-from . import attributes, dynamic, grid_objects, interrupts, probe_view, scene_data, session
+from . import attributes, dynamic, grid_objects, interrupts, light_groups, probe_view, scene_data, session
 from .gpu_capture import GpuRenderer
 
 # Light fields whose change needs the light's direct light drawn again (not its colour).
@@ -65,20 +65,25 @@ def state_of(context):
     if kept is None:
         raise BakeError("nothing to update: bake first (a file load, Clear, or an undo past the bake drops what a bake keeps)")
     if kept.light is None:
-        arrays, settings = kept.arrays, kept.settings
-
-        def draw(light):
-            shadows = kept.result.shadows if kept.moving else None  # moving objects test against them
-            return light_direct(arrays, _renderer(kept), settings, light, shadows)
-
-        def emitters(emission):
-            return emitter_direct(replace(arrays, emission=emission), _renderer(kept), settings.area_shadow_size)
-
-        def sky():
-            return unit_sky_direct(arrays, _renderer(kept), kept.result.capture.transport, settings.sky_per_vertex)
-
-        kept.light = relight.from_bake(kept.result, arrays, draw, settings.add_tail, settings.conserve_energy, emitters, sky)
+        kept.light = scene_light(kept.result, kept.arrays, kept.settings, lambda: _renderer(kept), bool(kept.moving))
     return kept
+
+
+def scene_light(result, arrays, settings, renderer, moving=False):
+    """The solved SceneLight of a finished bake (per source; :func:`relight.from_bake`).
+    ``renderer()``: the GPU renderer for the lights drawn again later; ``moving``: the bake
+    has dynamic objects (a light drawn again keeps its shadow maps for them)."""
+
+    def draw(light):
+        return light_direct(arrays, renderer(), settings, light, result.shadows if moving else None)
+
+    def emitters(emission):
+        return emitter_direct(replace(arrays, emission=emission), renderer(), settings.area_shadow_size)
+
+    def sky():
+        return unit_sky_direct(arrays, renderer(), result.capture.transport, settings.sky_per_vertex)
+
+    return relight.from_bake(result, arrays, draw, settings.add_tail, settings.conserve_energy, emitters, sky)
 
 
 def _renderer(kept):
@@ -114,6 +119,12 @@ def update(context, materials=False, write=True, settle=True, bounce_layers=True
     report.seconds["read"] = time.perf_counter() - t
     if not same_sky_map(kept.arrays.sky_map, pattern):
         raise BakeError("the world's environment image changed: Bake again (the probes' tables hold its directions)")
+    groups = light_groups.read(context, replace(kept.arrays, lights=lights), [])
+    if (groups and groups.names) != (kept.groups and kept.groups.names):
+        raise BakeError("the view layer's light groups changed since the bake: Bake again (each group is a layer of its own)")
+    if groups != kept.groups:
+        kept.groups = groups
+        report.changed.append("light groups")
     drawn = False
     if kept.light is not None or materials or not _same_lights(kept.arrays, lights, sky):
         t = time.perf_counter()
@@ -172,7 +183,8 @@ def _same_lights(arrays, lights, sky):
     before = arrays.lights
     if len(before) != len(lights) or not np.array_equal(np.asarray(arrays.sky), np.asarray(sky)):
         return False
-    return all(a.key == b.key and _same_place(a, b) and np.array_equal(a.colour, b.colour) for a, b in zip(before, lights))
+    return all(a.key == b.key and _same_place(a, b) and np.array_equal(a.colour, b.colour) and a.group == b.group
+               for a, b in zip(before, lights))
 
 
 def _update_lights(state, lights, sky, report):
@@ -188,8 +200,10 @@ def _update_lights(state, lights, sky, report):
         if src is not None and _same_place(src.light, light):
             if not np.array_equal(src.weight, colour):
                 state.set_weight(key, colour)
-                src.light = light
                 report.changed.append(f"{light.name} power or colour")
+            elif src.light.group != light.group:
+                report.changed.append(f"{light.name} light group")
+            src.light = light
             continue
         state.set_light(key, light)
         drawn = True
@@ -246,6 +260,8 @@ def write_light(context, kept, bounces=True, field=True):
         layers[attributes.bounce_name(k)] = state.bounce(k)
     if kept.lit:
         layers[attributes.LIT] = arrays.albedo * (indirect if kept.lit == "INDIRECT" else direct + indirect)
+    if kept.groups is not None:
+        layers.update((attributes.group_name(g), v) for g, v in light_groups.layers(state, kept.groups).items())
     for target, mesh in zip(kept.targets, session.target_meshes(kept.targets)):
         if mesh is None:
             continue

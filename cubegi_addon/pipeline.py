@@ -21,7 +21,7 @@ from ..cubegi_engine.records import Progress, Stage
 from ..cubegi_engine.report import BakeReport
 from ..cubegi_engine.settings import BakeSettings
 from ..cubegi_engine.solve import area_weighted_mean
-from . import attributes, dynamic, grid_objects, probe_view, reference, scene_data, session
+from . import attributes, dynamic, grid_objects, light_groups, live, probe_view, reference, scene_data, session
 from .gpu_capture import GpuRenderer
 
 # An object seen from behind over more than this share of what the probes see of it is noted.
@@ -120,9 +120,10 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
             raise BakeError(f"none of the objects to bake ({', '.join(sorted(only)) or 'none selected'}) is a mesh that "
                             "renders and receives light")
         raise BakeError("no mesh in the scene can receive baked light")
+    groups = light_groups.read(context, arrays, collected.notes)
     attributes.check_clashes(
         [(bpy.data.objects[t.object_name], bpy.data.meshes[t.mesh_name]) for t in collected.targets],
-        attributes.bake_names(settings.bounces, lit, reference_samples),
+        attributes.bake_names(settings.bounces, lit, reference_samples, groups.names if groups else ()),
     )
     attributes.check_clashes(
         [(bpy.data.objects[t.object_name], bpy.data.meshes[t.mesh_name]) for _, t in collected.moving],
@@ -149,6 +150,12 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
     _note_capture(collected, result, grid)
     t = time.perf_counter()
     layers_per_target = [_layers(target, result, arrays, lit) for target in collected.targets]
+    state = None
+    if groups is not None:  # each group's light: the bake's, per source (kept for updates too)
+        state = live.scene_light(result, arrays, settings, lambda: renderer, bool(collected.moving))
+        per_group = light_groups.layers(state, groups)
+        for target, layers in zip(collected.targets, layers_per_target):
+            layers.update((attributes.group_name(g), attributes.vertex_values(target, v)) for g, v in per_group.items())
     t_layers = time.perf_counter() - t
     cubegi_seconds = time.perf_counter() - t0  # before the write, for the reference report
 
@@ -175,7 +182,8 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
         probe_view.forget_drawing()
     context.scene.cubegi.bake_id = uuid.uuid4().hex
     session.keep(context.scene, session.Kept(
-        arrays, collected.targets, result, settings, lit, placements=session.placements(arrays.object_names), moving=collected.moving,
+        arrays, collected.targets, result, settings, lit, light=state, renderer=renderer if state is not None else None,
+        groups=groups, placements=session.placements(arrays.object_names), moving=collected.moving,
         resolution=resolution, bake_id=context.scene.cubegi.bake_id, only=None if only is None else frozenset(only),
         shapes=scene_data.static_shapes(context.view_layer, context.evaluated_depsgraph_get()),
     ))

@@ -37,7 +37,8 @@ def _light(ob_eval, matrix, key, notes):
     _note_unread_light_options(ob_eval, data, notes)
     own = getattr(data.original, "cubegi", None)
     common = dict(colour=colour, position=pos, direction=direction, casts_shadow=bool(data.use_shadow), name=ob_eval.name,
-                  key=key, shadow_size=int(own.shadow_size) if own is not None else 0)
+                  key=key, shadow_size=int(own.shadow_size) if own is not None else 0,
+                  group=str(getattr(ob_eval, "lightgroup", "") or ""))
     if data.type == "POINT":
         return Light("POINT", radius=float(data.shadow_soft_size), **common)
     if data.type == "SPOT":

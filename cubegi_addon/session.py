@@ -47,6 +47,7 @@ class Kept:
     moving: list = None  # [(SceneArrays, MeshTarget)] of the dynamic objects as last lit
     resolution: tuple = None  # the grid resolution the bake was asked for (None: the scene's)
     only: frozenset = None  # the names of the objects the bake wrote light into, if it was asked for some (Bake Selected)
+    groups: object = None  # the view layer's LightGroups at the bake (light_groups.read), or None: no group layers
 
     @property
     def nbytes(self):

@@ -41,6 +41,7 @@ class Light:
     assigned once by the scene reader (each instance of a light its own; see
     :func:`light_keys`), the key of its direct light and of its source in relighting.
     shadow_size: its shadow maps' edge in texels (0: the bake settings' for its kind).
+    group: the light group it belongs to ("" for none; see the add-on's light groups).
     """
 
     kind: str
@@ -57,6 +58,7 @@ class Light:
     samples: np.ndarray = field(default=None)
     key: str = ""
     shadow_size: int = 0
+    group: str = ""
 
 
 def light_keys(lights):

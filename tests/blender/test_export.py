@@ -125,3 +125,85 @@ def test_the_cubegi_export_keeps_light_above_1(empty_scene, cubegi, tmp_path, ho
     first = match.argmax(axis=1)
     np.testing.assert_allclose(colours, np.clip(light[first] * scale, 0, 1), atol=1e-4)  # 16-bit
     assert (light.max(axis=1) * scale <= 1.0 + 1e-6).mean() >= 0.985  # 99% of vertices unclipped
+
+
+def test_light_groups_are_layers_of_their_own_in_the_bake_the_updates_and_the_glb(empty_scene, cubegi, tmp_path):
+    """A view layer with two light groups (a key lamp; a fill lamp with the world): each
+    gets a layer, CubeGI_group_<name>, of its sources' light alone; with every source in a
+    group they add up to CubeGI_total. Each is near a bake with only that group's sources on
+    (the energy balance is the whole scene's, as in the layers' sum). Update Light keeps
+    them current; the .glb carries each, above 1 included. A scene without groups gets none."""
+    attributes = cubegi.cubegi_addon.attributes
+    v, f = scenes.box_mesh((-2, -2, 0), (2, 2, 2.5), (6, 6, 4), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    v, f = scenes.box_mesh((-0.6, -0.4, 0.0), (0.3, 0.5, 0.9), (3, 3, 3), inward=False)
+    scenes.mesh_object("Block", v, f, scenes.material("Red", (0.7, 0.1, 0.1)))
+    key = scenes.add_light("POINT", (1.0, 1.0, 2.0), 600.0)
+    fill = scenes.add_light("AREA", (-1.2, -1.0, 2.3), 300.0)
+    kwargs = dict(grid=(3, 3, 2), cube_size=16, bounces=3)
+    assert bpy.ops.cubegi.bake(**kwargs) == {"FINISHED"}
+    assert not [n for n in bpy.data.meshes["Room"].attributes.keys() if n.startswith("CubeGI_group_")]  # none asked for
+    view_layer = bpy.context.view_layer
+    for name in ("key", "fill light"):
+        view_layer.lightgroups.add(name=name)
+    key.lightgroup, fill.lightgroup = "key", "fill light"
+
+    def read(name, mesh="Room"):
+        return attributes.read(bpy.data.meshes[mesh], name)
+
+    def alone(on):
+        energies = {key: 600.0, fill: 300.0}
+        for lamp, energy in energies.items():
+            lamp.data.energy = energy if lamp is on else 0.0
+        assert bpy.ops.cubegi.bake(**kwargs) == {"FINISHED"}
+        out = read("CubeGI_total")
+        for lamp, energy in energies.items():
+            lamp.data.energy = energy
+        return out
+
+    only_key, only_fill = alone(key), alone(fill)
+    assert bpy.ops.cubegi.bake(**kwargs) == {"FINISHED"}
+    total, g_key, g_fill = read("CubeGI_total"), read("CubeGI_group_key"), read("CubeGI_group_fill light")
+    peak = total.max()
+    np.testing.assert_allclose(g_key + g_fill, total, rtol=0, atol=1e-3 * peak)
+    # Measured: means +1.5% (key) and -3.0% (fill), at most 0.7% of the peak apart at a vertex: the
+    # balance scales each bounce by the whole scene's factor, a bake of one group by its own.
+    for got, want in ((g_key, only_key), (g_fill, only_fill)):
+        assert np.abs(got - want).max() < 0.05 * peak and abs(got.mean() / want.mean() - 1) < 0.04
+    # Update Light after the key's power is halved: the key's layer halves, the fill's stays.
+    key.data.energy = 300.0
+    assert bpy.ops.cubegi.update_light() == {"FINISHED"}
+    np.testing.assert_allclose(read("CubeGI_group_key"), 0.5 * g_key, rtol=0, atol=2e-3 * peak)
+    np.testing.assert_allclose(read("CubeGI_group_fill light"), g_fill, rtol=0, atol=2e-3 * peak)
+    np.testing.assert_allclose(read("CubeGI_group_key") + read("CubeGI_group_fill light"), read("CubeGI_total"), rtol=0,
+                               atol=1e-3 * peak)
+    # The fill lamp moved to no group: its layer empties (its light is the total's rest).
+    fill.lightgroup = ""
+    assert bpy.ops.cubegi.update_light() == {"FINISHED"}
+    assert read("CubeGI_group_fill light").max() == 0.0
+    fill.lightgroup = "fill light"
+    assert bpy.ops.cubegi.update_light() == {"FINISHED"}
+    # The export: one float attribute per group, as baked.
+    path = tmp_path / "groups.glb"
+    assert bpy.ops.cubegi.export_gltf(filepath=str(path)) == {"FINISHED"}
+    doc, blob = read_glb(path)
+    groups = doc["asset"]["extras"]["cubegi"]["groups"]
+    assert groups == {"fill light": "_CUBEGI_LIGHT_FILL_LIGHT", "key": "_CUBEGI_LIGHT_KEY"}
+    mesh = bpy.data.meshes["Room"]
+    ours = np.array([v.co for v in mesh.vertices])[:, [0, 2, 1]] * np.array([1.0, 1.0, -1.0])
+    (prim,) = next(m for m in doc["meshes"] if m["name"] == "Room")["primitives"]
+    positions = accessor(doc, blob, prim["attributes"]["POSITION"])
+    same_place = ((positions[:, None, :] - ours[None, :, :]) ** 2).sum(-1) < 1e-10
+    for group, attr in groups.items():
+        exported, baked = accessor(doc, blob, prim["attributes"][attr]), read(f"CubeGI_group_{group}")
+        match = same_place & (np.abs(exported[:, None] - baked[None]).max(-1) <= 1e-6 * peak)
+        assert match.any(axis=1).all() and match.any(axis=0).all(), group
+    assert max(read("CubeGI_group_key").max(), read("CubeGI_group_fill light").max()) > 1.0
+    # The groups changed since the bake: the update refuses; a bake without groups drops the layers.
+    view_layer.lightgroups.add(name="rim")
+    with pytest.raises(RuntimeError, match="light groups changed since the bake"):
+        bpy.ops.cubegi.update_light()
+    for name in ("key", "fill light", "rim"):
+        view_layer.lightgroups.remove(view_layer.lightgroups[name])
+    assert bpy.ops.cubegi.bake(**kwargs) == {"FINISHED"}
+    assert not [n for n in mesh.attributes.keys() if n.startswith("CubeGI_group_")]

@@ -69,6 +69,8 @@ def _bake_options(p, demo=False):
         "balanced (8, 16, 5), final (12, 32, 5). Every option not given takes the file's own CubeGI settings",
     )
     p.add_argument("--cells", type=int, help="cells along the longest side of a fitted grid (default: the preset's)")
+    p.add_argument("--probe-spacing", type=float, metavar="DISTANCE",
+                   help="instead of --cells: the distance between a fitted grid's probes, in scene units (metres)")
     p.add_argument("--cube-size", type=int, help=f"cube-map face size in texels (default: the preset's, {d.cube_size})")
     p.add_argument("--bounces", type=int, help=f"indirect bounces (default: the preset's, {d.bounces}; at most {d.MAX_BOUNCES})")
     p.add_argument("--no-visibility", action="store_true", help="plain trilinear interpolation (lets light leak)")
@@ -130,7 +132,7 @@ def _forwarded(args):
     (each bake takes the rest from its file)."""
     words = ["--quality", args.quality] if args.quality else []
     for flag, value in (("--cells", args.cells), ("--cube-size", args.cube_size), ("--bounces", args.bounces),
-                        ("--capture-triangles", args.capture_triangles)):
+                        ("--capture-triangles", args.capture_triangles), ("--probe-spacing", args.probe_spacing)):
         if value is not None:
             words += [flag, str(value)]
     if args.grid:
@@ -188,7 +190,7 @@ def _given(args):
     """The bake settings the arguments set (name -> value); a file's own settings give the rest."""
     given = {k: v for k, v in (("quality", args.quality), ("cells", args.cells), ("cube_size", args.cube_size),
                                ("bounces", args.bounces), ("tolerance", args.tolerance),
-                               ("capture_triangles", args.capture_triangles)) if v is not None}
+                               ("capture_triangles", args.capture_triangles), ("probe_spacing", args.probe_spacing)) if v is not None}
     for name, off in (("visibility", args.no_visibility), ("add_tail", args.no_tail), ("near_field", args.no_near_field),
                       ("move_probes", args.keep_probes_in_place)):
         if off:
@@ -231,7 +233,7 @@ def _file_settings(bpy, args):
 
 
 def _file_lit(bpy, args):
-    """The lit colour to write: ``--lit``'s, else the file's Lit Colour setting (None: none)."""
+    """The lit colour to write: ``--lit``'s, else the file's Lit Color setting (None: none)."""
     if getattr(args, "lit", None):
         return args.lit.upper()
     lit = bpy.context.scene.cubegi.lit

@@ -22,7 +22,7 @@ ITEMS = (
     ("DIRECT", "Direct", "Direct light (CubeGI_direct)"),
     ("INDIRECT", "Indirect", "Indirect light, all bounces (CubeGI)"),
     ("BOUNCE", "Bounce", "The light of one bounce (CubeGI_bounce_k)"),
-    ("LIT", "Lit Colour", "Albedo times all light (CubeGI_lit), as exported"),
+    ("LIT", "Lit Color", "Albedo times all light (CubeGI_lit), as exported"),
 )
 
 

@@ -69,11 +69,13 @@ def probe_grid(ob, resolution=None):
     return ProbeGrid(lo, hi, resolution or tuple(ob.cubegi.resolution))
 
 
-def resolve_grid(scene, arrays, resolution=None, cells=8):
+def resolve_grid(scene, arrays, resolution=None, cells=8, spacing=None, notes=None):
     """The probe grid(s) of a bake, where they came from, and the share of points outside.
 
     ``resolution`` (3 ints) overrides the resolution (of every grid); a fitted grid has about
-    ``cells`` cells along its longest side. The bounds come from the
+    ``cells`` cells along its longest side, or with ``spacing`` (scene units) probes about
+    that far apart (one grid; capped at MAX_FITTED_PROBES probes, with a note in ``notes``).
+    The bounds come from the
     scene's probe grid objects if it has any, else from the geometry's bounding box. With
     several grid objects each point uses the finest grid whose box contains it (see
     :class:`cubegi_engine.grid.GridSet`); points outside every grid get the light of the
@@ -97,6 +99,14 @@ def resolve_grid(scene, arrays, resolution=None, cells=8):
     lo, hi = _padded(*arrays.bounds(), arrays.scale)
     if resolution:
         return ProbeGrid(lo, hi, resolution), "scene bounds", 0.0
+    if spacing:
+        res = fit_bounds(lo, hi, float(spacing), max_probes=MAX_FITTED_PROBES)
+        wanted = np.maximum(1, np.round((hi - lo) / float(spacing)))
+        if notes is not None and np.prod(res) < np.prod(wanted):
+            notes.append(f"a probe spacing of {spacing:g} would need {int(np.prod(wanted)):,} probes over the scene; "
+                         f"{int(np.prod(res)):,} are used (at most {MAX_FITTED_PROBES:,} in a fitted grid): add a probe "
+                         "grid object over the part that needs them")
+        return ProbeGrid(lo, hi, res), f"fitted to scene bounds, probes {float(spacing):g} apart", 0.0
     whole = ProbeGrid(lo, hi, fit_bounds(lo, hi, float(np.max(hi - lo)) / cells, max_probes=MAX_FITTED_PROBES))
     dense = dense_region(arrays)
     if dense is not None and np.max(dense[1] - dense[0]) < DENSE_SHARE * np.max(hi - lo):

@@ -1,5 +1,6 @@
 """Operators: bake (``cubegi.bake``), clear (``cubegi.clear``), add a probe grid."""
 
+import json
 import os
 
 import bpy
@@ -143,8 +144,11 @@ class CUBEGI_OT_bake(_ModalJob, bpy.types.Operator):
     Esc cancels and leaves everything as it was"""
 
     bl_idname = "cubegi.bake"
+    bl_description = "Bake direct and indirect diffuse light into CubeGI color attributes on every mesh (Esc cancels)"
     bl_label = "Bake CubeGI"
-    bl_options = {"REGISTER", "UNDO"}
+    # One undo step, and no Adjust Last Operation panel: a tweak there would run the whole bake
+    # again, at once (Blender's own bake operators do the same).
+    bl_options = {"UNDO"}
 
     cube_size: IntProperty(
         name="Cube-Map Size", description="Cube-map face size (default: the scene's setting)",
@@ -188,10 +192,14 @@ class CUBEGI_OT_bake(_ModalJob, bpy.types.Operator):
         name="Grid Cells", description="Cells along the longest side of a fitted grid (default: the scene's setting)",
         default=BakeSettings.cells, soft_min=1, soft_max=MAX_CELLS,
     )
+    probe_spacing: FloatProperty(
+        name="Probe Spacing", description="Distance between the probes of a fitted grid (0: Grid Cells; default: the scene's)",
+        default=0.0, min=0.0, subtype="DISTANCE", unit="LENGTH",
+    )
     reference_samples: IntProperty(
         name="Cycles Reference Samples", description="Also bake a Cycles reference with this many samples (0: none)", default=0, min=0
     )
-    lit: EnumProperty(name="Lit Colour", description="Also write CubeGI_lit (default: the scene's setting)", items=props.LIT_ITEMS, default="NONE")
+    lit: EnumProperty(name="Lit Color", description="Also write CubeGI_lit (default: the scene's setting)", items=props.LIT_ITEMS, default="NONE")
     report_path: StringProperty(name="Report", description="Write the bake report (JSON) to this file", default="", subtype="FILE_PATH")
     selected_only: BoolProperty(
         name="Selected Only", description="Bake light into the selected meshes only; the rest light and shadow them and "
@@ -201,9 +209,8 @@ class CUBEGI_OT_bake(_ModalJob, bpy.types.Operator):
     @classmethod
     def description(cls, context, properties):
         if properties.selected_only:
-            return ("Bake light into the selected meshes only: every other object lights and shadows them as in a full "
-                    "bake and keeps the light it has")
-        return cls.__doc__
+            return "Bake light into the selected meshes only; every other object lights and shadows them and keeps its light"
+        return cls.bl_description
 
     @classmethod
     def poll(cls, context):
@@ -253,6 +260,7 @@ class CUBEGI_OT_bake_animation(_ModalJob, bpy.types.Operator):
     far stay in the cache"""
 
     bl_idname = "cubegi.bake_animation"
+    bl_description = "Bake every frame of the scene's range into a cache folder beside the .blend file (Esc stops)"
     bl_label = "Bake Animation"
     bl_options = {"REGISTER"}
     CANCELLED_MESSAGE = "CubeGI: animation bake stopped; the frames baked so far are in the cache"
@@ -307,6 +315,7 @@ class CUBEGI_OT_clear(bpy.types.Operator):
     """Remove CubeGI's colour attributes from every mesh in the scene, and the probes' stored light"""
 
     bl_idname = "cubegi.clear"
+    bl_description = "Remove CubeGI's color attributes from every mesh in the scene, and the probes' stored light"
     bl_label = "Clear CubeGI"
     bl_options = {"REGISTER", "UNDO"}
 
@@ -333,6 +342,7 @@ class CUBEGI_OT_export_gltf(bpy.types.Operator, ExportHelper):
     """Export the scene as glTF binary with the baked light kept above 1 (float vertex attributes)"""
 
     bl_idname = "cubegi.export_gltf"
+    bl_description = "Export the scene as glTF binary with the baked light kept above 1"
     bl_label = "CubeGI Light (.glb)"
     bl_options = {"REGISTER"}
     filename_ext = ".glb"
@@ -363,6 +373,7 @@ class CUBEGI_OT_add_probe_grid(bpy.types.Operator):
     its Resolution sets the probes along each axis"""
 
     bl_idname = "cubegi.add_probe_grid"
+    bl_description = "Add a CubeGI probe grid fitted to the visible geometry"
     bl_label = "CubeGI Probe Grid"
     bl_options = {"REGISTER", "UNDO"}
 
@@ -393,6 +404,7 @@ class CUBEGI_OT_wire_materials(bpy.types.Operator):
     the scene's meshes as emission (base colour x CubeGI). Nothing else in the materials changes"""
 
     bl_idname = "cubegi.wire_materials"
+    bl_description = "Show the baked indirect light in EEVEE and Cycles renders, as emission in every material"
     bl_label = "Show in Renders"
     bl_options = {"REGISTER", "UNDO"}
 
@@ -425,6 +437,7 @@ class CUBEGI_OT_unwire_materials(bpy.types.Operator):
     """Remove the baked light from the materials again (undo Show in Renders)"""
 
     bl_idname = "cubegi.unwire_materials"
+    bl_description = "Remove the baked light from the materials again"
     bl_label = "Remove from Renders"
     bl_options = {"REGISTER", "UNDO"}
 
@@ -447,6 +460,7 @@ class CUBEGI_OT_update_light(bpy.types.Operator):
     no probe is captured again. Geometry edits need Bake"""
 
     bl_idname = "cubegi.update_light"
+    bl_description = "Apply edits of lights, the world and materials to the baked light without a new capture"
     bl_label = "Update Light"
     bl_options = {"REGISTER", "UNDO"}
 
@@ -476,9 +490,38 @@ def menu_add(self, context):
     self.layout.operator(CUBEGI_OT_add_probe_grid.bl_idname, icon="LIGHTPROBE_VOLUME")
 
 
+class CUBEGI_OT_open_report(bpy.types.Operator):
+    """The last bake's whole report, in a text (Text Editor) of its own"""
+
+    bl_idname = "cubegi.open_report"
+    bl_label = "Open Report"
+    bl_description = "Put the last bake's whole report into the text 'CubeGI Report' and show it in a Text Editor"
+    bl_options = {"REGISTER"}
+
+    TEXT = "CubeGI Report"
+
+    @classmethod
+    def poll(cls, context):
+        return _poll(cls, context, lambda c: None if c.scene.cubegi.last_report else "Bake first: there is no report yet")
+
+    def execute(self, context):
+        report = json.loads(context.scene.cubegi.last_report)
+        text = bpy.data.texts.get(self.TEXT) or bpy.data.texts.new(self.TEXT)
+        text.from_string(json.dumps(report, indent=2) + "\n")
+        shown = False
+        for area in (context.screen.areas if context.screen else ()):
+            if area.type == "TEXT_EDITOR":
+                area.spaces.active.text = text
+                shown = True
+                break
+        self.report({"INFO"}, f"CubeGI: the report is in the text {self.TEXT!r}"
+                    + ("" if shown else " (open it in a Text Editor)"))
+        return {"FINISHED"}
+
+
 classes = (
     CUBEGI_OT_bake, CUBEGI_OT_clear, CUBEGI_OT_add_probe_grid, CUBEGI_OT_wire_materials, CUBEGI_OT_unwire_materials,
-    CUBEGI_OT_update_light, CUBEGI_OT_bake_animation, CUBEGI_OT_export_gltf,
+    CUBEGI_OT_update_light, CUBEGI_OT_bake_animation, CUBEGI_OT_export_gltf, CUBEGI_OT_open_report,
 )
 _register, _unregister = bpy.utils.register_classes_factory(classes)
 

@@ -57,6 +57,7 @@ class VIEW3D_PT_cubegi(_SidebarTab, bpy.types.Panel):
         layout.row().prop(settings, "quality", expand=True)
         col = layout.column(heading="Capture")
         col.prop(settings, "cells")
+        col.prop(settings, "probe_spacing")
         col.prop(settings, "cube_size")
         col.prop(settings, "visibility")
         col.prop(settings, "capture_triangles")
@@ -114,6 +115,8 @@ class VIEW3D_PT_cubegi_report(_SidebarTab, bpy.types.Panel):
         col = self.layout.column(align=True)
         for line in lines or ["no bake yet"]:
             col.label(text=line.strip())
+        if lines:
+            self.layout.operator("cubegi.open_report", icon="TEXT")
 
 
 classes = (VIEW3D_PT_cubegi, VIEW3D_PT_cubegi_display, VIEW3D_PT_cubegi_report)

@@ -129,7 +129,8 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
         [(bpy.data.objects[t.object_name], bpy.data.meshes[t.mesh_name]) for _, t in collected.moving],
         attributes.bake_names(0, lit),  # dynamic objects get no bounce layers
     )
-    grid, grid_source, outside = grid_objects.resolve_grid(context.scene, arrays, resolution, settings.cells)
+    grid, grid_source, outside = grid_objects.resolve_grid(context.scene, arrays, resolution, settings.cells,
+                                                           settings.probe_spacing, collected.notes)
     if outside > 0:
         collected.notes.append(
             f"{100 * outside:.1f}% of the shading points lie outside every probe grid; they get the light of the nearest grid's nearest probes"

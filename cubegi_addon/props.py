@@ -24,7 +24,7 @@ QUALITY_ITEMS = (
 
 # The scene settings a bake reads (BakeSettings fields of the same names).
 BAKE_FIELDS = ("cube_size", "bounces", "cells", "visibility", "tolerance", "add_tail", "capture_triangles", "near_field",
-               "move_probes", "sky_per_vertex", "shadow_size", "sun_shadow_size", "area_shadow_size")
+               "move_probes", "sky_per_vertex", "shadow_size", "sun_shadow_size", "area_shadow_size", "probe_spacing")
 
 
 def bake_settings(scene, given=None, **fixed):
@@ -39,6 +39,7 @@ def bake_settings(scene, given=None, **fixed):
     values = {name: given[name] if name in given else preset[name] if name in preset else getattr(s, name) for name in BAKE_FIELDS}
     values["tolerance"] = values["tolerance"] or None
     values["capture_triangles"] = values["capture_triangles"] or None
+    values["probe_spacing"] = values["probe_spacing"] or None
     return BakeSettings(**values, **fixed)
 
 
@@ -56,6 +57,10 @@ class CubeGISceneSettings(bpy.types.PropertyGroup):
     cells: IntProperty(
         name="Grid Cells", description="Cells along the longest side of the grid fitted to the scene (when it has no "
         "probe grid object)", default=BakeSettings.cells, min=1, max=MAX_CELLS,
+    )
+    probe_spacing: FloatProperty(
+        name="Probe Spacing", description="Distance between the probes of the grid fitted to the scene (0: Grid Cells sets it)",
+        default=0.0, min=0.0, soft_max=10.0, subtype="DISTANCE", unit="LENGTH",
     )
     cube_size: IntProperty(
         name="Cube-Map Size",
@@ -119,11 +124,11 @@ class CubeGISceneSettings(bpy.types.PropertyGroup):
         default=BakeSettings.area_shadow_size, min=16, max=2048, subtype="PIXEL",
     )
     lit: EnumProperty(
-        name="Lit Colour", description="Also write CubeGI_lit, the lit colour that glTF export carries as COLOR_0",
+        name="Lit Color", description="Also write CubeGI_lit, the lit color that glTF export carries as COLOR_0",
         items=LIT_ITEMS, default="NONE",
     )
     display: EnumProperty(
-        name="Display", description="Which baked light the viewport shows (as the meshes' active colour attribute)",
+        name="Display", description="Which baked light the viewport shows (as the meshes' active color attribute)",
         items=display.ITEMS, default="TOTAL", update=display.on_display_change,
     )
     display_bounce: IntProperty(
@@ -165,7 +170,7 @@ class CubeGIObjectSettings(bpy.types.PropertyGroup):
         default=True, update=lambda settings, context: session.forget(context.scene),
     )
     resolution: IntVectorProperty(
-        name="Resolution", description="Probes along X, Y and Z", size=3, default=(4, 4, 2), min=1, max=256
+        name="Resolution", description="Probes along X, Y and Z", size=3, default=(4, 4, 2), min=1, max=256, subtype="XYZ"
     )
     show_probes: BoolProperty(name="Show Probes", description="Draw this grid's probes in the viewport", default=True)
     show_irradiance: BoolProperty(

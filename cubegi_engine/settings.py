@@ -4,6 +4,7 @@ The add-on's properties, the operator and the command line take their defaults a
 from :class:`BakeSettings` and validate through :meth:`BakeSettings.validate`.
 """
 
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -41,6 +42,9 @@ class BakeSettings:
     bounces: int = 5
     # Cells along the longest side of a grid fitted to the scene (no probe grid object).
     cells: int = 8
+    # Instead of ``cells``: the distance between a fitted grid's probes, in scene units (None:
+    # ``cells`` sets it).
+    probe_spacing: float | None = None
     visibility: bool = True
     shadow_size: int = 512
     sun_shadow_size: int = 1024
@@ -76,6 +80,8 @@ class BakeSettings:
             raise BakeError(f"cube-map size must be between {MIN_CUBE_SIZE} and {MAX_CUBE_SIZE}, got {self.cube_size}", "cube_size")
         if not 1 <= int(self.cells) <= MAX_CELLS:
             raise BakeError(f"grid cells must be between 1 and {MAX_CELLS}, got {self.cells}", "cells")
+        if self.probe_spacing is not None and not (math.isfinite(float(self.probe_spacing)) and float(self.probe_spacing) > 0):
+            raise BakeError(f"probe spacing must be a distance above 0, got {self.probe_spacing}", "probe_spacing")
         if not 0 <= int(self.bounces) <= MAX_BOUNCES:
             raise BakeError(f"bounces must be between 0 and {MAX_BOUNCES}, got {self.bounces}", "bounces")
         if self.tolerance is not None and not 0.0 < float(self.tolerance) < 1.0:
@@ -101,7 +107,8 @@ class BakeSettings:
     def as_dict(self, **extra) -> dict:
         """The settings a report records."""
         return {
-            "cube_size": self.cube_size, "bounces": self.bounces, "cells": self.cells, "visibility": self.visibility,
+            "cube_size": self.cube_size, "bounces": self.bounces, "cells": self.cells, "probe_spacing": self.probe_spacing,
+            "visibility": self.visibility,
             "shadow_size": self.shadow_size, "tolerance": self.tolerance, "add_tail": self.add_tail,
             "conserve_energy": self.conserve_energy, "capture_triangles": self.capture_triangles,
             "near_field": self.near_field, "move_probes": self.move_probes, "sky_per_vertex": self.sky_per_vertex,

@@ -3,6 +3,9 @@ cancelled midway, undone), the display layers, the probe spheres, the material w
 the preferences."""
 
 import json
+import os
+import subprocess
+import sys
 import types
 
 import bpy
@@ -10,6 +13,8 @@ import numpy as np
 import pytest
 import scenes
 from state import material_state, scene_state
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 @pytest.fixture
@@ -26,7 +31,7 @@ def box(empty_scene, cubegi):
 NAMED = (
     "CUBEGI_OT_bake", "CUBEGI_OT_clear", "CUBEGI_OT_add_probe_grid", "CUBEGI_OT_wire_materials",
     "CUBEGI_OT_unwire_materials", "CUBEGI_OT_update_light", "CUBEGI_OT_bake_animation", "CUBEGI_OT_export_gltf",
-    "VIEW3D_PT_cubegi", "VIEW3D_PT_cubegi_display",
+    "CUBEGI_OT_open_report", "VIEW3D_PT_cubegi", "VIEW3D_PT_cubegi_display",
     "VIEW3D_PT_cubegi_report",
 )
 
@@ -34,7 +39,7 @@ NAMED = (
 def test_unregister_leaves_nothing_behind_and_register_restores_everything(cubegi):
     addon = cubegi.cubegi_addon
     classes = [c for m in (addon.prefs, addon.props, addon.operators, addon.panel) for c in m.classes]
-    assert len(classes) == 15 and all(c.is_registered for c in classes)
+    assert len(classes) == 16 and all(c.is_registered for c in classes)
     handlers = [(addon.session.HANDLER_LISTS, addon.session._forget_all),
                 (("depsgraph_update_post",), addon.live._persistent_update), (("frame_change_post",), addon.live._persistent_frame),
                 (("undo_post", "redo_post"), addon.live._persistent_undo),
@@ -419,3 +424,64 @@ def test_quality_presets_write_the_scene_settings_and_the_operator_takes_one(emp
     assert bpy.ops.cubegi.bake(quality="DRAFT", bounces=2) == {"FINISHED"}
     rep = json.loads(s.last_report)
     assert (rep["settings"]["cells"], rep["settings"]["cube_size"], rep["settings"]["bounces"]) == (4, 16, 2)
+
+
+def test_blender_conventions_one_line_tooltips_no_redo_of_a_bake_units_and_an_open_report(box):
+    """Each operator's tooltip is one line (Blender shows a docstring's breaks and indents);
+    a bake is one undo step with no Adjust Last Operation panel (a tweak there would run the
+    whole bake again); the probe spacing is a distance and a grid's resolution an X/Y/Z
+    vector; Open Report puts the whole report into a text."""
+    ops = [getattr(bpy.types, n) for n in NAMED if n.startswith("CUBEGI_OT")]
+    for op in ops:
+        # Where the class gives a description() for its buttons, Blender asks it (and the RNA's is empty).
+        texts = [getattr(bpy.ops.cubegi, op.bl_idname.split(".")[1]).get_rna_type().description]
+        if hasattr(op, "description"):
+            texts = [op.description(bpy.context, types.SimpleNamespace(selected_only=on)) for on in (False, True)]
+        for text in texts:
+            assert text and "\n" not in text and len(text) <= 120, (op.__name__, text)
+    assert bpy.types.CUBEGI_OT_bake.bl_options == {"UNDO"}
+    scene_props = bpy.context.scene.cubegi.bl_rna.properties
+    assert scene_props["probe_spacing"].subtype == "DISTANCE" and scene_props["probe_spacing"].unit == "LENGTH"
+    assert bpy.context.scene.objects[0].cubegi.bl_rna.properties["resolution"].subtype == "XYZ"
+    assert not bpy.ops.cubegi.open_report.poll()  # no report before a bake
+    assert bpy.ops.cubegi.bake(bounces=1, cube_size=8) == {"FINISHED"}
+    assert bpy.ops.cubegi.open_report() == {"FINISHED"}
+    assert json.loads(bpy.data.texts["CubeGI Report"].as_string()) == json.loads(bpy.context.scene.cubegi.last_report)
+    assert bpy.ops.cubegi.open_report() == {"FINISHED"} and len([t for t in bpy.data.texts if t.name.startswith("CubeGI")]) == 1
+
+
+def test_probe_spacing_fits_a_grid_of_probes_that_far_apart(empty_scene, cubegi, tmp_path):
+    """Probe Spacing, a distance, instead of Grid Cells (a count whose meaning changes with
+    the scene's size): the fitted grid's probes are about that far apart, in the panel, the
+    operator and the command line; a spacing that would need too many probes is capped with
+    a note; zero or less is refused."""
+    scenes.closed_box(albedo=0.5, cells=6)  # 1 x 1 x 1, padded a little
+    scenes.add_light("POINT", (0.3, -0.2, 0.4), 40.0)
+    scene = bpy.context.scene.cubegi
+    scene.probe_spacing = 0.25
+    assert bpy.ops.cubegi.bake(bounces=1, cube_size=8) == {"FINISHED"}
+    report = json.loads(scene.last_report)
+    size = np.array(report["grid"]["hi"]) - np.array(report["grid"]["lo"])
+    assert report["grid"]["resolution"] == [int(r) for r in np.round(size / 0.25)] and report["settings"]["probe_spacing"] == 0.25
+    assert bpy.ops.cubegi.bake(bounces=1, cube_size=8, probe_spacing=0.5) == {"FINISHED"}
+    assert json.loads(scene.last_report)["grid"]["resolution"] == [int(r) for r in np.round(size / 0.5)]
+    assert bpy.ops.cubegi.bake(bounces=1, cube_size=8, probe_spacing=0.001) == {"FINISHED"}
+    report = json.loads(scene.last_report)
+    assert report["grid"]["probes"] <= box_cap(cubegi) and any("probe spacing of 0.001" in n for n in report["scene"]["notes"])
+    scene.probe_spacing = 0.0
+    assert bpy.ops.cubegi.bake(bounces=1, cube_size=8, cells=4) == {"FINISHED"}
+    assert max(json.loads(scene.last_report)["grid"]["resolution"]) == 4  # 0: Grid Cells again
+    src = tmp_path / "in.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(src))
+    r = subprocess.run([sys.executable, "-m", "cubegi_engine", "bake", str(src), "-o", str(tmp_path / "o.blend"), "--report",
+                        str(tmp_path / "r.json"), "--probe-spacing", "0.5", "--bounces", "1", "--cube-size", "8"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert json.loads((tmp_path / "r.json").read_text())["grid"]["resolution"] == [int(r) for r in np.round(size / 0.5)]
+    r = subprocess.run([sys.executable, "-m", "cubegi_engine", "bake", str(src), "-o", str(tmp_path / "o.blend"),
+                        "--probe-spacing", "0"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "--probe-spacing: probe spacing must be a distance above 0" in r.stderr, r.stderr
+
+
+def box_cap(cubegi):
+    return cubegi.cubegi_addon.grid_objects.MAX_FITTED_PROBES

@@ -218,7 +218,7 @@ def test_cli_quality_presets_set_what_is_not_given(saved_scene, tmp_path):
 
 
 def test_the_command_line_bakes_with_the_files_own_settings_unless_an_option_overrides(saved_scene, tmp_path, cubegi):
-    """A file saved with Quality Final, Near Field off and Lit Colour on: `bake` and
+    """A file saved with Quality Final, Near Field off and Lit Color on: `bake` and
     `bake-animation` with no options bake it so (before: Balanced, with the near field, no
     lit colour); an option given wins over the file."""
     import json

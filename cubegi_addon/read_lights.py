@@ -18,6 +18,9 @@ __all__ = ["add_light", "light_key", "AREA_SHADOW_SIDE"]
 # Measured against Cycles on the Cornell box's area lights (direct light, rel. RMSE): 4 x 4
 # 3.3-4.5%, 8 x 8 1.6-2.2% (0.1 s more there), 12 x 12 1.2-1.7% (0.3 s more).
 AREA_SHADOW_SIDE = 8
+# A sun whose Angle is above this (radians; the Sun's own is 0.53 degrees) gets a note: CubeGI's
+# sun shadows are sharp.
+SUN_ANGLE_NOTED = np.radians(1.0)
 
 
 def _light(ob_eval, matrix, key, notes):
@@ -81,6 +84,9 @@ def _light_node_factor(name, data, notes):
 
 def _note_unread_light_options(ob, data, notes):
     """Notes for the light options that change Cycles' light and that CubeGI does not read."""
+    if data.type == "SUN" and float(getattr(data, "angle", 0.0)) > SUN_ANGLE_NOTED:
+        notes.append(f"light {ob.name}: its Angle ({np.degrees(data.angle):.1f} degrees) is not read; its shadows are "
+                     "sharp, where Cycles softens their edges")
     if data.type == "AREA" and float(getattr(data, "spread", np.pi)) < np.pi - 1e-6:
         notes.append(f"light {ob.name}: Spread ({np.degrees(data.spread):.0f} degrees) is not read; baked as a "
                      "diffuse (180 degree) area light")

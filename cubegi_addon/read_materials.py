@@ -153,6 +153,16 @@ def _colour_and_notes(material, label, socket, mesh, loop_ids, loop_vertex, fall
     return colour
 
 
+# Shaders that reflect no diffuse light, and what Cycles does with the light they get.
+NOT_DIFFUSE_SHADERS = {
+    "BSDF_GLOSSY": "Cycles reflects it as a mirror or a sheen, which lights the rest",
+    "BSDF_ANISOTROPIC": "Cycles reflects it as a mirror or a sheen, which lights the rest",
+    "BSDF_REFRACTION": "Cycles passes it through",
+    "BSDF_GLASS": "Cycles reflects and passes it",
+    "BSDF_TRANSPARENT": "Cycles passes it through: the surface casts no shadow there",
+    "BSDF_TRANSLUCENT": "Cycles passes it through, diffused",
+    "HOLDOUT": "Cycles shows it as a hole in the render and lights the rest as if it were black",
+}
 # Principled BSDF inputs CubeGI's diffuse model leaves out: above these it says so.
 NOT_DIFFUSE = (("Metallic", "metallic"), ("Transmission Weight", "transmissive"))
 
@@ -167,7 +177,34 @@ def material_corners(material, mesh, loop_ids, loop_vertex, notes):
     if shader is None:
         notes.append(f"material {material.name!r}: no node surface, using its viewport colour")
         return np.tile(fallback, (k, 1)), np.zeros((k, 3))
-    args = (mesh, loop_ids, loop_vertex)
+    return _shader_corners(material, shader, (mesh, loop_ids, loop_vertex), fallback, notes)
+
+
+# Shaders inside Mix and Add Shader nodes are read to this depth.
+MAX_SHADER_DEPTH = 16
+
+
+def _linked_shader(socket):
+    return socket.links[0].from_node if socket.is_linked else None
+
+
+def _shader_corners(material, shader, args, fallback, notes, depth=0):
+    """Albedo and emission ``(k, 3)`` of one shader node (Mix and Add Shader: of what they
+    mix or add; Cycles mixes and adds their closures, and diffuse light is linear in them)."""
+    k = len(args[1])
+    zeros = np.zeros((k, 3))
+    if shader is None:  # an unlinked shader socket: no closure, nothing reflected or emitted
+        return zeros, zeros
+    if shader.type in {"MIX_SHADER", "ADD_SHADER"} and depth < MAX_SHADER_DEPTH:
+        sockets = [s for s in shader.inputs if s.type == "SHADER"]
+        a = _shader_corners(material, _linked_shader(sockets[0]), args, fallback, notes, depth + 1)
+        b = _shader_corners(material, _linked_shader(sockets[1]), args, fallback, notes, depth + 1)
+        if shader.type == "ADD_SHADER":
+            return a[0] + b[0], a[1] + b[1]
+        problems = []
+        f = float(np.clip(socket_strength(shader.inputs["Fac"], problems), 0.0, 1.0))
+        notes += [f"material {material.name!r}: a Mix Shader's Factor {p}; using {f:g}" for p in problems]
+        return (1.0 - f) * a[0] + f * b[0], (1.0 - f) * a[1] + f * b[1]
     if shader.type == "BSDF_PRINCIPLED":
         ins = shader.inputs
         albedo = _colour_and_notes(material, "Base Color", ins["Base Color"], *args, fallback, "its viewport colour", notes)
@@ -186,16 +223,20 @@ def material_corners(material, mesh, loop_ids, loop_vertex, notes):
                              f"which a {adjective} surface is not")
         return albedo, emission * strength
     if shader.type == "BSDF_DIFFUSE":
-        return _colour_and_notes(material, "Color", shader.inputs["Color"], *args, fallback, "its viewport colour", notes), np.zeros((k, 3))
+        return _colour_and_notes(material, "Color", shader.inputs["Color"], *args, fallback, "its viewport colour", notes), zeros
     if shader.type == "EMISSION":
         problems = []
         strength = socket_strength(shader.inputs["Strength"], problems)
         notes += [f"material {material.name!r}: Strength {p}; using {strength:g}" for p in problems]
         emission = _colour_and_notes(material, "Color", shader.inputs["Color"], *args, np.ones(3), "white", notes) * strength
-        return np.zeros((k, 3)), emission
+        return zeros, emission
+    if shader.type in NOT_DIFFUSE_SHADERS:
+        notes.append(f"material {material.name!r}: its {shader.bl_label} shader reflects no diffuse light; CubeGI bakes "
+                     f"its share as black ({NOT_DIFFUSE_SHADERS[shader.type]})")
+        return zeros, zeros
     if shader.type == "GROUP":
         notes.append(f"material {material.name!r}: its surface is a node group, which CubeGI does not read; baked with "
                      "its viewport colour and no emission (any light it emits is lost)")
     else:
         notes.append(f"material {material.name!r}: shader {shader.bl_idname} not understood, using its viewport colour")
-    return np.tile(fallback, (k, 1)), np.zeros((k, 3))
+    return np.tile(fallback, (k, 1)), zeros

@@ -74,10 +74,10 @@ def _direct_errors(cubegi, obs, per_channel=False):
     return err, ours
 
 
-def _light(kind="POINT", **props):
+def _light(kind="POINT", rotation=(0.0, 0.0, 0.0), **props):
     place = {"POINT": (0.13, -0.27, 1.63), "AREA": (0.0, 0.0, 1.98), "SUN": (0, -3, 3), "SPOT": (0.07, 0.03, 1.91)}[kind]
     energy = {"POINT": 60.0, "AREA": 80.0, "SUN": 3.0, "SPOT": 150.0}[kind]
-    return scenes.add_light(kind, place, energy, **props)
+    return scenes.add_light(kind, place, energy, rotation=rotation, **props)
 
 
 def _set_emission_node(light, strength, colour=(1.0, 1.0, 1.0)):
@@ -96,7 +96,39 @@ def _point(energy):
 
 EXACT = "read exactly"
 BLACKBODY = "approximated: a black body by Planck's law and a fit of the CIE 1931 observer (cubegi_engine/blackbody.py)"
+def _spot(size_deg, blend):
+    ob = _light("SPOT")
+    ob.data.spot_size, ob.data.spot_blend = np.radians(size_deg), blend
+    ob.data.shadow_soft_size = 0.0
+
+
+def _coloured():
+    _point(60.0).data.color = (1.0, 0.45, 0.1)
+
+
+def _no_shadow():
+    ob = _light("AREA", shape="SQUARE", size=0.6)
+    ob.data.use_shadow = False
+
+
+def _soft_point():
+    _point(60.0).data.shadow_soft_size = 0.3
+
+
+def _sun(angle_deg):
+    ob = _light("SUN", rotation=(np.radians(35.0), 0.0, np.radians(10.0)))
+    ob.data.angle = np.radians(angle_deg)
+
+
 LIGHT_ROWS = {
+    "Spot light, size 60 degrees and blend 0.5": (lambda: _spot(60.0, 0.5), EXACT),
+    "Spot light, size 120 degrees, blend 0": (lambda: _spot(120.0, 0.0), EXACT),
+    "Light colour (orange)": (_coloured, EXACT),
+    "Light Cast Shadow off": (_no_shadow, EXACT),
+    "Point light radius 0.3 m (soft shadows)": (_soft_point, EXACT),
+    # A sharp shadow edge falls between the box's vertices (about 5 cm apart) where it will:
+    # the mean is right, a few vertices along the edge differ.
+    "Sun light (angle 0.5 degrees)": (lambda: _sun(0.5), EXACT, 0.2),
     "Light Exposure": (lambda: setattr(_point(240.0).data, "exposure", -2.0), EXACT),
     "Area light, Normalize off": (lambda: _area_not_normalised(), EXACT),
     "Light node tree (Emission Strength 0.1, orange)": (lambda: _set_emission_node(_point(600.0), 0.1, (1.0, 0.5, 0.2)), EXACT),
@@ -120,7 +152,7 @@ def _area_not_normalised():
 @pytest.mark.parametrize("feature", list(LIGHT_ROWS))
 def test_light_options_are_read_as_cycles_reads_them(empty_scene, cubegi, feature):
     obs = _box()
-    make, support = LIGHT_ROWS[feature]
+    make, support, *rmse_tol = LIGHT_ROWS[feature]
     make()
     err, ours, theirs = _direct_errors(cubegi, obs, per_channel=True)
     # Colour too: the area-weighted mean of each channel (against a tenth of the mean where a
@@ -130,7 +162,7 @@ def test_light_options_are_read_as_cycles_reads_them(empty_scene, cubegi, featur
     _record(feature, support, direct_rel_bias=err["rel_bias"], direct_rel_rmse=err["rel_rmse"],
             channel_bias=channel_bias.tolist())
     assert abs(err["rel_bias"]) < DIRECT_BIAS_TOL, err
-    assert err["rel_rmse"] < DIRECT_RMSE_TOL, err
+    assert err["rel_rmse"] < (rmse_tol[0] if rmse_tol else DIRECT_RMSE_TOL), err
     assert (np.abs(channel_bias) < DIRECT_BIAS_TOL).all(), channel_bias
 
 
@@ -157,6 +189,7 @@ NOTED = {
                           "light area: Spread (15 degrees) is not read"),
     "Light linking": (lambda: _linked(_point(60.0)), "light point: light and shadow linking are not read"),
     "Light node tree with a texture": (lambda: _textured_light(), "light point: its node tree"),
+    "Sun Angle 10 degrees (soft shadows)": (lambda: _sun(10.0), "light sun: its Angle (10.0 degrees) is not read"),
 }
 
 
@@ -316,4 +349,160 @@ def test_object_and_material_features_not_read_are_named(empty_scene, cubegi, fe
     assert bpy.ops.cubegi.bake(**FAST) == {"FINISHED"}
     found = [n for n in _notes() if note in n]
     _record(feature, "not supported", note=found[0] if found else None)
+    assert found, _notes()
+
+
+# --- materials, the world, more objects ----------------------------------------------------------
+
+def _material_of(name, make):
+    """Give object ``name`` a material whose surface ``make(tree, output)`` wires."""
+    mat = bpy.data.materials.new(f"{name} surface")
+    if mat.node_tree is None:
+        mat.use_nodes = True
+    tree = mat.node_tree
+    for node in [n for n in tree.nodes if n.type != "OUTPUT_MATERIAL"]:
+        tree.nodes.remove(node)
+    output = next(n for n in tree.nodes if n.type == "OUTPUT_MATERIAL")
+    make(tree, output)
+    bpy.data.objects[name].data.materials.clear()
+    bpy.data.objects[name].data.materials.append(mat)
+
+
+def _diffuse_bsdf():
+    def make(tree, output):
+        bsdf = tree.nodes.new("ShaderNodeBsdfDiffuse")
+        bsdf.inputs["Color"].default_value = (0.8, 0.1, 0.1, 1.0)
+        tree.links.new(bsdf.outputs["BSDF"], output.inputs["Surface"])
+    _material_of("Tall", make)
+
+
+def _emission_shader():
+    def make(tree, output):
+        glow = tree.nodes.new("ShaderNodeEmission")
+        glow.inputs["Color"].default_value = (1.0, 0.8, 0.6, 1.0)
+        glow.inputs["Strength"].default_value = 3.0
+        tree.links.new(glow.outputs["Emission"], output.inputs["Surface"])
+    _material_of("Short", make)
+
+
+def _principled(name, **inputs):
+    mat = bpy.data.objects[name].active_material
+    bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    for key, value in inputs.items():
+        bsdf.inputs[key].default_value = value
+
+
+def _mixed(kind):
+    def make(tree, output):
+        a = tree.nodes.new("ShaderNodeBsdfDiffuse")
+        a.inputs["Color"].default_value = (0.4, 0.05, 0.05, 1.0)
+        b = tree.nodes.new("ShaderNodeBsdfDiffuse" if kind == "ADD" else "ShaderNodeBsdfGlossy")
+        b.inputs["Color"].default_value = (0.3, 0.3, 0.3, 1.0)  # together at most 0.7: the box stays finite
+        mix = tree.nodes.new("ShaderNodeAddShader" if kind == "ADD" else "ShaderNodeMixShader")
+        sockets = [s for s in mix.inputs if s.type == "SHADER"]
+        tree.links.new(a.outputs["BSDF"], sockets[0])
+        tree.links.new(b.outputs["BSDF"], sockets[1])
+        tree.links.new(mix.outputs["Shader"], output.inputs["Surface"])
+    _material_of("Tall", make)
+
+
+def _holdout():
+    def make(tree, output):
+        tree.links.new(tree.nodes.new("ShaderNodeHoldout").outputs["Holdout"], output.inputs["Surface"])
+    _material_of("Tall", make)
+
+
+def _sky_per_vertex():
+    scenes.set_world((0.2, 0.4, 0.8), 2.0)
+    bpy.context.scene.cubegi.sky_per_vertex = True
+
+
+def _sky_texture():
+    world = scenes.set_world((0.2, 0.3, 0.5), 1.0)
+    tree = world.node_tree
+    bg = next(n for n in tree.nodes if n.type == "BACKGROUND")
+    tree.links.new(tree.nodes.new("ShaderNodeTexSky").outputs["Color"], bg.inputs["Color"])
+
+
+def _instanced():
+    lamp_shade = bpy.data.collections.new("Shade")
+    v, f = scenes.box_mesh((-0.1, -0.1, 0.0), (0.1, 0.1, 0.2), (1, 1, 1), inward=False)
+    scenes.mesh_object("Shade", v, f, scenes.material("Shade", (0.5, 0.5, 0.5)), collection=lamp_shade)
+    empty = bpy.data.objects.new("Shades", None)
+    empty.instance_type, empty.instance_collection = "COLLECTION", lamp_shade
+    empty.location = (0.5, 0.5, 0.3)
+    bpy.context.scene.collection.objects.link(empty)
+
+
+def _text():
+    curve = bpy.data.curves.new("Sign", "FONT")
+    curve.body, curve.extrude = "GI", 0.05
+    ob = bpy.data.objects.new("Sign", curve)
+    ob.location = (-0.5, 0.3, 0.4)
+    bpy.context.scene.collection.objects.link(ob)
+
+
+EMITTERS = ("approximated: emitters light the scene as area lights (exact form factors, shadow maps from their "
+            "sample points); measured -7% to +2% here")
+SKY_THROUGH_PROBES = "approximated: through the probes (-7% here); with Sky per Vertex exact to a few per cent"
+MATERIAL_ROWS = {
+    # feature: (make the scene, the pass compared, support, tolerance of the bias)
+    "Diffuse BSDF (red)": (_diffuse_bsdf, "INDIRECT", EXACT, None),
+    "Principled Base Color (blue)": (lambda: _principled("Tall", **{"Base Color": (0.1, 0.2, 0.8, 1.0)}), "INDIRECT", EXACT, None),
+    "Emission shader (a glowing block)": (_emission_shader, "DIRECT", EMITTERS, 0.1),
+    "Principled Emission (strength 4)": (lambda: _principled("Short", **{"Emission Color": (1.0, 0.9, 0.7, 1.0),
+                                                                         "Emission Strength": 4.0}), "DIRECT", EMITTERS, 0.1),
+    "Add Shader of two Diffuse BSDFs": (lambda: _mixed("ADD"), "INDIRECT", EXACT, None),
+    "World colour and strength (through the open front)": (lambda: scenes.set_world((0.2, 0.4, 0.8), 2.0), "DIRECT",
+                                                           SKY_THROUGH_PROBES, 0.1),
+    "World colour, Sky per Vertex": (lambda: _sky_per_vertex(), "DIRECT", EXACT, None),
+    "Object Visibility > Camera off": (lambda: setattr(bpy.data.objects["Tall"], "visible_camera", False), "DIRECT", EXACT, None),
+}
+# The indirect light against Cycles: CubeGI's own error on the Cornell box is 1-3% per wall at
+# higher settings; FAST's 3 x 3 x 3 probes, one bounce and the tail make it -7% to -10% here (a
+# material read wrong, its viewport grey for a red, is off by half or more).
+INDIRECT_BIAS_TOL = 0.15
+
+
+@pytest.mark.parametrize("feature", list(MATERIAL_ROWS))
+def test_materials_and_the_world_are_read_as_cycles_reads_them(empty_scene, cubegi, feature):
+    obs = _box()
+    make, which, support, bias_tol = MATERIAL_ROWS[feature]
+    if "World" not in feature:
+        _light("AREA", shape="SQUARE", size=0.6)
+    make()
+    reference, scene_data, attributes = (getattr(cubegi.cubegi_addon, m) for m in ("reference", "scene_data", "attributes"))
+    assert bpy.ops.cubegi.bake(**FAST) == {"FINISHED"}
+    baked, _ = reference.bake_reference(bpy.context, obs, passes=(which,), samples=SAMPLES)
+    layer = "CubeGI_direct" if which == "DIRECT" else "CubeGI"
+    areas = np.concatenate([scene_data.vertex_areas(o) for o in obs])
+    ours = np.concatenate([attributes.read(o.data, layer) for o in obs])
+    theirs = np.concatenate([baked[which][o.name] for o in obs])
+    err = metrics.errors(ours, theirs, areas)
+    _record(feature, support, **{f"{which.lower()}_rel_bias": err["rel_bias"], f"{which.lower()}_rel_rmse": err["rel_rmse"]})
+    tol = bias_tol or (DIRECT_BIAS_TOL if which == "DIRECT" else INDIRECT_BIAS_TOL)
+    assert abs(err["rel_bias"]) < tol, err
+    assert not [n for n in _notes() if "not understood" in n or "does not read" in n], _notes()
+
+
+MATERIAL_NOTES = {
+    "Principled Metallic 1": (lambda: _principled("Tall", Metallic=1.0), "metallic"),
+    "Principled Transmission 1": (lambda: _principled("Tall", **{"Transmission Weight": 1.0}), "transmissive"),
+    "Mix Shader (Diffuse and Glossy)": (lambda: _mixed("MIX"), "its Glossy BSDF shader reflects no diffuse light"),
+    "Holdout shader": (_holdout, "its Holdout shader reflects no diffuse light"),
+    "World Sky Texture": (_sky_texture, "Sky"),
+    "Collection instance": (_instanced, "Shades: its instances of Shade light the others but are not baked"),
+    "Text object": (_text, "Sign: font object lit and lighting others, but not baked"),
+}
+
+
+@pytest.mark.parametrize("feature", list(MATERIAL_NOTES))
+def test_materials_world_and_objects_not_read_exactly_are_named(empty_scene, cubegi, feature):
+    _box()
+    _light("AREA", shape="SQUARE", size=0.6)
+    make, note = MATERIAL_NOTES[feature]
+    make()
+    assert bpy.ops.cubegi.bake(**FAST) == {"FINISHED"}
+    found = [n for n in _notes() if note in n]
+    _record(feature, "approximated, with a note", note=found[0] if found else None)
     assert found, _notes()

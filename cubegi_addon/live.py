@@ -21,8 +21,6 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..cubegi_engine import relight
-from ..cubegi_engine.direct import light_direct, unit_sky_direct
-from ..cubegi_engine.emitters import emitter_direct
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.lights import light_keys
 from ..cubegi_engine.scene import same_sky_map
@@ -65,25 +63,8 @@ def state_of(context):
     if kept is None:
         raise BakeError("nothing to update: bake first (a file load, Clear, or an undo past the bake drops what a bake keeps)")
     if kept.light is None:
-        kept.light = scene_light(kept.result, kept.arrays, kept.settings, lambda: _renderer(kept), bool(kept.moving))
+        kept.light = relight.solved_light(kept.result, kept.arrays, kept.settings, lambda: _renderer(kept), bool(kept.moving))
     return kept
-
-
-def scene_light(result, arrays, settings, renderer, moving=False):
-    """The solved SceneLight of a finished bake (per source; :func:`relight.from_bake`).
-    ``renderer()``: the GPU renderer for the lights drawn again later; ``moving``: the bake
-    has dynamic objects (a light drawn again keeps its shadow maps for them)."""
-
-    def draw(light):
-        return light_direct(arrays, renderer(), settings, light, result.shadows if moving else None)
-
-    def emitters(emission):
-        return emitter_direct(replace(arrays, emission=emission), renderer(), settings.area_shadow_size)
-
-    def sky():
-        return unit_sky_direct(arrays, renderer(), result.capture.transport, settings.sky_per_vertex)
-
-    return relight.from_bake(result, arrays, draw, settings.add_tail, settings.conserve_energy, emitters, sky)
 
 
 def _renderer(kept):

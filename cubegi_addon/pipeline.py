@@ -13,7 +13,7 @@ import uuid
 import bpy
 import numpy as np
 
-from ..cubegi_engine import metrics
+from ..cubegi_engine import metrics, relight
 from ..cubegi_engine.bake import bake_steps as engine_bake_steps
 from ..cubegi_engine.bake import run
 from ..cubegi_engine.errors import BakeError
@@ -21,7 +21,7 @@ from ..cubegi_engine.records import Progress, Stage
 from ..cubegi_engine.report import BakeReport
 from ..cubegi_engine.settings import BakeSettings
 from ..cubegi_engine.solve import area_weighted_mean
-from . import attributes, dynamic, grid_objects, light_groups, live, probe_view, reference, scene_data, session
+from . import attributes, dynamic, grid_objects, light_groups, probe_view, reference, scene_data, session
 from .gpu_capture import GpuRenderer
 
 # An object seen from behind over more than this share of what the probes see of it is noted.
@@ -153,7 +153,7 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
     layers_per_target = [_layers(target, result, arrays, lit) for target in collected.targets]
     state = None
     if groups is not None:  # each group's light: the bake's, per source (kept for updates too)
-        state = live.scene_light(result, arrays, settings, lambda: renderer, bool(collected.moving))
+        state = relight.solved_light(result, arrays, settings, lambda: renderer, bool(collected.moving))
         per_group = light_groups.layers(state, groups)
         for target, layers in zip(collected.targets, layers_per_target):
             layers.update((attributes.group_name(g), attributes.vertex_values(target, v)) for g, v in per_group.items())

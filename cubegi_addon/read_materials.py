@@ -153,18 +153,11 @@ def _colour_and_notes(material, label, socket, mesh, loop_ids, loop_vertex, fall
     return colour
 
 
-# Shaders that reflect no diffuse light, and what Cycles does with the light they get.
-NOT_DIFFUSE_SHADERS = {
-    "BSDF_GLOSSY": "Cycles reflects it as a mirror or a sheen, which lights the rest",
-    "BSDF_ANISOTROPIC": "Cycles reflects it as a mirror or a sheen, which lights the rest",
-    "BSDF_REFRACTION": "Cycles passes it through",
-    "BSDF_GLASS": "Cycles reflects and passes it",
-    "BSDF_TRANSPARENT": "Cycles passes it through: the surface casts no shadow there",
-    "BSDF_TRANSLUCENT": "Cycles passes it through, diffused",
-    "HOLDOUT": "Cycles shows it as a hole in the render and lights the rest as if it were black",
-}
+# Shaders that reflect light without diffusing it: baked as a diffuse reflection of their
+# Color (the light they send on stays in the scene, though spread evenly, not as a mirror's).
+GLOSSY_SHADERS = {"BSDF_GLOSSY", "BSDF_ANISOTROPIC", "BSDF_SHEEN"}
 # Principled BSDF inputs CubeGI's diffuse model leaves out: above these it says so.
-NOT_DIFFUSE = (("Metallic", "metallic"), ("Transmission Weight", "transmissive"))
+NOT_DIFFUSE = (("Metallic", "metallic"), ("Transmission Weight", "transmissive"), ("Subsurface Weight", "subsurface-scattering"))
 
 
 def material_corners(material, mesh, loop_ids, loop_vertex, notes):
@@ -230,10 +223,10 @@ def _shader_corners(material, shader, args, fallback, notes, depth=0):
         notes += [f"material {material.name!r}: Strength {p}; using {strength:g}" for p in problems]
         emission = _colour_and_notes(material, "Color", shader.inputs["Color"], *args, np.ones(3), "white", notes) * strength
         return zeros, emission
-    if shader.type in NOT_DIFFUSE_SHADERS:
-        notes.append(f"material {material.name!r}: its {shader.bl_label} shader reflects no diffuse light; CubeGI bakes "
-                     f"its share as black ({NOT_DIFFUSE_SHADERS[shader.type]})")
-        return zeros, zeros
+    if shader.type in GLOSSY_SHADERS and "Color" in shader.inputs:
+        notes.append(f"material {material.name!r}: its {shader.bl_label} shader is baked as a diffuse reflection of its "
+                     "Color (Cycles reflects that light as a mirror or a sheen would)")
+        return _colour_and_notes(material, "Color", shader.inputs["Color"], *args, fallback, "its viewport colour", notes), zeros
     if shader.type == "GROUP":
         notes.append(f"material {material.name!r}: its surface is a node group, which CubeGI does not read; baked with "
                      "its viewport colour and no emission (any light it emits is lost)")

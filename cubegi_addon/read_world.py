@@ -29,6 +29,9 @@ def _world_colour(scene, notes, pattern):
     world = scene.world
     if world is None:
         return np.zeros(3)
+    visibility = getattr(world, "cycles_visibility", None)
+    if visibility is not None and not visibility.diffuse:  # Cycles' diffuse rays do not see it: it lights no surface
+        return np.zeros(3)
     tree = world.node_tree
     if tree is not None:
         out = next((n for n in tree.nodes if n.type == "OUTPUT_WORLD" and n.is_active_output), None)

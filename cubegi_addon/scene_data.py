@@ -302,6 +302,8 @@ def _note_unread_visibility(ob, notes):
     not read."""
     if not ob.visible_shadow:
         notes.append(f"{ob.name}: Visibility > Shadow is off, which CubeGI does not read; it casts shadows")
+    if getattr(ob, "is_holdout", False):
+        notes.append(f"{ob.name}: Visibility > Holdout is on, which CubeGI does not read; it is baked as a visible surface")
     if not ob.visible_diffuse:
         notes.append(f"{ob.name}: Visibility > Diffuse is off, which CubeGI does not read; the light it passes on "
                      "is baked")
@@ -501,6 +503,9 @@ def _collect(context, depsgraph, only):
     for name, kind in non_mesh.items():
         if name in with_surface:
             notes.append(f"{name}: {kind.lower()} object lit and lighting others, but not baked")
+        elif kind == "META":  # Blender lists no mesh of a metaball among the instances
+            notes.append(f"{name}: metaballs are not read; it casts no shadow and passes on no light, which it does in "
+                         "renders (convert it to a mesh to bake it)")
         else:
             notes.append(f"{name}: {kind.lower()} object has no surface; skipped")
     if scene.background_set is not None:

@@ -444,3 +444,22 @@ def from_bake(result, scene, light_direct, add_tail=True, conserve_energy=True, 
     state.set_emission(scene.emission, parts.get(EMISSION))
     state.solve()
     return state
+
+
+def solved_light(result, scene, settings, renderer, moving=False):
+    """:func:`from_bake` with the drawing a later edit needs: a light drawn again with its
+    shadows (kept for dynamic objects if ``moving``), emitters and the sky by the bake's own
+    functions. ``renderer()``: the GPU renderer (made on first use by the caller)."""
+    from .direct import light_direct, unit_sky_direct
+    from .emitters import emitter_direct
+
+    def draw(light):
+        return light_direct(scene, renderer(), settings, light, result.shadows if moving else None)
+
+    def emitters(emission):
+        return emitter_direct(replace(scene, emission=emission), renderer(), settings.area_shadow_size)
+
+    def sky():
+        return unit_sky_direct(scene, renderer(), result.capture.transport, settings.sky_per_vertex)
+
+    return from_bake(result, scene, draw, settings.add_tail, settings.conserve_energy, emitters, sky)

@@ -424,6 +424,65 @@ def _sky_texture():
     tree.links.new(tree.nodes.new("ShaderNodeTexSky").outputs["Color"], bg.inputs["Color"])
 
 
+def _world_unseen_by_diffuse():
+    world = scenes.set_world((0.2, 0.4, 0.8), 4.0)
+    world.cycles_visibility.diffuse = False
+    _light("AREA", shape="SQUARE", size=0.6)
+
+
+def _object_mapped(output):
+    _generated_coordinates()
+    tree = bpy.data.objects["Floor"].active_material.node_tree
+    coords = next(n for n in tree.nodes if n.type == "TEX_COORD")
+    tex = next(n for n in tree.nodes if n.type == "TEX_IMAGE")
+    tree.links.new(coords.outputs[output], tex.inputs["Vector"])
+
+
+def _attribute_node():
+    floor = bpy.data.objects["Floor"]
+    mesh = floor.data
+    attr = mesh.attributes.new("Paint", "FLOAT_COLOR", "POINT")
+    attr.data.foreach_set("color", np.tile((0.8, 0.1, 0.1, 1.0), len(attr.data)).astype(np.float32).ravel())
+    floor.active_material = floor.active_material.copy()  # the floor's alone (the white is the walls' too)
+    tree = floor.active_material.node_tree
+    node = tree.nodes.new("ShaderNodeAttribute")
+    node.attribute_name = "Paint"
+    bsdf = next(n for n in tree.nodes if n.type == "BSDF_PRINCIPLED")
+    tree.links.new(node.outputs["Color"], bsdf.inputs["Base Color"])
+
+
+def _mapped_environment():
+    world = scenes.set_world((1.0, 1.0, 1.0), 1.0)
+    image = bpy.data.images.new("Sky", 16, 8, float_buffer=True)
+    image.pixels.foreach_set(np.tile((0.3, 0.5, 0.9, 1.0), 16 * 8).astype(np.float32))
+    tree = world.node_tree
+    env = tree.nodes.new("ShaderNodeTexEnvironment")
+    env.image = image
+    mapping = tree.nodes.new("ShaderNodeMapping")
+    mapping.inputs["Rotation"].default_value = (0.0, 0.0, 1.0)
+    tree.links.new(tree.nodes.new("ShaderNodeTexCoord").outputs["Generated"], mapping.inputs["Vector"])
+    tree.links.new(mapping.outputs["Vector"], env.inputs["Vector"])
+    tree.links.new(env.outputs["Color"], next(n for n in tree.nodes if n.type == "BACKGROUND").inputs["Color"])
+
+
+def _metaball():
+    meta = bpy.data.metaballs.new("Blob")
+    meta.elements.new().radius = 0.3
+    ob = bpy.data.objects.new("Blob", meta)
+    ob.location = (0.4, 0.3, 0.5)
+    bpy.context.scene.collection.objects.link(ob)
+
+
+def _bevelled_curve():
+    curve = bpy.data.curves.new("Rail", "CURVE")
+    curve.dimensions, curve.bevel_depth = "3D", 0.05
+    spline = curve.splines.new("POLY")
+    spline.points.add(1)
+    spline.points[0].co, spline.points[1].co = (-0.6, 0.4, 0.3, 1.0), (0.6, 0.4, 0.3, 1.0)
+    ob = bpy.data.objects.new("Rail", curve)
+    bpy.context.scene.collection.objects.link(ob)
+
+
 def _instanced():
     lamp_shade = bpy.data.collections.new("Shade")
     v, f = scenes.box_mesh((-0.1, -0.1, 0.0), (0.1, 0.1, 0.2), (1, 1, 1), inward=False)
@@ -457,6 +516,9 @@ MATERIAL_ROWS = {
                                                            SKY_THROUGH_PROBES, 0.1),
     "World colour, Sky per Vertex": (lambda: _sky_per_vertex(), "DIRECT", EXACT, None),
     "Object Visibility > Camera off": (lambda: setattr(bpy.data.objects["Tall"], "visible_camera", False), "DIRECT", EXACT, None),
+    "Attribute node (a named colour attribute)": (lambda: _attribute_node(), "INDIRECT", EXACT, None),
+    # (the area light is the only light the surfaces get; the world, 4x brighter, lights none)
+    "World Ray Visibility > Diffuse off": (_world_unseen_by_diffuse, "DIRECT", EXACT, None),
 }
 # The indirect light against Cycles: CubeGI's own error on the Cornell box is 1-3% per wall at
 # higher settings; FAST's 3 x 3 x 3 probes, one bounce and the tail make it -7% to -10% here (a
@@ -488,11 +550,18 @@ def test_materials_and_the_world_are_read_as_cycles_reads_them(empty_scene, cube
 MATERIAL_NOTES = {
     "Principled Metallic 1": (lambda: _principled("Tall", Metallic=1.0), "metallic"),
     "Principled Transmission 1": (lambda: _principled("Tall", **{"Transmission Weight": 1.0}), "transmissive"),
-    "Mix Shader (Diffuse and Glossy)": (lambda: _mixed("MIX"), "its Glossy BSDF shader reflects no diffuse light"),
-    "Holdout shader": (_holdout, "its Holdout shader reflects no diffuse light"),
+    "Mix Shader (Diffuse and Glossy)": (lambda: _mixed("MIX"), "its Glossy BSDF shader is baked as a diffuse reflection"),
+    "Holdout shader": (_holdout, "shader ShaderNodeHoldout not understood, using its viewport colour"),
     "World Sky Texture": (_sky_texture, "Sky"),
     "Collection instance": (_instanced, "Shades: its instances of Shade light the others but are not baked"),
     "Text object": (_text, "Sign: font object lit and lighting others, but not baked"),
+    "Metaball": (_metaball, "Blob: metaballs are not read"),
+    "Object Visibility > Holdout": (lambda: setattr(bpy.data.objects["Tall"], "is_holdout", True),
+                                    "Tall: Visibility > Holdout is on, which CubeGI does not read"),
+    "Curve with a bevel (render geometry)": (_bevelled_curve, "Rail: curve object lit and lighting others, but not baked"),
+    "Image texture mapped by Object coordinates": (lambda: _object_mapped("Object"), "is mapped by the Object output"),
+    "Environment Texture rotated by a Mapping node": (_mapped_environment, "is mapped"),
+    "Principled Subsurface Weight 1": (lambda: _principled("Tall", **{"Subsurface Weight": 1.0}), "subsurface-scattering"),
 }
 
 
@@ -506,3 +575,42 @@ def test_materials_world_and_objects_not_read_exactly_are_named(empty_scene, cub
     found = [n for n in _notes() if note in n]
     _record(feature, "approximated, with a note", note=found[0] if found else None)
     assert found, _notes()
+
+
+def test_keyframed_light_world_and_material_are_read_each_frame_by_bake_animation(empty_scene, cubegi, tmp_path):
+    """Animation: a light's power, the world's strength and a material's colour keyframed:
+    every frame of ``bake-animation`` equals a still bake of that frame (light is linear in
+    each, so a still bake that reads them right is right against Cycles as the rows above)."""
+    import subprocess
+    import sys
+
+    obs = _box()
+    lamp = _light("AREA", shape="SQUARE", size=0.6)
+    world = scenes.set_world((0.2, 0.3, 0.5), 0.5)
+    background = next(n for n in world.node_tree.nodes if n.type == "BACKGROUND")
+    bsdf = next(n for n in bpy.data.objects["Tall"].active_material.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    for frame, (energy, strength, colour) in {1: (80.0, 0.5, (0.8, 0.1, 0.1, 1.0)), 3: (20.0, 2.0, (0.1, 0.1, 0.8, 1.0))}.items():
+        lamp.data.energy, background.inputs["Strength"].default_value = energy, strength
+        bsdf.inputs["Base Color"].default_value = colour
+        lamp.data.keyframe_insert("energy", frame=frame)
+        background.inputs["Strength"].keyframe_insert("default_value", frame=frame)
+        bsdf.inputs["Base Color"].keyframe_insert("default_value", frame=frame)
+    src, out = tmp_path / "anim.blend", tmp_path / "out.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(src))
+    r = subprocess.run([sys.executable, "-m", "cubegi_engine", "bake-animation", str(src), "-o", str(out), "--frames", "1", "3",
+                        "--bounces", "1", "--grid", "3", "3", "3", "--cube-size", "16"], cwd=ROOT, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    worst = 0.0
+    for frame in (1, 2, 3):
+        bpy.context.scene.frame_set(frame)
+        assert bpy.ops.cubegi.bake(**FAST) == {"FINISHED"}
+        read = cubegi.cubegi_addon.attributes.read
+        with np.load(tmp_path / "out.cubegi" / f"frame_{frame:04d}.npz") as data:
+            for o in obs:
+                for part, layer in (("direct", "CubeGI_direct"), ("indirect", "CubeGI")):
+                    still, cached = read(o.data, layer), data[f"{o.name}:{part}"]
+                    worst = max(worst, float(np.abs(cached - still).max() / max(still.max(), 1e-9)))
+    _record("Light power, world strength and material colour keyframed (bake-animation)", EXACT,
+            note=f"every frame equals a still bake of it (largest difference {100 * worst:.2g}% of the peak)")
+    assert worst < 1e-3, worst

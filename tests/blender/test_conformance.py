@@ -483,6 +483,46 @@ def _bevelled_curve():
     bpy.context.scene.collection.objects.link(ob)
 
 
+def _uv_map_by_name():
+    """The floor's image on its second UV map, named by a UV Map node: the first (all at one
+    corner of the image) would give one colour, the second a red and blue floor."""
+    floor = bpy.data.objects["Floor"]
+    mesh = floor.data
+    mesh.uv_layers.new(name="First")  # all zeros: the image's first pixel
+    second = mesh.uv_layers.new(name="Second")
+    co = np.array([v.co for v in mesh.vertices])
+    loops = np.array([loop.vertex_index for loop in mesh.loops])
+    lo, hi = co.min(axis=0), co.max(axis=0)
+    uv = (co[loops][:, :2] - lo[:2]) / np.maximum(hi[:2] - lo[:2], 1e-9)
+    second.data.foreach_set("uv", uv.astype(np.float32).ravel())
+    image = bpy.data.images.new("Halves", 2, 1, float_buffer=True)
+    image.pixels.foreach_set(np.array([0.8, 0.1, 0.1, 1.0, 0.1, 0.1, 0.8, 1.0], dtype=np.float32))
+    floor.active_material = floor.active_material.copy()
+    tree = floor.active_material.node_tree
+    tex = tree.nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    node = tree.nodes.new("ShaderNodeUVMap")
+    node.uv_map = "Second"
+    tree.links.new(node.outputs["UV"], tex.inputs["Vector"])
+    tree.links.new(tex.outputs["Color"], next(n for n in tree.nodes if n.type == "BSDF_PRINCIPLED").inputs["Base Color"])
+
+
+def _geometry_nodes_instances():
+    v, f = scenes.grid_patch((-0.6, 0.2, 0.05), (1.2, 0, 0), (0, 0.4, 0), 2, 1)
+    ob = scenes.mesh_object("Scatter", v, f, scenes.material("Scatter", (0.5, 0.5, 0.5)))
+    group = bpy.data.node_groups.new("Scatter", "GeometryNodeTree")
+    group.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    group.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    nodes = group.nodes
+    inp, out = nodes.new("NodeGroupInput"), nodes.new("NodeGroupOutput")
+    on_points, cube = nodes.new("GeometryNodeInstanceOnPoints"), nodes.new("GeometryNodeMeshCube")
+    cube.inputs["Size"].default_value = (0.1, 0.1, 0.1)
+    group.links.new(inp.outputs[0], on_points.inputs["Points"])
+    group.links.new(cube.outputs["Mesh"], on_points.inputs["Instance"])
+    group.links.new(on_points.outputs["Instances"], out.inputs[0])
+    ob.modifiers.new("Scatter", "NODES").node_group = group
+
+
 def _instanced():
     lamp_shade = bpy.data.collections.new("Shade")
     v, f = scenes.box_mesh((-0.1, -0.1, 0.0), (0.1, 0.1, 0.2), (1, 1, 1), inward=False)
@@ -517,6 +557,7 @@ MATERIAL_ROWS = {
     "World colour, Sky per Vertex": (lambda: _sky_per_vertex(), "DIRECT", EXACT, None),
     "Object Visibility > Camera off": (lambda: setattr(bpy.data.objects["Tall"], "visible_camera", False), "DIRECT", EXACT, None),
     "Attribute node (a named colour attribute)": (lambda: _attribute_node(), "INDIRECT", EXACT, None),
+    "Image texture on a UV map named by a UV Map node": (_uv_map_by_name, "INDIRECT", EXACT, None),
     # (the area light is the only light the surfaces get; the world, 4x brighter, lights none)
     "World Ray Visibility > Diffuse off": (_world_unseen_by_diffuse, "DIRECT", EXACT, None),
 }
@@ -545,6 +586,10 @@ def test_materials_and_the_world_are_read_as_cycles_reads_them(empty_scene, cube
     tol = bias_tol or (DIRECT_BIAS_TOL if which == "DIRECT" else INDIRECT_BIAS_TOL)
     assert abs(err["rel_bias"]) < tol, err
     assert not [n for n in _notes() if "not understood" in n or "does not read" in n], _notes()
+    if feature.startswith("Image texture on a UV map"):  # red and blue halves, not the first map's one colour
+        kept = cubegi.cubegi_addon.session.kept(bpy.context.scene)
+        albedo = kept.arrays.albedo[kept.arrays.point_object == kept.arrays.object_names.index("Floor")]
+        assert albedo[:, 0].max() > 0.7 and albedo[:, 0].min() < 0.2 and albedo[:, 2].max() > 0.7, albedo
 
 
 MATERIAL_NOTES = {
@@ -554,6 +599,7 @@ MATERIAL_NOTES = {
     "Holdout shader": (_holdout, "shader ShaderNodeHoldout not understood, using its viewport colour"),
     "World Sky Texture": (_sky_texture, "Sky"),
     "Collection instance": (_instanced, "Shades: its instances of Shade light the others but are not baked"),
+    "Geometry Nodes instances (Instance on Points)": (_geometry_nodes_instances, "Scatter: its instances of"),
     "Text object": (_text, "Sign: font object lit and lighting others, but not baked"),
     "Metaball": (_metaball, "Blob: metaballs are not read"),
     "Object Visibility > Holdout": (lambda: setattr(bpy.data.objects["Tall"], "is_holdout", True),

@@ -139,7 +139,8 @@ def _outcome(future):
 
 def _wait(client, futures, log, finished):
     """Wait for every task, calling ``finished(k, future)`` as the ``k``-th finishes (in the
-    order they finish), with a line every PROGRESS_SECONDS. Returns None, or the
+    order they finish; it must be safe to call twice for one task), with a line every
+    PROGRESS_SECONDS. Returns None, or the
     KeyboardInterrupt (Ctrl-C, SIGTERM) that stopped it, once the tasks not started are
     cancelled and the bakes under way have ended (:func:`_stop`; ``finished`` is called for
     those that finished)."""
@@ -156,7 +157,8 @@ def _wait(client, futures, log, finished):
                 pass
             done = [k for k, f in left.items() if f.done()]
             for k in done:
-                finished(k, left.pop(k))
+                finished(k, left[k])
+                del left[k]  # after: an interrupt inside finished() (its write) has it finished again below
             if not done:
                 log(f"{len(futures) - len(left)}/{len(futures)} done after {time.perf_counter() - t0:.0f} s")
     except KeyboardInterrupt as exc:  # the bakes under way stop too: they get the same Ctrl-C

@@ -63,6 +63,22 @@ def _render_visible_objects(view_layer):
     return visible
 
 
+def _indirect_only_collections(view_layer):
+    """``{object name: collection name}`` of the objects in a collection marked Indirect Only
+    (Cycles) in this view layer."""
+    found = {}
+
+    def walk(layer_coll):
+        if getattr(layer_coll, "indirect_only", False):
+            for ob in layer_coll.collection.all_objects:
+                found.setdefault(ob.name, layer_coll.collection.name)
+        for child in layer_coll.children:
+            walk(child)
+
+    walk(view_layer.layer_collection)
+    return found
+
+
 def _mesh_arrays(ob_eval, matrix, notes):
     """World-space corner data of one evaluated object, or None if it has no triangles."""
     mesh = ob_eval.to_mesh()
@@ -442,6 +458,10 @@ def _collect(context, depsgraph, only):
     offset = 0
     claimed_meshes = set()
     non_mesh, with_surface = {}, set()
+    indirect_only = _indirect_only_collections(context.view_layer)
+    for name, collection in indirect_only.items():
+        notes.append(f"{name}: its collection {collection!r} is Indirect Only, which CubeGI does not read; it is baked "
+                     "and lights the scene as any object")
     for inst, ob, original, top in _rendered_instances(context, depsgraph):
         if ob.type == "LIGHT":
             read_lights.add_light(inst, ob, lights, notes)

@@ -523,6 +523,25 @@ def _geometry_nodes_instances():
     ob.modifiers.new("Scatter", "NODES").node_group = group
 
 
+def _indirect_only():
+    collection = bpy.data.collections.new("Props")
+    bpy.context.scene.collection.children.link(collection)
+    tall = bpy.data.objects["Tall"]
+    for owner in list(tall.users_collection):
+        owner.objects.unlink(tall)
+    collection.objects.link(tall)
+    bpy.context.view_layer.layer_collection.children["Props"].indirect_only = True
+
+
+def _particle_instances():
+    _instanced()
+    shade = bpy.data.objects["Shade"]
+    plate = _plate("Emitter", half=0.6, x=0.0, z=0.02)
+    plate.modifiers.new("Particles", "PARTICLE_SYSTEM")
+    settings = plate.particle_systems[0].settings
+    settings.count, settings.frame_end, settings.render_type, settings.instance_object = 4, 1, "OBJECT", shade
+
+
 def _instanced():
     lamp_shade = bpy.data.collections.new("Shade")
     v, f = scenes.box_mesh((-0.1, -0.1, 0.0), (0.1, 0.1, 0.2), (1, 1, 1), inward=False)
@@ -600,6 +619,8 @@ MATERIAL_NOTES = {
     "World Sky Texture": (_sky_texture, "Sky"),
     "Collection instance": (_instanced, "Shades: its instances of Shade light the others but are not baked"),
     "Geometry Nodes instances (Instance on Points)": (_geometry_nodes_instances, "Scatter: its instances of"),
+    "Particle instances (an object per particle)": (_particle_instances, "Emitter: its instances of Shade"),
+    "Collection Indirect Only": (_indirect_only, "Tall: its collection 'Props' is Indirect Only"),
     "Text object": (_text, "Sign: font object lit and lighting others, but not baked"),
     "Metaball": (_metaball, "Blob: metaballs are not read"),
     "Object Visibility > Holdout": (lambda: setattr(bpy.data.objects["Tall"], "is_holdout", True),

@@ -645,9 +645,11 @@ def test_materials_world_and_objects_not_read_exactly_are_named(empty_scene, cub
 
 
 def test_keyframed_light_world_and_material_are_read_each_frame_by_bake_animation(empty_scene, cubegi, tmp_path):
-    """Animation: a light's power, the world's strength and a material's colour keyframed:
-    every frame of ``bake-animation`` equals a still bake of that frame (light is linear in
-    each, so a still bake that reads them right is right against Cycles as the rows above)."""
+    """Animation: the options of the rows above keyframed at once (a light's power, colour,
+    Exposure and Temperature, a spot's size and blend, the world's strength, a material's
+    colour and emission, an object's place and its render visibility): every frame of
+    ``bake-animation`` equals a still bake of that frame, so each is read per frame as the
+    still rows read it against Cycles."""
     import subprocess
     import sys
 
@@ -656,12 +658,31 @@ def test_keyframed_light_world_and_material_are_read_each_frame_by_bake_animatio
     world = scenes.set_world((0.2, 0.3, 0.5), 0.5)
     background = next(n for n in world.node_tree.nodes if n.type == "BACKGROUND")
     bsdf = next(n for n in bpy.data.objects["Tall"].active_material.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
-    for frame, (energy, strength, colour) in {1: (80.0, 0.5, (0.8, 0.1, 0.1, 1.0)), 3: (20.0, 2.0, (0.1, 0.1, 0.8, 1.0))}.items():
-        lamp.data.energy, background.inputs["Strength"].default_value = energy, strength
-        bsdf.inputs["Base Color"].default_value = colour
+    spot = _light("SPOT")
+    spot.data.use_temperature = True
+    glow = next(n for n in bpy.data.objects["Short"].active_material.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    glow.inputs["Emission Color"].default_value = (1.0, 0.9, 0.7, 1.0)
+    tall = bpy.data.objects["Tall"]
+    keys = {1: dict(energy=80.0, strength=0.5, colour=(0.8, 0.1, 0.1, 1.0), light=(1.0, 1.0, 1.0), exposure=0.0, kelvin=6500.0,
+                    size=60.0, blend=0.1, emission=0.0, x=tall.location.x, hidden=False),
+            3: dict(energy=20.0, strength=2.0, colour=(0.1, 0.1, 0.8, 1.0), light=(1.0, 0.5, 0.2), exposure=-1.0, kelvin=2500.0,
+                    size=110.0, blend=0.6, emission=3.0, x=tall.location.x + 0.3, hidden=True)}
+    for frame, k in keys.items():
+        lamp.data.energy, background.inputs["Strength"].default_value = k["energy"], k["strength"]
+        bsdf.inputs["Base Color"].default_value = k["colour"]
+        spot.data.color, spot.data.exposure, spot.data.temperature = k["light"], k["exposure"], k["kelvin"]
+        spot.data.spot_size, spot.data.spot_blend = np.radians(k["size"]), k["blend"]
+        glow.inputs["Emission Strength"].default_value = k["emission"]
+        tall.location.x = k["x"]
+        bpy.data.objects["Short"].hide_render = k["hidden"]
         lamp.data.keyframe_insert("energy", frame=frame)
         background.inputs["Strength"].keyframe_insert("default_value", frame=frame)
         bsdf.inputs["Base Color"].keyframe_insert("default_value", frame=frame)
+        for prop in ("color", "exposure", "temperature", "spot_size", "spot_blend"):
+            spot.data.keyframe_insert(prop, frame=frame)
+        glow.inputs["Emission Strength"].keyframe_insert("default_value", frame=frame)
+        tall.keyframe_insert("location", frame=frame)
+        bpy.data.objects["Short"].keyframe_insert("hide_render", frame=frame)
     src, out = tmp_path / "anim.blend", tmp_path / "out.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(src))
     r = subprocess.run([sys.executable, "-m", "cubegi_engine", "bake-animation", str(src), "-o", str(out), "--frames", "1", "3",
@@ -674,10 +695,11 @@ def test_keyframed_light_world_and_material_are_read_each_frame_by_bake_animatio
         assert bpy.ops.cubegi.bake(**FAST) == {"FINISHED"}
         read = cubegi.cubegi_addon.attributes.read
         with np.load(tmp_path / "out.cubegi" / f"frame_{frame:04d}.npz") as data:
-            for o in obs:
+            for o in [o for o in obs if not o.hide_render]:
                 for part, layer in (("direct", "CubeGI_direct"), ("indirect", "CubeGI")):
                     still, cached = read(o.data, layer), data[f"{o.name}:{part}"]
                     worst = max(worst, float(np.abs(cached - still).max() / max(still.max(), 1e-9)))
-    _record("Light power, world strength and material colour keyframed (bake-animation)", EXACT,
+    _record("Keyframed: light power, colour, Exposure, Temperature, spot size and blend, world strength, material "
+            "colour and emission, an object's place and render visibility (bake-animation)", EXACT,
             note=f"every frame equals a still bake of it (largest difference {100 * worst:.2g}% of the peak)")
     assert worst < 1e-3, worst

@@ -136,10 +136,13 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
             f"{100 * outside:.1f}% of the shading points lie outside every probe grid; they get the light of the nearest grid's nearest probes"
         )
     t_collect = time.perf_counter() - t0
+    total = 3 + settings.bounces
+    yield Progress(Stage.CAPTURE, 0, total, f"read {len(collected.targets)} meshes", working=True)  # Blender's turn
 
     t = time.perf_counter()
     renderer = GpuRenderer(arrays.points, arrays.triangles, sheet=arrays.sheet_triangles())
     t_setup = time.perf_counter() - t
+    yield Progress(Stage.CAPTURE, 0, total, "the scene is on the GPU", working=True)
     earlier = session.kept(context.scene)
     steps = engine_bake_steps(arrays, grid, renderer, settings, capture=earlier.result.capture if earlier else None,
                               keep_shadows=bool(collected.moving), whole_field=bool(collected.moving))
@@ -151,6 +154,7 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
     _note_capture(collected, result, grid)
     t = time.perf_counter()
     layers_per_target = [_layers(target, result, arrays, lit) for target in collected.targets]
+    yield Progress(Stage.TAIL, total, total, "the light of every mesh is ready", working=True)
     state = None
     if groups is not None:  # each group's light: the bake's, per source (kept for updates too)
         state = relight.solved_light(result, arrays, settings, lambda: renderer, bool(collected.moving))

@@ -20,7 +20,7 @@ from typing import Protocol
 import numpy as np
 
 from .capture import ProbeCapture
-from .direct import DirectLight, direct_light
+from .direct import DirectLight, direct_light_steps
 from .errors import BakeError
 from .field import ProbeField
 from .grid import ProbeSubset, probes_used
@@ -29,6 +29,7 @@ from .proxy import simplify
 from .records import Progress, Stage
 from .settings import BakeSettings
 from .solve import LightSolution, area_weighted_mean, solve_steps
+from .working import in_background
 
 __all__ = ["Renderer", "BakeResult", "bake_steps", "run", "check_memory", "memory_estimate", "area_weighted_mean"]
 
@@ -146,15 +147,20 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
     settings = (settings or BakeSettings()).validate()
     t_start = time.perf_counter()
     timings = {}
+    total = 3 + settings.bounces
+
+    def working(stage, done):
+        return lambda message: Progress(stage, done, total, message, working=True)
+
     used = np.ones(grid.count, dtype=bool) if whole_field else probes_used(grid, scene.points)
     placement = None
     if settings.move_probes:
-        placement = place(grid, scene.points, scene.triangles, used)
+        placement = yield from in_background(place, working(Stage.CAPTURE, 0)("placing the probes"), grid, scene.points,
+                                             scene.triangles, used)
         used = placement.keep
         timings["placement"] = placement.seconds
     if not used.all() or (placement is not None and placement.moved):
         grid = ProbeSubset(grid, used, None if placement is None else placement.displacement)
-    total = 3 + settings.bounces
 
     budget = settings.capture_triangles
     reused = capture is not None and capture.valid_for(scene, grid, settings.cube_size, settings.visibility, budget, settings.near_field)
@@ -171,7 +177,8 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
     else:
         check_memory(grid.count, settings.cube_size, len(scene.points))
         t = time.perf_counter()
-        proxy = simplify(scene, budget)
+        proxy = yield from in_background(simplify, working(Stage.CAPTURE, 0)("simplifying the scene for the probes"), scene,
+                                         budget)
         shown = (scene.points, scene.triangles, scene.triangle_object()) if proxy is None else (
             proxy.points, proxy.triangles, proxy.triangle_object)
         small = small_objects(shown[0], shown[1], shown[2], grid.positions(), settings.cube_size)
@@ -188,8 +195,8 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
         timings["simplify"] = time.perf_counter() - t
         drawn = f" ({len(proxy.triangles):,} of {len(scene.triangles):,} triangles)" if proxy is not None else ""
         yield Progress(Stage.CAPTURE, 0, total, f"capturing {grid.count} probes at {settings.cube_size}x{settings.cube_size}{drawn}")
-        capture = ProbeCapture.take(scene, grid, drawer, settings.cube_size, settings.visibility, proxy, budget,
-                                    settings.near_field)
+        capture = yield from ProbeCapture.take_steps(scene, grid, drawer, settings.cube_size, settings.visibility, proxy, budget,
+                                                     settings.near_field, step=working(Stage.CAPTURE, 0))
         capture.small_objects = tuple(int(k) for k in np.flatnonzero(small))
         timings["capture"], timings["tables"] = capture.capture_seconds, capture.tables_seconds
     transport = capture.transport
@@ -200,7 +207,7 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
     landing = transport.landing_share() if settings.conserve_energy else None
     t_landing = time.perf_counter() - t
     shadows = {} if keep_shadows else None
-    parts = direct_light(scene, renderer, settings, transport, landing, shadows)
+    parts = yield from direct_light_steps(scene, renderer, settings, transport, landing, shadows, step=working(Stage.DIRECT, 1))
     direct = parts.total(scene)
     timings["direct_lights"], timings["direct_probes"] = parts.light_seconds, parts.probe_seconds + t_landing
     timings["direct"] = timings["direct_lights"] + timings["direct_probes"]
@@ -252,12 +259,13 @@ def small_objects(points, triangles, triangle_object, probes, cube_size) -> np.n
 
 
 def run(steps, progress=None):
-    """Drain a generator of :class:`Progress`, calling ``progress`` on each; return its result.
-    The one driver: the operator's modal timer steps the same generators with ``next``."""
+    """Drain a generator of :class:`Progress`, calling ``progress`` on each (but the working
+    steps that only hand control back); return its result. The one driver: the operator's
+    modal timer steps the same generators with ``next``."""
     while True:
         try:
             step = next(steps)
         except StopIteration as stop:
             return stop.value
-        if progress is not None:
+        if progress is not None and not step.working:
             progress(step)

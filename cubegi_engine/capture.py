@@ -11,8 +11,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import cubemap
+from .records import Progress, Stage
 from .scene import GeometryFingerprint, same_sky_map
 from .transport import CubeCapture, Transport, capture_cubes, clip_planes
+from .working import CAPTURE_DRAWS_PER_STEP, in_background, in_batches
 
 __all__ = ["ProbeCapture"]
 
@@ -43,13 +45,32 @@ class ProbeCapture:
         (a :class:`~cubegi_engine.proxy.CaptureProxy`), ``renderer`` draws the proxy's
         triangles and the tables gather through its clusters; ``budget``: the setting it
         was made for; ``near_field``: the tables gather each point's near field."""
+        from .bake import run
+
+        return run(cls.take_steps(scene, grid, renderer, cube_size, visibility, proxy, budget, near_field))
+
+    @classmethod
+    def take_steps(cls, scene, grid, renderer, cube_size: int, visibility: bool = True, proxy=None, budget=None,
+                   near_field: bool = True, step=None):
+        """:meth:`take` as a generator of working steps (:mod:`cubegi_engine.working`): the
+        probes drawn in batches, the tables built in a thread. ``step(message)``: the working
+        Progress to yield. Returns the ProbeCapture."""
+        step = step or (lambda message: Progress(Stage.CAPTURE, 0, 1, message, working=True))
         positions = grid.positions()
         near, far = clip_planes(scene.scale, grid.point_cell_edge(positions))
+        near = np.broadcast_to(np.asarray(near, dtype=np.float64), (len(positions),))
         t = time.perf_counter()
-        cubes = capture_cubes(renderer, positions, cube_size, near, far)
+        drawn = len(proxy.triangles) if proxy is not None else len(scene.triangles)
+        batches = yield from in_batches(
+            len(positions), CAPTURE_DRAWS_PER_STEP // max(6 * drawn, 1),
+            lambda a, b: capture_cubes(renderer, positions[a:b], cube_size, near[a:b], far),
+            lambda done: step(f"captured {done} of {len(positions)} probes"))
+        cubes = CubeCapture(*(np.concatenate([getattr(c, f) for c in batches]) for f in ("tid", "bary", "dist", "backface")))
         t_capture = time.perf_counter() - t
         t = time.perf_counter()
-        transport = Transport(scene, grid, cubes, visibility=visibility, proxy=proxy, near_field=near_field)
+        transport = yield from in_background(
+            Transport, step("building the tables (what each probe sees, and each point's near field)"),
+            scene, grid, cubes, visibility=visibility, proxy=proxy, near_field=near_field)
         return cls(grid, int(cube_size), bool(visibility), scene.fingerprint(), cubes, transport, t_capture,
                    time.perf_counter() - t, proxy, budget, bool(near_field))
 

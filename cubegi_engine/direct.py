@@ -21,7 +21,8 @@ import numpy as np
 from . import cubemap, nearfield, sh
 from . import lights as lights_mod
 from .emitters import emitter_direct
-from .transport import capture_cubes, clip_planes
+from .transport import CubeCapture, capture_cubes, clip_planes
+from .working import CAPTURE_DRAWS_PER_STEP, in_background, in_batches
 
 __all__ = ["DirectLight", "Shadow", "draw_shadow", "visibility", "light_direct", "direct_light", "EMISSION", "SKY"]
 
@@ -116,6 +117,25 @@ class Shadow:
 def draw_shadow(scene, renderer, settings, light, size=None) -> Shadow:
     """Draw ``light``'s depth maps of ``scene`` (see :class:`Shadow`); ``size``: the maps'
     edge (default: the light's own ``shadow_size``, else the settings' for its kind)."""
+    from .bake import run
+
+    return run(draw_shadow_steps(scene, renderer, settings, light, size))
+
+
+def _cubes_in_batches(scene, renderer, eyes, edge, near, far, turns, step):
+    """Depth cube maps at ``eyes``, a batch of about CAPTURE_DRAWS_PER_STEP triangles drawn at
+    a time (a fixed batch: the same maps every time), handing control back between them."""
+    per = CAPTURE_DRAWS_PER_STEP // max(6 * len(scene.triangles), 1)
+    batches = yield from in_batches(
+        len(eyes), per, lambda a, b: capture_cubes(renderer, eyes[a:b], edge, near, far, with_bary=False,
+                                                   turns=None if turns is None else turns[a:b]),
+        lambda done: _working(step, f"direct light: shadow maps, {done} of {len(eyes)}"))
+    return CubeCapture(*(np.concatenate([getattr(c, f) for c in batches]) for f in ("tid", "bary", "dist", "backface")))
+
+
+def draw_shadow_steps(scene, renderer, settings, light, size=None, step=None):
+    """:func:`draw_shadow` as a generator: a light's many cube maps (an area light's sample
+    points, a soft light's) drawn in batches."""
     size = size or light.shadow_size or None
     shadow = Shadow(light, scene.triangles, scene.points, scene.scale, sides=scene.sides())
     if light.kind == "SUN":
@@ -134,13 +154,13 @@ def draw_shadow(scene, renderer, settings, light, size=None) -> Shadow:
         shadow.eyes = samples + light.direction * (AREA_EYE_LIFT * scene.scale)
         edge = size or (max(settings.area_shadow_size // 2, MIN_SHARED_EDGE) if len(samples) >= SHARED_EYES else settings.area_shadow_size)
         shadow.turns = cubemap.turns(len(shadow.eyes)) if len(shadow.eyes) > 1 else None
-        shadow.cubes = capture_cubes(renderer, shadow.eyes, edge, near, far, with_bary=False, turns=shadow.turns)
+        shadow.cubes = yield from _cubes_in_batches(scene, renderer, shadow.eyes, edge, near, far, shadow.turns, step)
     elif soft(light, scene.points):
         count = int(np.clip(SOFT_SAMPLES * SOFT_TRIANGLES / max(len(scene.triangles), 1), MIN_SOFT_SAMPLES, SOFT_SAMPLES))
         shadow.eyes = light.position + light.radius * sh.fibonacci_sphere(count)
         edge = size or max(settings.area_shadow_size, settings.shadow_size // 2)
         shadow.turns = cubemap.turns(count)
-        shadow.cubes = capture_cubes(renderer, shadow.eyes, edge, near, far, with_bary=False, turns=shadow.turns)
+        shadow.cubes = yield from _cubes_in_batches(scene, renderer, shadow.eyes, edge, near, far, shadow.turns, step)
     else:
         shadow.eyes = light.position[None]
         shadow.cubes = capture_cubes(renderer, shadow.eyes, size or settings.shadow_size, near, far, with_bary=False)
@@ -196,15 +216,25 @@ def visibility(shadow, pts, nrm, ids) -> np.ndarray:
 def light_direct(scene, renderer, settings, light, shadows=None) -> np.ndarray:
     """Diffuse light ``(s, 3)`` from one light, with shadows from depth maps. ``shadows``: a
     dict that keeps the light's :class:`Shadow` under its name, if given."""
+    from .bake import run
+
+    return run(light_direct_steps(scene, renderer, settings, light, shadows))
+
+
+def light_direct_steps(scene, renderer, settings, light, shadows=None, step=None):
+    """:func:`light_direct` as a generator: the shadow maps drawn (the GPU's, here), the
+    shadow test of every point run in a thread while it hands control back."""
     value = lights_mod.unshadowed(light, scene.points, scene.normals)
     lit = np.any(value > 0, axis=1)
     if not light.casts_shadow or not lit.any():
         return value
-    shadow = draw_shadow(scene, renderer, settings, light)
+    shadow = yield from draw_shadow_steps(scene, renderer, settings, light, step=step)
     if shadows is not None:
         shadows[light.name] = shadow
     ids = np.arange(len(scene.points))[lit]
-    value[lit] *= visibility(shadow, scene.points[lit], scene.normals[lit], ids)[:, None]
+    seen = yield from in_background(visibility, _working(step, f"direct light: {light.name or 'a light'}'s shadows"), shadow,
+                                    scene.points[lit], scene.normals[lit], ids)
+    value[lit] *= seen[:, None]
     return value
 
 
@@ -215,8 +245,19 @@ def direct_light(scene, renderer, settings, transport, landing=None, shadows=Non
     balanced with it (None: not balanced). ``shadows``: a dict that keeps each light's
     :class:`Shadow`, if given.
     """
+    from .bake import run
+
+    return run(direct_light_steps(scene, renderer, settings, transport, landing, shadows))
+
+
+def direct_light_steps(scene, renderer, settings, transport, landing=None, shadows=None, step=None):
+    """:func:`direct_light` as a generator that hands control back (``step(message)``, a
+    working Progress) after each light, the emitters and the sky; returns the DirectLight."""
     import time
 
+    from .records import Progress, Stage
+
+    step = step or (lambda message: Progress(Stage.DIRECT, 1, 1, message, working=True))
     t = time.perf_counter()
     parts, left_out = {}, []
     reach = [float(lights_mod.unshadowed(light, scene.points, scene.normals).max(initial=0.0)) for light in scene.lights]
@@ -226,7 +267,8 @@ def direct_light(scene, renderer, settings, transport, landing=None, shadows=Non
             why = "reaches no surface" if reach[k] <= 0.0 else f"below {LIGHT_LEFT_OUT:g} of the brightest light everywhere"
             left_out.append(f"light {light.name or k}: {why}")
             continue
-        parts[key] = light_direct(scene, renderer, settings, light, shadows)
+        parts[key] = yield from light_direct_steps(scene, renderer, settings, light, shadows, step)
+        yield step(f"direct light: {k + 1} of {len(scene.lights)} lights")
     light_seconds = time.perf_counter() - t
     t = time.perf_counter()
     coeffs = np.zeros((transport.probe_count, 9, 3), dtype=np.float32)
@@ -235,13 +277,21 @@ def direct_light(scene, renderer, settings, transport, landing=None, shadows=Non
         coeffs = transport.gather_project(scene.emission)  # what the probes see (the field)
         # Straight to every point, exact, from both faces (as Cycles): see cubegi_engine.emitters.
         parts[EMISSION] = scene.zero_dark_points_inplace(emitter_direct(scene, renderer, settings.area_shadow_size))
+        yield step("direct light: the emitters")
     if np.any(scene.sky > 0):
         coeffs = coeffs + transport.sky_coefficients(scene.sky)  # what the probes see of it (the field)
-        parts[SKY] = scene.sky[None, :] * unit_sky_direct(scene, renderer, transport, settings.sky_per_vertex)
+        parts[SKY] = scene.sky[None, :] * (yield from unit_sky_direct_steps(scene, renderer, transport, settings.sky_per_vertex, step))
     return DirectLight(parts, coeffs, factor, light_seconds, time.perf_counter() - t, left_out)
 
 
 def unit_sky_direct(scene, renderer, transport, per_vertex=False) -> np.ndarray:
+    """:func:`unit_sky_direct_steps` in one go."""
+    from .bake import run
+
+    return run(unit_sky_direct_steps(scene, renderer, transport, per_vertex))
+
+
+def unit_sky_direct_steps(scene, renderer, transport, per_vertex=False, step=None):
     """Diffuse light ``(s, 3)`` of a sky of unit mean radiance (its pattern, if any): what
     the probes see of it (:meth:`Transport.seen_light`), and for the vertices no probe
     lights and nothing close encloses (the outer face of a thick wall: every probe is inside
@@ -257,13 +307,14 @@ def unit_sky_direct(scene, renderer, transport, per_vertex=False) -> np.ndarray:
         # half-enclosed points were left out).
         alone &= ~transport.near.enclosed(len(alone), SKY_ENCLOSED)
     if alone.any():  # not the underside of a block standing on the ground
-        alone[alone] = ~nearfield.resting(scene.points, scene.normals, scene.triangles, scene.scale, np.flatnonzero(alone),
-                                                scene.twins())
+        resting = yield from in_background(nearfield.resting, _working(step, "direct light: the sky's open points"), scene.points,
+                                           scene.normals, scene.triangles, scene.scale, np.flatnonzero(alone), scene.twins())
+        alone[alone] = ~resting
     if per_vertex:  # every vertex its probes give any sky (one under a roof has none)
         alone |= ~transport.covered & (light.max(axis=1) > 0)
     if alone.any():
         sampling = (SKY_PER_VERTEX_DIRECTIONS, SKY_PER_VERTEX_MAP_SIZE) if per_vertex else (SKY_DIRECTIONS, SKY_MAP_SIZE)
-        light[alone] = sky_direct(scene, renderer, np.flatnonzero(alone), *sampling)
+        light[alone] = yield from sky_direct_steps(scene, renderer, np.flatnonzero(alone), *sampling, step=step)
     return light
 
 
@@ -279,8 +330,9 @@ SKY_MAP_SIZE = 256
 # 256: 4.3 / 2.6 / 1.8 / 1.5%; 256 directions at 128 / 384: 2.5 / 1.6%.
 SKY_PER_VERTEX_DIRECTIONS = 256
 SKY_PER_VERTEX_MAP_SIZE = 256
-# Sky depth maps drawn and read back at a time.
-SKY_MAPS_AT_ONCE = 32
+# Sky depth maps drawn and read back at a time: a step of about a tenth of a second on llvmpipe
+# (The Breakfast Room: 32 at a time took 2.5-3.2 s between two steps of the modal bake).
+SKY_MAPS_AT_ONCE = 2
 
 
 def sky_direct(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY_MAP_SIZE) -> np.ndarray:
@@ -289,6 +341,21 @@ def sky_direct(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY_MAP_S
     for a uniform sky; the pattern's 9 SH coefficients otherwise) times the share of it the
     point sees, measured along ``directions`` directions, each an orthographic depth map of
     ``size`` drawn with the sun's machinery, weighted by the sky's radiance and the cosine."""
+    from .bake import run
+
+    return run(sky_direct_steps(scene, renderer, which, directions, size))
+
+
+def _working(step, stage_message):
+    if step is None:
+        from .records import Progress, Stage
+
+        return Progress(Stage.DIRECT, 1, 1, stage_message, working=True)
+    return step(stage_message)
+
+
+def sky_direct_steps(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY_MAP_SIZE, step=None):
+    """:func:`sky_direct` as a generator handing control back after each direction."""
     dirs = sh.fibonacci_sphere(directions)  # towards the sky
     pattern = _sky_pattern(scene, dirs)  # (k, 3)
     lo, hi = scene.bounds()
@@ -314,6 +381,7 @@ def sky_direct(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY_MAP_S
             w = cos[on, None] * pattern[k][None, :]
             seen[on] += w * vis[:, None]
             facing[on] += w
+            yield _working(step, f"direct light: the sky, {k + 1} of {len(dirs)} directions")
     open_sky = np.ones((len(which), 3))
     if getattr(scene, "sky_map", None) is not None:  # the pattern's SH, as diffuse light per normal
         n = 16

@@ -24,7 +24,8 @@ class Stage(str, Enum):
 class Progress:
     """One step of a bake. ``light``: the light so far (direct + bounces) ``(s, 3)``, when it
     changed; ``new_light``: what this step added: the direct light (stage DIRECT), bounce
-    ``bounce``'s light (BOUNCE), or the tail (TAIL)."""
+    ``bounce``'s light (BOUNCE), or the tail (TAIL). ``working``: a step that only hands
+    control back in the middle of long work (:mod:`cubegi_engine.working`)."""
 
     stage: Stage
     done: int
@@ -33,6 +34,7 @@ class Progress:
     light: np.ndarray | None = None
     new_light: np.ndarray | None = None
     bounce: int | None = None
+    working: bool = False
 
 
 @dataclass

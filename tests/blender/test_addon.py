@@ -6,6 +6,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 import types
 
 import bpy
@@ -133,8 +134,10 @@ def test_cancelling_the_modal_bake_midway_leaves_the_scene_exactly_as_before(box
     mesh.color_attributes.active_color_name = "user_colour"
     before = scene_state()
     job = _job(box, bounces=4)
-    for _ in range(steps):
+    for _ in range(steps):  # steps that report progress (the working steps between them hand control back only)
         assert not job.step()
+        while job.last.working:
+            assert not job.step()
     if steps >= 3:  # the preview has changed the meshes by now (bounce 1 and the totals)
         assert scene_state() != before
     job.cancel()
@@ -485,3 +488,56 @@ def test_probe_spacing_fits_a_grid_of_probes_that_far_apart(empty_scene, cubegi,
 
 def box_cap(cubegi):
     return cubegi.cubegi_addon.grid_objects.MAX_FITTED_PROBES
+
+
+def _large_room():
+    """A room of 29K triangles with 40 blocks, a sun and a sky: a bake of several seconds."""
+    v, f = scenes.box_mesh((-4, -4, 0), (4, 4, 3), (60, 60, 30), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    rng = np.random.default_rng(3)
+    for k in range(40):
+        x, y = rng.uniform(-3.5, 3.5, 2)
+        v, f = scenes.box_mesh((x - 0.2, y - 0.2, 0.0), (x + 0.2, y + 0.2, rng.uniform(0.3, 1.5)), (4, 4, 4), inward=False)
+        scenes.mesh_object(f"Block{k}", v, f, scenes.material(f"B{k}", tuple(rng.uniform(0.2, 0.8, 3))))
+    scenes.add_light("SUN", (0, 0, 5), 3.0, rotation=(0.5, 0.2, 0.0))
+    scenes.add_light("AREA", (0.0, 0.0, 2.9), 300.0, shape="SQUARE", size=1.0)
+    scenes.set_world((0.3, 0.4, 0.6), 1.0)
+
+
+def test_a_long_bake_hands_control_back_in_short_steps_and_esc_in_any_of_them_changes_nothing(empty_scene, cubegi):
+    """The modal bake advances one step per timer event: the capture is drawn in batches, the
+    tables, the placement and each light's shadow test run in a thread while the bake hands
+    control back, a light's shadow maps and the sky's come a few at a time. On a bake of
+    several seconds no step is more than a tenth of it (before: the capture with its tables,
+    and the direct light, were one step each, 45% and 29% of the bake), and Esc in the middle
+    of any of them (a thread still running) leaves the scene as it was."""
+    _large_room()
+    pipeline = cubegi.cubegi_addon.pipeline
+    settings = cubegi.cubegi_addon.props.bake_settings(bpy.context.scene, {})
+    before = scene_state()
+    steps, gaps = pipeline.bake_steps(bpy.context, settings, progressive=True), []
+    t0 = last = time.perf_counter()
+    messages = []
+    try:
+        while True:
+            messages.append(next(steps).message)
+            gaps.append(time.perf_counter() - last)
+            last = time.perf_counter()
+    except StopIteration:
+        gaps.append(time.perf_counter() - last)
+    total = time.perf_counter() - t0
+    longest = max(gaps)
+    print(f"bake {total:.2f} s in {len(gaps)} steps; the longest {longest:.2f} s ({100 * longest / total:.0f}%): "
+          f"{messages[gaps.index(longest) - 1] if gaps.index(longest) else 'the first'}")
+    assert total > 2.0  # a bake long enough to matter
+    assert longest < 0.1 * total, (longest, total)  # measured: 0.41 s of 12.7 s (3%), a batch of the capture
+    assert any(m.startswith("captured") for m in messages) and any(m.startswith("building the tables") for m in messages)
+    # Esc at every kind of working step: the capture's batches, the tables' thread, a light's shadows, the sky.
+    for kind in ("captured", "building the tables", "direct light: 1 of", "direct light: the sky"):
+        before = scene_state()  # the finished bake's light: a cancelled one must leave it
+        cubegi.cubegi_addon.session.forget()  # a new capture, not the kept one
+        job = cubegi.cubegi_addon.operators.BakeJob(bpy.context, settings, progressive=True)
+        while not (job.last is not None and job.last.message.startswith(kind)):
+            assert not job.step(), kind
+        job.cancel()
+        assert scene_state() == before, kind

@@ -18,6 +18,7 @@ import numpy as np
 from . import convergence
 from .records import BounceRecord, Progress, Stage, TailReport
 from .settings import BakeSettings
+from .working import in_background
 
 __all__ = ["LightSolution", "solve_steps", "conserve_energy", "energy_factor", "area_weighted_mean", "ENERGY_FACTOR_RANGE",
            "SOLVE_GIVE_UP"]
@@ -141,21 +142,31 @@ def solve_steps(scene, transport, direct, settings: BakeSettings | None = None, 
     cap = settings.bounces
     near = transport.near  # each bounce's light is gathered once more with its near field
     seen_before = direct
-    for b in range(1, cap + 1):
+    def one_bounce(previous, seen_before):
+        """The next bounce's light: ``(coeffs, light, factor, gathered, seconds of the gather)``."""
         t0 = time.perf_counter()
         coeffs = transport.gather_project(albedo * previous)
-        t1 = t2 = time.perf_counter()
+        t1 = time.perf_counter()
         light = scene.zero_dark_points_inplace(transport.interpolate(coeffs).astype(np.float64))
         factor = np.ones(3)
         if landing is not None:
             light, factor = conserve_energy(light, albedo * previous, landing, areas)
-        bounce_coeffs = bounce_coeffs + coeffs * factor.astype(np.float32)  # as balanced
         gathered = light
         if near is not None:
             gathered = scene.zero_dark_points_inplace(near.correct(
                 light, transport.interpolate_rows(coeffs * factor.astype(np.float32), near.rows, near.open_basis), albedo * seen_before))
             if landing is not None:
                 gathered = keep_total(gathered, light, areas, transport.covered)
+        return coeffs, light, factor, gathered, t1 - t0
+
+    def working(b):
+        return Progress(Stage.BOUNCE, first_step + b - 1, total, f"bounce {b}/{cap}", working=True)
+
+    for b in range(1, cap + 1):
+        t0 = time.perf_counter()
+        coeffs, light, factor, gathered, t_gather = yield from in_background(one_bounce, working(b), previous, seen_before)
+        t1 = t2 = t0 + t_gather
+        bounce_coeffs = bounce_coeffs + coeffs * factor.astype(np.float32)  # as balanced
         t3 = time.perf_counter()
         mean = area_weighted_mean(light, areas)
         ratio = convergence.ratios(previous_mean, mean)
@@ -183,11 +194,16 @@ def solve_steps(scene, transport, direct, settings: BakeSettings | None = None, 
         if not np.any(light > 0):  # nothing left to bounce: further bounces are all zero
             break
 
-    tail, tail_coeffs, report = _tail(transport, albedo, coeffs, bounces, records, remaining, areas, settings)
-    if tail is not None and tail_coeffs is not None and near is not None:  # a solved tail: its near field too
-        part = transport.interpolate_rows(tail_coeffs, near.rows, near.open_basis)
-        fixed = near.correct_sum(tail, part, albedo, seen_before)
-        tail = keep_total(fixed, tail, areas, transport.covered) if landing is not None else fixed
+    def the_tail():
+        tail, tail_coeffs, report = _tail(transport, albedo, coeffs, bounces, records, remaining, areas, settings)
+        if tail is not None and tail_coeffs is not None and near is not None:  # a solved tail: its near field too
+            part = transport.interpolate_rows(tail_coeffs, near.rows, near.open_basis)
+            fixed = near.correct_sum(tail, part, albedo, seen_before)
+            tail = keep_total(fixed, tail, areas, transport.covered) if landing is not None else fixed
+        return tail, tail_coeffs, report
+
+    tail, tail_coeffs, report = yield from in_background(
+        the_tail, Progress(Stage.TAIL, total - 1, total, "the light after the last bounce", working=True))
     if tail is not None:
         scene.zero_dark_points_inplace(tail)
     solution = LightSolution(direct, bounces, records, tail, report, bounce_coeffs, tail_coeffs)

@@ -61,8 +61,11 @@ class Preview:
 
     def undo(self):
         for mesh, snap in zip(self.meshes, self.saved):
-            attributes.restore(mesh, snap)
-            mesh.update()
+            try:
+                attributes.restore(mesh, snap)
+                mesh.update()
+            except ReferenceError:  # the mesh is gone (a new file loaded before the bake was closed): nothing to restore
+                continue
         self.meshes = []
 
 

@@ -29,7 +29,7 @@ from .proxy import simplify
 from .records import Progress, Stage
 from .settings import BakeSettings
 from .solve import LightSolution, area_weighted_mean, solve_steps
-from .working import in_background
+from .working import in_background, run  # noqa: F401 (bake.run: the one driver)
 
 __all__ = ["Renderer", "BakeResult", "bake_steps", "run", "check_memory", "memory_estimate", "area_weighted_mean"]
 
@@ -258,14 +258,3 @@ def small_objects(points, triangles, triangle_object, probes, cube_size) -> np.n
     return used & (gap > 0) & (2.0 * radius < SMALL_OBJECT_TEXELS * texel * gap)
 
 
-def run(steps, progress=None):
-    """Drain a generator of :class:`Progress`, calling ``progress`` on each (but the working
-    steps that only hand control back); return its result. The one driver: the operator's
-    modal timer steps the same generators with ``next``."""
-    while True:
-        try:
-            step = next(steps)
-        except StopIteration as stop:
-            return stop.value
-        if progress is not None and not step.working:
-            progress(step)

@@ -14,7 +14,7 @@ from . import cubemap
 from .records import Progress, Stage
 from .scene import GeometryFingerprint, same_sky_map
 from .transport import CubeCapture, Transport, capture_cubes, clip_planes
-from .working import CAPTURE_DRAWS_PER_STEP, in_background, in_batches
+from .working import CAPTURE_DRAWS_PER_STEP, in_background, in_batches, run
 
 __all__ = ["ProbeCapture"]
 
@@ -45,8 +45,6 @@ class ProbeCapture:
         (a :class:`~cubegi_engine.proxy.CaptureProxy`), ``renderer`` draws the proxy's
         triangles and the tables gather through its clusters; ``budget``: the setting it
         was made for; ``near_field``: the tables gather each point's near field."""
-        from .bake import run
-
         return run(cls.take_steps(scene, grid, renderer, cube_size, visibility, proxy, budget, near_field))
 
     @classmethod

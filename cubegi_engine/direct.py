@@ -22,7 +22,7 @@ from . import cubemap, nearfield, sh
 from . import lights as lights_mod
 from .emitters import emitter_direct
 from .transport import CubeCapture, capture_cubes, clip_planes
-from .working import CAPTURE_DRAWS_PER_STEP, in_background, in_batches
+from .working import CAPTURE_DRAWS_PER_STEP, in_background, in_batches, run
 
 __all__ = ["DirectLight", "Shadow", "draw_shadow", "visibility", "light_direct", "direct_light", "EMISSION", "SKY"]
 
@@ -117,8 +117,6 @@ class Shadow:
 def draw_shadow(scene, renderer, settings, light, size=None) -> Shadow:
     """Draw ``light``'s depth maps of ``scene`` (see :class:`Shadow`); ``size``: the maps'
     edge (default: the light's own ``shadow_size``, else the settings' for its kind)."""
-    from .bake import run
-
     return run(draw_shadow_steps(scene, renderer, settings, light, size))
 
 
@@ -216,8 +214,6 @@ def visibility(shadow, pts, nrm, ids) -> np.ndarray:
 def light_direct(scene, renderer, settings, light, shadows=None) -> np.ndarray:
     """Diffuse light ``(s, 3)`` from one light, with shadows from depth maps. ``shadows``: a
     dict that keeps the light's :class:`Shadow` under its name, if given."""
-    from .bake import run
-
     return run(light_direct_steps(scene, renderer, settings, light, shadows))
 
 
@@ -245,8 +241,6 @@ def direct_light(scene, renderer, settings, transport, landing=None, shadows=Non
     balanced with it (None: not balanced). ``shadows``: a dict that keeps each light's
     :class:`Shadow`, if given.
     """
-    from .bake import run
-
     return run(direct_light_steps(scene, renderer, settings, transport, landing, shadows))
 
 
@@ -286,8 +280,6 @@ def direct_light_steps(scene, renderer, settings, transport, landing=None, shado
 
 def unit_sky_direct(scene, renderer, transport, per_vertex=False) -> np.ndarray:
     """:func:`unit_sky_direct_steps` in one go."""
-    from .bake import run
-
     return run(unit_sky_direct_steps(scene, renderer, transport, per_vertex))
 
 
@@ -341,8 +333,6 @@ def sky_direct(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY_MAP_S
     for a uniform sky; the pattern's 9 SH coefficients otherwise) times the share of it the
     point sees, measured along ``directions`` directions, each an orthographic depth map of
     ``size`` drawn with the sun's machinery, weighted by the sky's radiance and the cosine."""
-    from .bake import run
-
     return run(sky_direct_steps(scene, renderer, which, directions, size))
 
 

@@ -12,7 +12,7 @@ thread runs leaves the thread to finish in the background; its result is dropped
 
 import threading
 
-__all__ = ["WORKING_SECONDS", "CAPTURE_DRAWS_PER_STEP", "in_background", "in_batches"]
+__all__ = ["WORKING_SECONDS", "CAPTURE_DRAWS_PER_STEP", "run", "in_background", "in_batches"]
 
 # Seconds between the steps a long piece of work hands back.
 WORKING_SECONDS = 0.1
@@ -56,3 +56,16 @@ def in_batches(count, size, run_batch, working):
         if a + size < count:
             yield working(a + size)
     return results
+
+
+def run(steps, progress=None):
+    """Drain a generator of Progress, calling ``progress`` on each (but the working steps
+    that only hand control back); return its result. The one driver: the operator's modal
+    timer steps the same generators with ``next``."""
+    while True:
+        try:
+            step = next(steps)
+        except StopIteration as stop:
+            return stop.value
+        if progress is not None and not step.working:
+            progress(step)

@@ -36,7 +36,7 @@ def _fail_at(monkeypatch, cubegi, stage):
     elif stage == "capture":
         monkeypatch.setattr(capture, "capture_cubes", boom)
     elif stage == "direct":
-        monkeypatch.setattr(direct, "light_direct", boom)
+        monkeypatch.setattr(direct, "light_direct_steps", boom)
     elif stage == "bounce":
         monkeypatch.setattr(transport.Transport, "gather_project", boom)
     elif stage == "reference":

@@ -320,13 +320,14 @@ def _mark_dynamic(bpy, names):
 
 
 def _only(bpy, names):
-    """The ``--only`` names as a set (None without the option), each a mesh object of the file."""
+    """The ``--only`` objects as a set of ``session_uid`` (None without the option), each a mesh
+    object of the file."""
     if not names:
         return None
     missing = [n for n in names if n not in bpy.data.objects or bpy.data.objects[n].type != "MESH"]
     if missing:
         raise BakeError(f"--only: no mesh object named {', '.join(map(repr, missing))} in the file")
-    return set(names)
+    return {bpy.data.objects[n].session_uid for n in names}
 
 
 def cmd_bake(args):

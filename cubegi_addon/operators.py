@@ -225,7 +225,7 @@ class CUBEGI_OT_bake(_ModalJob, bpy.types.Operator):
             report_path = files.writable_target(bpy.path.abspath(self.report_path), "report", _open_file(bpy.data.filepath))
         only = None
         if self.selected_only:
-            only = {ob.name for ob in context.selected_objects if ob.type == "MESH"}
+            only = {ob.session_uid for ob in context.selected_objects if ob.type == "MESH"}
             if not only:
                 raise BakeError("select the meshes to bake: Bake Selected bakes the selected meshes only")
         job = BakeJob(context, _settings_from(self, context.scene).validate(), resolution, lit, self.reference_samples or None, progressive,

@@ -92,7 +92,7 @@ def bake(context, settings=None, resolution=None, lit=None, reference_samples=No
 def bake_steps(context, settings=None, resolution=None, lit=None, reference_samples=None, progressive=False, only=None):
     """Bake the context's scene. A generator of engine Progress; returns the BakeReport.
 
-    ``only``: the names of the objects to write light into (Bake Selected, ``--only``);
+    ``only``: the ``session_uid`` of the objects to write light into (Bake Selected, ``--only``);
     every other object lights and shadows them as before and keeps the light it has.
 
     ``lit``: None, "ALL" (``CubeGI_lit`` = albedo x all light) or "INDIRECT" (albedo x
@@ -120,8 +120,9 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
     arrays = collected.arrays
     if not collected.targets and not collected.moving:
         if only is not None:
-            raise BakeError(f"none of the objects to bake ({', '.join(sorted(only)) or 'none selected'}) is a mesh that "
-                            "renders and receives light")
+            names = sorted(ob.name for ob in bpy.data.objects if ob.session_uid in only)
+            raise BakeError(f"none of the objects to bake ({', '.join(names) or 'none selected'}) is a mesh that renders "
+                            "and receives light")
         raise BakeError("no mesh in the scene can receive baked light")
     groups = light_groups.read(context, arrays, collected.notes)
     attributes.check_clashes(

@@ -289,7 +289,7 @@ def collect(context, depsgraph=None, only=None):
     transforms, instances), whatever the viewport shows (see :func:`_as_rendered`), unless
     its Contribute is off (then it is lit as a dynamic object is); original, non-instanced
     mesh objects whose evaluated vertex count matches their mesh receive the baked light,
-    unless their Receive is off or ``only`` (object names: Bake Selected, ``--only``) leaves
+    unless their Receive is off or ``only`` (objects' ``session_uid``: Bake Selected, ``--only``) leaves
     them out.
     """
     if depsgraph is not None:
@@ -337,9 +337,9 @@ def _dynamic_setting(ob):
 
 def receives(ob, only=None):
     """True if a bake writes its light into ``ob``: its Receive is on and ``only`` (a set of
-    object names, or None for all) names it."""
+    objects' ``session_uid``, which a rename keeps; None for all) holds it."""
     settings = getattr(ob, "cubegi", None)
-    return (settings is None or settings.receive) and (only is None or ob.name in only)
+    return (settings is None or settings.receive) and (only is None or ob.session_uid in only)
 
 
 def _moving_object(ob, inst, original, notes):

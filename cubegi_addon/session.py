@@ -46,7 +46,7 @@ class Kept:
     bake_id: str = ""  # the scene's cubegi.bake_id this bake wrote
     moving: list = None  # [(SceneArrays, MeshTarget)] of the dynamic objects as last lit
     resolution: tuple = None  # the grid resolution the bake was asked for (None: the scene's)
-    only: frozenset = None  # the names of the objects the bake wrote light into, if it was asked for some (Bake Selected)
+    only: frozenset = None  # the session_uid of the objects the bake wrote light into, if it was asked for some (Bake Selected)
     groups: object = None  # the view layer's LightGroups at the bake (light_groups.read), or None: no group layers
 
     @property

@@ -97,6 +97,16 @@ def test_bake_selected_receive_off_and_only_write_just_their_objects(room, tmp_p
     lamp.energy = 200.0
     assert bpy.ops.cubegi.update_light() == {"FINISHED"}
     _same(_light(room), kept_older_except({"Room", "Crate"}), 1e-4)  # an update equals a bake to the solve's tolerance
+    # Live's bake again (after a geometry edit) keeps to the same objects, renamed or not: they
+    # are held by session_uid.
+    bpy.data.objects["Crate"].name = "Crate renamed"
+    lamp.energy = 100.0  # light is linear in power: the objects baked get half the light
+    room.cubegi_addon.pipeline.bake(bpy.context, kept.settings, kept.resolution, only=kept.only)
+    now = _light(room, ("Room", "Block", "Crate renamed"))
+    np.testing.assert_allclose(now["Crate renamed", "CubeGI_total"], 0.5 * full["Crate", "CubeGI_total"], rtol=1e-4, atol=1e-6)
+    assert np.array_equal(now["Block", "CubeGI_total"], older["Block", "CubeGI_total"])
+    bpy.data.objects["Crate renamed"].name = "Crate"
+    lamp.energy = 200.0
 
     # Receive off on the Block.
     _clear()

@@ -242,7 +242,7 @@ def write_light(context, kept, bounces=True, field=True):
     if kept.lit:
         layers[attributes.LIT] = arrays.albedo * (indirect if kept.lit == "INDIRECT" else direct + indirect)
     if kept.groups is not None:
-        layers.update((attributes.group_name(g), v) for g, v in light_groups.layers(state, kept.groups).items())
+        layers.update((attributes.group_name(g), v) for g, v in light_groups.layers(state, kept.groups, direct + indirect).items())
     for target, mesh in zip(kept.targets, session.target_meshes(kept.targets)):
         if mesh is None:
             continue

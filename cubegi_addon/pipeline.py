@@ -162,7 +162,7 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
     state = None
     if groups is not None:  # each group's light: the bake's, per source (kept for updates too)
         state = relight.solved_light(result, arrays, settings, lambda: renderer, bool(collected.moving))
-        per_group = light_groups.layers(state, groups)
+        per_group = light_groups.layers(state, groups, result.direct + result.indirect)
         for target, layers in zip(collected.targets, layers_per_target):
             layers.update((attributes.group_name(g), attributes.vertex_values(target, v)) for g, v in per_group.items())
     t_layers = time.perf_counter() - t

@@ -138,19 +138,25 @@ def test_a_killed_workers_bake_is_retried_and_gives_the_same_light(three_files, 
         _same(_attributes(tmp_path / "out" / f"scene{k}.blend"), _attributes(alone), SAME_TOL)
 
 
-def _frames_in(folder):
-    return sorted(n for n in os.listdir(folder) if n.startswith("frame_"))
-
-
-def test_an_animation_in_chunks_gives_the_one_machine_cache(empty_scene, cubegi, tmp_path):
+def _lamp_moving_in_a_room(tmp_path, last):
+    """A room lit by a lamp that moves from frame 1 to ``last``, saved; its path."""
     v, f = scenes.box_mesh((-2, -2, 0), (2, 2, 2.5), (6, 6, 4), inward=True)
     scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
     lamp = scenes.add_light("POINT", (1.2, -1.2, 2.0), 150.0)
     lamp.keyframe_insert("location", frame=1)
     lamp.location = (-1.2, 1.2, 1.6)
-    lamp.keyframe_insert("location", frame=16)
+    lamp.keyframe_insert("location", frame=last)
     src = tmp_path / "anim.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(src))
+    return src
+
+
+def _frames_in(folder):
+    return sorted(n for n in os.listdir(folder) if n.startswith("frame_"))
+
+
+def test_an_animation_in_chunks_gives_the_one_machine_cache(empty_scene, cubegi, tmp_path):
+    src = _lamp_moving_in_a_room(tmp_path, last=16)
     one, many = tmp_path / "one" / "out.blend", tmp_path / "many" / "out.blend"
     one.parent.mkdir()
     many.parent.mkdir()
@@ -239,14 +245,7 @@ def test_ctrl_c_in_a_batch_stops_every_bake_keeps_the_finished_ones_and_prints_n
 
 
 def test_ctrl_c_in_an_animation_on_a_cluster_keeps_the_frames_and_says_so(empty_scene, cubegi, tmp_path):
-    v, f = scenes.box_mesh((-2, -2, 0), (2, 2, 2.5), (6, 6, 4), inward=True)
-    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
-    lamp = scenes.add_light("POINT", (1.2, -1.2, 2.0), 150.0)
-    lamp.keyframe_insert("location", frame=1)
-    lamp.location = (-1.2, 1.2, 1.6)
-    lamp.keyframe_insert("location", frame=400)
-    src = tmp_path / "anim.blend"
-    bpy.ops.wm.save_as_mainfile(filepath=str(src))
+    src = _lamp_moving_in_a_room(tmp_path, last=400)
     out = tmp_path / "out.blend"
     cache = tmp_path / "out.cubegi"
     rc, stdout, err = interrupt_cli(["bake-animation", src, "-o", out, "--frames", "1", "400", "--workers", "2", *FAST],

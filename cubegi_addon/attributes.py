@@ -110,13 +110,37 @@ def bake_names(bounces, lit=False, reference=False, groups=()):
 
 
 def vertex_values(target, point_values):
-    """Per-vertex ``(v, 3)`` mean over each vertex's corners of per-point values ``(s, 3)``."""
-    corner = point_values[target.loop_point]
-    count = np.bincount(target.loop_vertex, minlength=target.vertex_count).astype(np.float64)
-    out = np.stack(
-        [np.bincount(target.loop_vertex, corner[:, c], minlength=target.vertex_count) for c in range(3)], axis=1
-    )
-    return out / np.maximum(count, 1.0)[:, None]
+    """Per-vertex ``(v, 3)`` mean over each vertex's corners of per-point values ``(s, 3)``
+    (zero for a vertex with no corner)."""
+    vertex, point, weight = _vertex_mean(target)
+    values = np.asarray(point_values, dtype=np.float64)
+    if weight is None:  # one point per vertex: its value
+        out = np.zeros((target.vertex_count, 3))
+        out[vertex] = values[point]
+        return out
+    part = values[point] * weight[:, None]
+    return np.stack([np.bincount(vertex, part[:, c], minlength=target.vertex_count) for c in range(3)], axis=1)
+
+
+def _vertex_mean(target):
+    """How a target's vertex means are made of its points, made once per target:
+    ``(vertex, point, weight)`` over the distinct (vertex, point) pairs of its corners, each
+    weighted by its share of the vertex's corners; weight None where each vertex has one
+    point (smooth shading: every corner of a vertex is one point)."""
+    key = (id(target.loop_point), id(target.loop_vertex))
+    cached = target.__dict__.get("_vertex_mean")
+    if cached is not None and cached[0] == key:
+        return cached[1]
+    vertex = np.asarray(target.loop_vertex, dtype=np.int64)
+    point = np.asarray(target.loop_point, dtype=np.int64)
+    span = int(point.max()) + 1 if len(point) else 1
+    pairs, corners = np.unique(vertex * span + point, return_counts=True)
+    vertex, point = pairs // span, pairs % span
+    per_vertex = np.bincount(vertex, minlength=target.vertex_count)
+    weight = None if np.all(per_vertex[vertex] == 1) else corners / np.bincount(vertex, corners, minlength=target.vertex_count)[vertex]
+    made = (vertex, point, weight)
+    target.__dict__["_vertex_mean"] = (key, made)
+    return made
 
 
 def sanitise(values):

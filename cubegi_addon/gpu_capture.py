@@ -19,6 +19,7 @@ import numpy as np
 from gpu_extras.batch import batch_for_shader
 
 from ..cubegi_engine.errors import BakeError
+from ..cubegi_engine.working import in_background, run
 from . import compat
 
 # Largest atlas edge in texels; 2048^2 RGBA32F is 64 MiB.
@@ -207,28 +208,25 @@ class GpuRenderer:
 
     def __init__(self, points, triangles, drawn=None, sheet=None):
         ensure_gpu()
-        triangles = np.asarray(triangles)
-        if len(triangles) > MAX_TRIANGLES:
-            raise BakeError(f"the scene has {len(triangles)} triangles; capture supports up to {MAX_TRIANGLES}")
-        self.triangles = triangles
-        pts = np.asarray(points, dtype=np.float64)
-        lo, hi = (pts.min(axis=0), pts.max(axis=0)) if len(pts) else (np.zeros(3), np.ones(3))
-        self.centre = 0.5 * (lo + hi)
-        self.unit = max(float(np.max(hi - lo)), 1e-300)
-        unit_pts = ((pts - self.centre) / self.unit).astype(np.float32)
-        drawn = np.arange(len(triangles)) if drawn is None else np.asarray(drawn, dtype=np.int64)
-        t = len(drawn)
-        # Drawn in spatial order; each vertex carries its triangle's own index, so what a
-        # texel reports does not depend on the order (nor on triangles left out).
-        self.order = drawn[_spatial_order(unit_pts[triangles[drawn]].mean(axis=1))] if t > CULL_CHUNK else drawn
-        self.drawn = triangles[self.order]
-        self.corner_pos = unit_pts[self.drawn].reshape(-1, 3)
-        self.chunk_boxes = _chunk_boxes(self.corner_pos.reshape(-1, 3, 3), CULL_CHUNK) if t > CULL_CHUNK else None
-        bary = np.tile(np.array([[0, 0], [1, 0], [0, 1]], dtype=np.float32), (t, 1))
-        self.sheet = np.zeros(t, dtype=bool) if sheet is None else np.asarray(sheet, dtype=bool)[self.order]
-        self.tid = np.repeat(np.where(self.sheet, -(self.order + 1.0), self.order).astype(np.float32), 3)
+        run(self._uploaded(_prepared(points, triangles, drawn, sheet)))
+
+    @classmethod
+    def steps(cls, points, triangles, working, sheet=None):
+        """The renderer, made in steps: its arrays in a thread, then each vertex column
+        uploaded in a step of its own (a generator yielding ``working``, a Progress)."""
+        ensure_gpu()
+        prepared = yield from in_background(_prepared, working, points, triangles, None, sheet)
+        renderer = cls.__new__(cls)
+        yield from renderer._uploaded(prepared, working)
+        yield working
+        renderer.depth_batch = yield from _batch_steps(_id_shader(False), renderer._depth_columns(), working)
+        return renderer
+
+    def _uploaded(self, prepared, working=None):
+        self.__dict__.update(prepared)
+        bary = self.__dict__.pop("bary")
         self.id_shader = _id_shader()
-        self.id_batch = batch_for_shader(self.id_shader, "TRIS", {"pos": self.corner_pos, "bary": bary, "tid": self.tid})
+        self.id_batch = yield from _batch_steps(self.id_shader, {"pos": self.corner_pos, "bary": bary, "tid": self.tid}, working)
         self._colour_shader = None
 
     def with_geometry(self, points, triangles, drawn=None, sheet=None):
@@ -337,11 +335,11 @@ class GpuRenderer:
     def _depth_batch(self):
         """The triangles for the depth-only shader (the same vertex layout, its own batch)."""
         if getattr(self, "depth_batch", None) is None:
-            shader = _id_shader(False)
-            columns = {"pos": self.corner_pos, "tid": self.tid}
-            columns["bary"] = np.zeros((len(self.corner_pos), 2), dtype=np.float32)
-            self.depth_batch = batch_for_shader(shader, "TRIS", compat.shader_columns(shader, columns))
+            self.depth_batch = run(_batch_steps(_id_shader(False), self._depth_columns()))
         return self.depth_batch
+
+    def _depth_columns(self):
+        return {"pos": self.corner_pos, "tid": self.tid, "bary": np.zeros((len(self.corner_pos), 2), dtype=np.float32)}
 
     def render_colour(self, view_projs, size, point_radiance):
         if self._colour_shader is None:
@@ -364,6 +362,47 @@ class GpuRenderer:
             rgb = np.where(tiles[..., 3:4] == FAR_AWAY, 0.0, tiles[..., :3])
             out[first : first + len(tiles)] = rgb
         return out
+
+
+def _prepared(points, triangles, drawn, sheet):
+    """The arrays a GpuRenderer draws from (numpy alone: see the class)."""
+    triangles = np.asarray(triangles)
+    if len(triangles) > MAX_TRIANGLES:
+        raise BakeError(f"the scene has {len(triangles)} triangles; capture supports up to {MAX_TRIANGLES}")
+    pts = np.asarray(points, dtype=np.float64)
+    lo, hi = (pts.min(axis=0), pts.max(axis=0)) if len(pts) else (np.zeros(3), np.ones(3))
+    out = {"triangles": triangles, "centre": 0.5 * (lo + hi), "unit": max(float(np.max(hi - lo)), 1e-300)}
+    unit_pts = ((pts - out["centre"]) / out["unit"]).astype(np.float32)
+    drawn = np.arange(len(triangles)) if drawn is None else np.asarray(drawn, dtype=np.int64)
+    t = len(drawn)
+    # Drawn in spatial order; each vertex carries its triangle's own index, so what a
+    # texel reports does not depend on the order (nor on triangles left out).
+    order = drawn[_spatial_order(unit_pts[triangles[drawn]].mean(axis=1))] if t > CULL_CHUNK else drawn
+    out["order"] = order
+    out["drawn"] = triangles[order]
+    out["corner_pos"] = unit_pts[out["drawn"]].reshape(-1, 3)
+    out["chunk_boxes"] = _chunk_boxes(out["corner_pos"].reshape(-1, 3, 3), CULL_CHUNK) if t > CULL_CHUNK else None
+    out["bary"] = np.tile(np.array([[0, 0], [1, 0], [0, 1]], dtype=np.float32), (t, 1))
+    out["sheet"] = np.zeros(t, dtype=bool) if sheet is None else np.asarray(sheet, dtype=bool)[order]
+    out["tid"] = np.repeat(np.where(out["sheet"], -(order + 1.0), order).astype(np.float32), 3)
+    return out
+
+
+def _batch_steps(shader, columns, working=None):
+    """``batch_for_shader(shader, "TRIS", columns)`` (its vertex format), filling one column
+    at a time and yielding ``working`` between them (none if it is None)."""
+    columns = compat.shader_columns(shader, columns)
+    fmt = gpu.types.GPUVertFormat()
+    for name, kind in shader.attrs_info_get():
+        width = 1 if columns[name].ndim == 1 else columns[name].shape[1]
+        comp = "F32" if kind in {"FLOAT", "VEC2", "VEC3", "VEC4"} else "I32"
+        fmt.attr_add(id=name, comp_type=comp, len=width, fetch_mode="FLOAT" if comp == "F32" else "INT")
+    vbo = gpu.types.GPUVertBuf(fmt, len(next(iter(columns.values()))))
+    for i, (name, data) in enumerate(columns.items()):
+        if i and working is not None:
+            yield working
+        vbo.attr_fill(name, data)
+    return gpu.types.GPUBatch(type="TRIS", buf=vbo)
 
 
 def _spatial_order(centres):

@@ -9,6 +9,7 @@ attributes back.
 
 import time
 import uuid
+from dataclasses import replace
 
 import bpy
 import numpy as np
@@ -21,6 +22,7 @@ from ..cubegi_engine.records import Progress, Stage
 from ..cubegi_engine.report import BakeReport
 from ..cubegi_engine.settings import BakeSettings
 from ..cubegi_engine.solve import area_weighted_mean
+from ..cubegi_engine.working import in_background
 from . import attributes, dynamic, grid_objects, light_groups, probe_view, reference, scene_data, session
 from .gpu_capture import GpuRenderer
 
@@ -47,6 +49,7 @@ class Preview:
         self.saved = [attributes.snapshot(m) for m in self.meshes]
 
     def update(self, step):
+        """Write a step's light (a generator: the vertex values are made in a thread)."""
         if step.stage == Stage.DIRECT:
             self.direct = step.new_light
             layers = {attributes.DIRECT: step.light, attributes.TOTAL: step.light}
@@ -54,9 +57,12 @@ class Preview:
             layers = {attributes.TOTAL: step.light, attributes.INDIRECT: step.light - self.direct}
             if step.bounce is not None:
                 layers[attributes.bounce_name(step.bounce)] = step.new_light
-        for target, mesh in zip(self.targets, self.meshes):
-            for name, values in layers.items():
-                attributes.put(mesh, name, attributes.vertex_values(target, values))
+        per_target = yield from in_background(
+            lambda: [{name: attributes.vertex_values(target, values) for name, values in layers.items()} for target in self.targets],
+            replace(step, light=None, new_light=None, working=True))
+        for mesh, values in zip(self.meshes, per_target):
+            for name, v in values.items():
+                attributes.put(mesh, name, v)
             mesh.update()
 
     def undo(self):
@@ -70,17 +76,14 @@ class Preview:
 
 
 def _previewed(steps, preview):
-    """Pass ``steps`` through, showing each new light with ``preview``."""
-    return (yield from _each(steps, lambda step: preview.update(step) if step.light is not None else None))
-
-
-def _each(steps, action):
+    """Pass ``steps`` through, showing each new light with ``preview`` first."""
     while True:
         try:
             step = next(steps)
         except StopIteration as stop:
             return stop.value
-        action(step)
+        if step.light is not None:
+            yield from preview.update(step)
         yield step
 
 
@@ -116,7 +119,9 @@ def bake_steps(context, settings=None, resolution=None, lit=None, reference_samp
 
 def _bake_steps(context, settings, resolution, lit, reference_samples, preview, only):
     t0 = time.perf_counter()
-    collected = scene_data.collect(context, only=only)
+    total = 3 + settings.bounces
+    collected = yield from scene_data.collect_steps(context, Progress(Stage.CAPTURE, 0, total, "reading the scene", working=True),
+                                                    only=only)
     arrays = collected.arrays
     if not collected.targets and not collected.moving:
         if only is not None:
@@ -140,11 +145,11 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
             f"{100 * outside:.1f}% of the shading points lie outside every probe grid; they get the light of the nearest grid's nearest probes"
         )
     t_collect = time.perf_counter() - t0
-    total = 3 + settings.bounces
     yield Progress(Stage.CAPTURE, 0, total, f"read {len(collected.targets)} meshes", working=True)  # Blender's turn
 
     t = time.perf_counter()
-    renderer = GpuRenderer(arrays.points, arrays.triangles, sheet=arrays.sheet_triangles())
+    renderer = yield from GpuRenderer.steps(arrays.points, arrays.triangles, Progress(Stage.CAPTURE, 0, total, "the scene to the GPU",
+                                                                                     working=True), sheet=arrays.sheet_triangles())
     t_setup = time.perf_counter() - t
     yield Progress(Stage.CAPTURE, 0, total, "the scene is on the GPU", working=True)
     earlier = session.kept(context.scene)
@@ -155,9 +160,10 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
         steps = _previewed(steps, preview)
     result = yield from steps
 
-    _note_capture(collected, result, grid)
     t = time.perf_counter()
-    layers_per_target = [_layers(target, result, arrays, lit) for target in collected.targets]
+    layers_per_target = yield from in_background(
+        lambda: (_note_capture(collected, result, grid), [_layers(target, result, arrays, lit) for target in collected.targets])[1],
+        Progress(Stage.TAIL, total, total, "the light of each mesh's vertices", working=True))
     yield Progress(Stage.TAIL, total, total, "the light of every mesh is ready", working=True)
     state = None
     if groups is not None:  # each group's light: the bake's, per source (kept for updates too)

@@ -75,6 +75,18 @@ def _surface_shader(material):
     return node
 
 
+def _filled(colour, k):
+    """``(k, 3)`` rows of one colour (a read-only broadcast: no copy per corner)."""
+    return np.broadcast_to(np.asarray(colour, dtype=np.float64), (k, 3))
+
+
+def _scaled(colours, factor):
+    """``colours * factor``, kept a broadcast where it is one (one colour on every corner)."""
+    if colours.ndim == 2 and colours.strides[0] == 0:
+        return _filled(colours[0] * factor, len(colours))
+    return colours * factor
+
+
 def _corner_colour(socket, mesh, loop_ids, loop_vertex, fallback, problems):
     """Per-corner linear colour ``(k, 3)`` from a colour input socket.
 
@@ -84,12 +96,12 @@ def _corner_colour(socket, mesh, loop_ids, loop_vertex, fallback, problems):
     """
     k = len(loop_ids)
     if socket is None:
-        return np.tile(fallback, (k, 1))
+        return _filled(fallback, k)
     if not socket.is_linked:
-        return np.tile(np.asarray(socket.default_value[:3], dtype=np.float64), (k, 1))
+        return _filled(np.asarray(socket.default_value[:3], dtype=np.float64), k)
     node = socket.links[0].from_node
     if node.type == "RGB":
-        return np.tile(np.asarray(node.outputs[0].default_value[:3], dtype=np.float64), (k, 1))
+        return _filled(np.asarray(node.outputs[0].default_value[:3], dtype=np.float64), k)
     if node.type == "TEX_IMAGE" and node.image is not None:
         rgb = image_pixels(node.image)
         uv_layer, mapped = None, None
@@ -104,7 +116,7 @@ def _corner_colour(socket, mesh, loop_ids, loop_vertex, fallback, problems):
             uv_layer = next((u for u in mesh.uv_layers if u.active_render), None)
         if rgb is None or uv_layer is None:
             problems.append(f"image {node.image.name!r} has no pixels (missing file?)" if rgb is None else "no UV map for its image")
-            return np.tile(fallback, (k, 1))
+            return _filled(fallback, k)
         if mapped:  # (what is wrong, what the bake does instead)
             problems.append((f"image {node.image.name!r} is mapped by the {mapped}, which CubeGI does not read",
                              f"sampled at the UV map {uv_layer.name!r} instead"))
@@ -120,17 +132,17 @@ def _corner_colour(socket, mesh, loop_ids, loop_vertex, fallback, problems):
         if attr is not None and not name and attributes.is_any(attr.name):
             problems.append(f"reads the render colour attribute of mesh {mesh.name!r}, which is CubeGI's own light "
                             f"({attr.name!r}); mark one of your own for renders")
-            return np.tile(fallback, (k, 1))
+            return _filled(fallback, k)
         if attr is None:
             problems.append(f"colour attribute {name!r} not on mesh {mesh.name!r}")
-            return np.tile(fallback, (k, 1))
+            return _filled(fallback, k)
         data = np.empty(len(attr.data) * 4, dtype=np.float32)
         attr.data.foreach_get("color", data)
         data = data.reshape(-1, 4)[:, :3].astype(np.float64)
         return data[loop_ids] if attr.domain == "CORNER" else data[loop_vertex[loop_ids]]
     problems.append(f"fed by a {node.bl_label or node.type} node, which CubeGI does not read" if node.type != "TEX_IMAGE"
                     else "an Image Texture with no image")
-    return np.tile(fallback, (k, 1))
+    return _filled(fallback, k)
 
 
 def socket_strength(socket, problems):
@@ -164,12 +176,12 @@ def material_corners(material, mesh, loop_ids, loop_vertex, notes):
     """Albedo and emission ``(k, 3)`` each for the corners ``loop_ids`` of one material."""
     k = len(loop_ids)
     if material is None:
-        return np.tile(DEFAULT_ALBEDO, (k, 1)), np.zeros((k, 3))
+        return _filled(DEFAULT_ALBEDO, k), _filled(0.0, k)
     fallback = np.asarray(material.diffuse_color[:3], dtype=np.float64)
     shader = _surface_shader(material)
     if shader is None:
         notes.append(f"material {material.name!r}: no node surface, using its viewport colour")
-        return np.tile(fallback, (k, 1)), np.zeros((k, 3))
+        return _filled(fallback, k), _filled(0.0, k)
     return _shader_corners(material, shader, (mesh, loop_ids, loop_vertex), fallback, notes)
 
 
@@ -185,7 +197,7 @@ def _shader_corners(material, shader, args, fallback, notes, depth=0):
     """Albedo and emission ``(k, 3)`` of one shader node (Mix and Add Shader: of what they
     mix or add; Cycles mixes and adds their closures, and diffuse light is linear in them)."""
     k = len(args[1])
-    zeros = np.zeros((k, 3))
+    zeros = _filled(0.0, k)
     if shader is None:  # an unlinked shader socket: no closure, nothing reflected or emitted
         return zeros, zeros
     if shader.type in {"MIX_SHADER", "ADD_SHADER"} and depth < MAX_SHADER_DEPTH:
@@ -214,14 +226,14 @@ def _shader_corners(material, shader, args, fallback, notes, depth=0):
             if sock is not None and (sock.is_linked or float(sock.default_value) > 0.0):
                 notes.append(f"material {material.name!r}: {name} is set; CubeGI bakes it as a diffuse surface, "
                              f"which a {adjective} surface is not")
-        return albedo, emission * strength
+        return albedo, _scaled(emission, strength)
     if shader.type == "BSDF_DIFFUSE":
         return _colour_and_notes(material, "Color", shader.inputs["Color"], *args, fallback, "its viewport colour", notes), zeros
     if shader.type == "EMISSION":
         problems = []
         strength = socket_strength(shader.inputs["Strength"], problems)
         notes += [f"material {material.name!r}: Strength {p}; using {strength:g}" for p in problems]
-        emission = _colour_and_notes(material, "Color", shader.inputs["Color"], *args, np.ones(3), "white", notes) * strength
+        emission = _scaled(_colour_and_notes(material, "Color", shader.inputs["Color"], *args, np.ones(3), "white", notes), strength)
         return zeros, emission
     if shader.type in GLOSSY_SHADERS and "Color" in shader.inputs:
         notes.append(f"material {material.name!r}: its {shader.bl_label} shader is baked as a diffuse reflection of its "
@@ -232,4 +244,4 @@ def _shader_corners(material, shader, args, fallback, notes, depth=0):
                      "its viewport colour and no emission (any light it emits is lost)")
     else:
         notes.append(f"material {material.name!r}: shader {shader.bl_idname} not understood, using its viewport colour")
-    return np.tile(fallback, (k, 1)), zeros
+    return _filled(fallback, k), zeros

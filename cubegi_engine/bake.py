@@ -152,7 +152,9 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
     def working(stage, done):
         return lambda message: Progress(stage, done, total, message, working=True)
 
-    used = np.ones(grid.count, dtype=bool) if whole_field else probes_used(grid, scene.points)
+    used = np.ones(grid.count, dtype=bool) if whole_field else (
+        yield from in_background(probes_used, working(Stage.CAPTURE, 0)("finding the probes the points use"), grid, scene.points))
+    yield from in_background(scene.point_areas, working(Stage.CAPTURE, 0)("the area of each point"))  # kept for the rest
     placement = None
     if settings.move_probes:
         placement = yield from in_background(place, working(Stage.CAPTURE, 0)("placing the probes"), grid, scene.points,
@@ -204,7 +206,8 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
 
     yield Progress(Stage.DIRECT, 1, total, f"direct light from {len(scene.lights)} lights")
     t = time.perf_counter()
-    landing = transport.landing_share() if settings.conserve_energy else None
+    landing = (yield from in_background(transport.landing_share, working(Stage.DIRECT, 1)("the share of each point's view that is "
+                                                                                       "surface"))) if settings.conserve_energy else None
     t_landing = time.perf_counter() - t
     shadows = {} if keep_shadows else None
     parts = yield from direct_light_steps(scene, renderer, settings, transport, landing, shadows, step=working(Stage.DIRECT, 1))

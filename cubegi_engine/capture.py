@@ -67,8 +67,8 @@ class ProbeCapture:
         t_capture = time.perf_counter() - t
         t = time.perf_counter()
         transport = yield from in_background(
-            Transport, step("building the tables (what each probe sees, and each point's near field)"),
-            scene, grid, cubes, visibility=visibility, proxy=proxy, near_field=near_field)
+            lambda: (Transport(scene, grid, cubes, visibility=visibility, proxy=proxy, near_field=near_field), scene.fingerprint())[0],
+            step("building the tables (what each probe sees, and each point's near field)"))
         return cls(grid, int(cube_size), bool(visibility), scene.fingerprint(), cubes, transport, t_capture,
                    time.perf_counter() - t, proxy, budget, bool(near_field))
 

@@ -21,7 +21,7 @@ import numpy as np
 from . import cubemap, nearfield, sh
 from . import lights as lights_mod
 from .emitters import emitter_direct
-from .transport import CubeCapture, capture_cubes, clip_planes
+from .transport import CubeCapture, clip_planes
 from .working import CAPTURE_DRAWS_PER_STEP, in_background, in_batches, run
 
 __all__ = ["DirectLight", "Shadow", "draw_shadow", "visibility", "light_direct", "direct_light", "EMISSION", "SKY"]
@@ -121,14 +121,19 @@ def draw_shadow(scene, renderer, settings, light, size=None) -> Shadow:
 
 
 def _cubes_in_batches(scene, renderer, eyes, edge, near, far, turns, step):
-    """Depth cube maps at ``eyes``, a batch of about CAPTURE_DRAWS_PER_STEP triangles drawn at
-    a time (a fixed batch: the same maps every time), handing control back between them."""
-    per = CAPTURE_DRAWS_PER_STEP // max(6 * len(scene.triangles), 1)
+    """Depth cube maps at ``eyes``, a batch of faces of about CAPTURE_DRAWS_PER_STEP triangles
+    drawn at a time (a fixed batch: the same maps every time; one face at least), handing
+    control back between them."""
+    eyes = np.asarray(eyes, dtype=np.float64).reshape(-1, 3)
+    vps = cubemap.cube_view_projections_many(eyes, near, far, turns)
+    face_eyes = np.repeat(eyes, 6, axis=0)
+    per = CAPTURE_DRAWS_PER_STEP // max(len(scene.triangles), 1)
     batches = yield from in_batches(
-        len(eyes), per, lambda a, b: capture_cubes(renderer, eyes[a:b], edge, near, far, with_bary=False,
-                                                   turns=None if turns is None else turns[a:b]),
-        lambda done: _working(step, f"direct light: shadow maps, {done} of {len(eyes)}"))
-    return CubeCapture(*(np.concatenate([getattr(c, f) for c in batches]) for f in ("tid", "bary", "dist", "backface")))
+        len(vps), per, lambda a, b: renderer.render(vps[a:b], face_eyes[a:b], None, edge, with_bary=False),
+        lambda done: _working(step, f"direct light: shadow maps, {done // 6} of {len(eyes)}"))
+    tid, bary, dist, back = (np.concatenate([batch[f] for batch in batches]) for f in range(4))
+    shape = (len(eyes), 6, edge, edge)
+    return CubeCapture(tid.reshape(shape), bary.reshape(shape + (3,)), dist.reshape(shape), back.reshape(shape))
 
 
 def draw_shadow_steps(scene, renderer, settings, light, size=None, step=None):
@@ -146,14 +151,16 @@ def draw_shadow_steps(scene, renderer, settings, light, size=None, step=None):
         tid, _, dist, back = renderer.render(vp[None], eye[None], axis[None], size or settings.sun_shadow_size, with_bary=False)
         shadow.ortho = (vp, axis, eye, tid[0], dist[0], back[0], radius)
         return shadow
-    near, far = clip_planes(scene.scale, _nearest_distance(scene.points, light.position))
+    nearest, is_soft = yield from in_background(lambda: (_nearest_distance(scene.points, light.position), soft(light, scene.points)),
+                                                _working(step, f"direct light: {light.name or 'a light'}'s shadow maps"))
+    near, far = clip_planes(scene.scale, nearest)
     if light.kind == "AREA":
         samples = light.samples if light.samples is not None and len(light.samples) else light.position[None]
         shadow.eyes = samples + light.direction * (AREA_EYE_LIFT * scene.scale)
         edge = size or (max(settings.area_shadow_size // 2, MIN_SHARED_EDGE) if len(samples) >= SHARED_EYES else settings.area_shadow_size)
         shadow.turns = cubemap.turns(len(shadow.eyes)) if len(shadow.eyes) > 1 else None
         shadow.cubes = yield from _cubes_in_batches(scene, renderer, shadow.eyes, edge, near, far, shadow.turns, step)
-    elif soft(light, scene.points):
+    elif is_soft:
         count = int(np.clip(SOFT_SAMPLES * SOFT_TRIANGLES / max(len(scene.triangles), 1), MIN_SOFT_SAMPLES, SOFT_SAMPLES))
         shadow.eyes = light.position + light.radius * sh.fibonacci_sphere(count)
         edge = size or max(settings.area_shadow_size, settings.shadow_size // 2)
@@ -161,7 +168,7 @@ def draw_shadow_steps(scene, renderer, settings, light, size=None, step=None):
         shadow.cubes = yield from _cubes_in_batches(scene, renderer, shadow.eyes, edge, near, far, shadow.turns, step)
     else:
         shadow.eyes = light.position[None]
-        shadow.cubes = capture_cubes(renderer, shadow.eyes, size or settings.shadow_size, near, far, with_bary=False)
+        shadow.cubes = yield from _cubes_in_batches(scene, renderer, shadow.eyes, size or settings.shadow_size, near, far, None, step)
     return shadow
 
 
@@ -220,7 +227,8 @@ def light_direct(scene, renderer, settings, light, shadows=None) -> np.ndarray:
 def light_direct_steps(scene, renderer, settings, light, shadows=None, step=None):
     """:func:`light_direct` as a generator: the shadow maps drawn (the GPU's, here), the
     shadow test of every point run in a thread while it hands control back."""
-    value = lights_mod.unshadowed(light, scene.points, scene.normals)
+    value = yield from in_background(lights_mod.unshadowed, _working(step, f"direct light: {light.name or 'a light'}"), light,
+                                     scene.points, scene.normals)
     lit = np.any(value > 0, axis=1)
     if not light.casts_shadow or not lit.any():
         return value
@@ -254,7 +262,9 @@ def direct_light_steps(scene, renderer, settings, transport, landing=None, shado
     step = step or (lambda message: Progress(Stage.DIRECT, 1, 1, message, working=True))
     t = time.perf_counter()
     parts, left_out = {}, []
-    reach = [float(lights_mod.unshadowed(light, scene.points, scene.normals).max(initial=0.0)) for light in scene.lights]
+    reach = yield from in_background(
+        lambda: [float(lights_mod.unshadowed(light, scene.points, scene.normals).max(initial=0.0)) for light in scene.lights],
+        step("direct light: where each light reaches"))
     brightest = max(reach, default=0.0)
     for k, (key, light) in enumerate(zip(lights_mod.light_keys(scene.lights), scene.lights)):
         if reach[k] <= LIGHT_LEFT_OUT * brightest:  # no shadow map drawn for it

@@ -106,7 +106,10 @@ class LightSolution:
     def bounce_sum(self) -> np.ndarray:
         if not self.bounces:
             return np.zeros_like(self.direct)
-        return np.sum(self.bounces, axis=0)
+        out = np.array(self.bounces[0], dtype=np.result_type(*self.bounces))  # in order, as np.sum over a stack adds them
+        for bounce in self.bounces[1:]:
+            out += bounce
+        return out
 
     @property
     def indirect(self) -> np.ndarray:

@@ -205,3 +205,107 @@ def test_two_grid_objects_whose_probes_all_stay_store_no_probe_offsets(empty_sce
     for ob in grid_objects.probe_grid_objects(bpy.context.scene):
         assert grid_objects.OFFSET_KEY not in ob, ob.name
         assert grid_objects.stored_probe_light(ob) is not None
+
+
+def _large_mixed_scene():
+    """Two 250K-corner grids, one of two materials and flat-shaded, one mirrored, with
+    coincident seams: a scene whose arrays take a while to make."""
+    red, blue = scenes.material("Red", (0.8, 0.1, 0.1)), scenes.material("Blue", (0.1, 0.1, 0.8))
+    bpy.ops.mesh.primitive_grid_add(x_subdivisions=250, y_subdivisions=250, size=2.0)
+    a = bpy.context.object
+    a.data.materials.append(red)
+    a.data.materials.append(blue)
+    a.data.polygons.foreach_set("material_index", (np.arange(len(a.data.polygons)) % 3 == 0).astype(np.int32))
+    a.data.polygons.foreach_set("use_smooth", np.zeros(len(a.data.polygons), dtype=bool))
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=256, ring_count=128, location=(0.0, 0.0, 1.0))
+    b = bpy.context.object
+    b.scale = (-1.0, 1.0, 1.0)  # mirrored
+    b.data.materials.append(blue)
+    return a, b
+
+
+def test_the_fast_mesh_readers_read_what_blenders_plain_api_gives(empty_scene, cubegi):
+    """Corners' vertices from the ``.corner_vert`` attribute, triangle materials from the face
+    attribute, positions as float32: the same numbers as ``loops``' ``vertex_index``, the loop
+    triangles' ``material_index`` and a float64 read of ``co`` (on every Blender version: a
+    version without the attribute takes the plain path)."""
+    sd = cubegi.cubegi_addon.scene_data
+    for ob in _large_mixed_scene():
+        mesh = ob.data
+        mesh.calc_loop_triangles()
+        plain = np.empty(len(mesh.loops), dtype=np.int64)
+        mesh.loops.foreach_get("vertex_index", plain)
+        np.testing.assert_array_equal(sd.corner_vertices(mesh), plain)
+        tri_mat = np.empty(len(mesh.loop_triangles), dtype=np.int64)
+        mesh.loop_triangles.foreach_get("material_index", tri_mat)
+        np.testing.assert_array_equal(sd._triangle_materials(mesh), tri_mat)
+        co = np.empty(len(mesh.vertices) * 3)
+        mesh.vertices.foreach_get("co", co)
+        np.testing.assert_array_equal(sd.vertex_positions(mesh), co.reshape(-1, 3))
+    assert len(np.unique(tri_mat)) == 1 and len(np.unique(sd._triangle_materials(_large_mixed_scene()[0].data))) == 2
+
+
+def test_welding_by_hash_groups_positions_as_numpys_unique_rows(cubegi):
+    """``_welded`` labels positions as ``np.unique(axis=0)`` groups them, on a float32 grid's
+    positions (regular bits, where a weak hash collides) with duplicates, -0.0 and NaN."""
+    sd = cubegi.cubegi_addon.scene_data
+    rng = np.random.default_rng(5)
+    grid = np.stack(np.meshgrid(*[np.linspace(-1, 1, 80, dtype=np.float32)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    co = np.concatenate([grid, grid[:1000], -0.0 * grid[:1]]).astype(np.float64)[rng.permutation(len(grid) + 1001)]
+    for points in (co, np.concatenate([co, [[np.nan, 0.0, 0.0], [np.nan, 0.0, 0.0]]])):
+        labels = sd._welded(points)
+        expected = np.unique(points + 0.0, axis=0, return_inverse=True)[1].ravel()
+        # Same partition: a label maps to one expected label and back.
+        pairs = np.unique(np.stack([labels, expected], axis=1), axis=0)
+        assert len(pairs) == len(np.unique(labels)) == len(np.unique(expected)), len(pairs)
+
+
+def test_a_large_scene_is_read_in_steps_and_gives_the_arrays_of_one_read(empty_scene, cubegi):
+    """A stepped bake reads Blender's data in one step and makes the arrays in a thread,
+    handing control back meanwhile; the arrays and targets are those of ``collect``. The
+    renderer is uploaded in steps too (a column at a time) and draws what one made at
+    once draws."""
+    from cubegi.cubegi_engine import cubemap
+    from cubegi.cubegi_engine.records import Progress, Stage
+
+    _large_mixed_scene()
+    sd, gc = cubegi.cubegi_addon.scene_data, cubegi.cubegi_addon.gpu_capture
+    working = Progress(Stage.CAPTURE, 0, 1, "reading the scene", working=True)
+    steps = sd.collect_steps(bpy.context, working)
+    count = 0
+    while True:
+        try:
+            assert next(steps) is working
+            count += 1
+        except StopIteration as stop:
+            stepped = stop.value
+            break
+    whole = sd.collect(bpy.context)
+    assert count >= 1  # control went back while the arrays were made
+    for name in ("points", "normals", "albedo", "emission", "triangles", "point_object", "back"):
+        np.testing.assert_array_equal(getattr(stepped.arrays, name), getattr(whole.arrays, name), err_msg=name)
+    assert [(t.object_name, t.mesh_name) for t in stepped.targets] == [(t.object_name, t.mesh_name) for t in whole.targets]
+    for a, b in zip(stepped.targets, whole.targets):
+        np.testing.assert_array_equal(a.loop_point, b.loop_point)
+    assert stepped.notes == whole.notes
+
+    arrays = whole.arrays
+    steps = gc.GpuRenderer.steps(arrays.points, arrays.triangles, working, sheet=arrays.sheet_triangles())
+    uploads = 0
+    while True:
+        try:
+            next(steps)
+            uploads += 1
+        except StopIteration as stop:
+            renderer = stop.value
+            break
+    assert uploads >= 4  # the id batch's three columns and the depth batch's, a step apiece
+    once = gc.GpuRenderer(arrays.points, arrays.triangles, sheet=arrays.sheet_triangles())
+    eye = np.array([[0.3, -0.2, 2.5]])
+    vps = cubemap.cube_view_projections_many(eye, 0.01, 10.0, None)
+    for with_bary in (True, False):
+        got = renderer.render(vps, np.repeat(eye, 6, axis=0), None, 32, with_bary=with_bary)
+        want = once.render(vps, np.repeat(eye, 6, axis=0), None, 32, with_bary=with_bary)
+        for g, w in zip(got, want):
+            np.testing.assert_array_equal(g, w)
+        assert (got[0] >= 0).mean() > 0.05  # the views see the scene (the sphere below)

@@ -54,7 +54,8 @@ def one(cuts, probes):
     before = _resident()
     _reset_peak()
     t = time.perf_counter()
-    report = pipeline.bake(bpy.context, BakeSettings(bounces=BOUNCES), resolution_for(probes))
+    report, longest = longest_step(pipeline.bake_steps(bpy.context, BakeSettings(bounces=BOUNCES), resolution_for(probes),
+                                                       progressive=True))
     seconds = time.perf_counter() - t
     drawn = report.capture_geometry
     return {
@@ -63,7 +64,24 @@ def one(cuts, probes):
         "capture_triangles": drawn["triangles"] if drawn else report.triangles, "bounces": len(report.bounces),
         "cube_size": report.settings["cube_size"], "seconds": seconds, "timings": report.timings,
         "peak_gb": _peak() / 2**30, "before_gb": before / 2**30, "gpu": _gpu(),
+        "longest_step_seconds": longest[0], "longest_step_after": longest[1],
     }
+
+
+def longest_step(steps):
+    """Drive a bake's steps as the modal operator does (with its preview); ``(result,
+    (seconds, message))``: the longest time Blender waited for a step, and the step before it
+    (what it waited on came after that one)."""
+    longest, message, last = (0.0, "the start"), "the start", time.perf_counter()
+    while True:
+        try:
+            step = next(steps)
+        except StopIteration as stop:
+            gap = time.perf_counter() - last
+            return stop.value, max(longest, (gap, message))
+        gap, now = time.perf_counter() - last, time.perf_counter()
+        longest = max(longest, (gap, message))
+        message, last = step.message, now
 
 
 def _status(field):
@@ -130,7 +148,8 @@ def run(out_dir, quick=False, log=print, timeout=900):
             results[sweep].append(rec)
             log(f"scaling: {rec['vertices']:,} vertices, {rec['probes']} probes ({rec['probes_captured']} captured, "
                 f"{rec['capture_triangles']:,} of {rec['triangles']:,} triangles drawn): {rec['seconds']:.1f} s, "
-                f"peak {rec['peak_gb']:.2f} GB")
+                f"peak {rec['peak_gb']:.2f} GB; longest step {rec['longest_step_seconds']:.2f} s (after "
+                f"{rec['longest_step_after']!r})")
     fits = {}
     if len(results["vertices"]) > 1:
         fits["seconds_vs_vertices"] = slope([r["vertices"] for r in results["vertices"]], [r["seconds"] for r in results["vertices"]])

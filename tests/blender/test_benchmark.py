@@ -55,6 +55,7 @@ def test_quick_scaling_benchmark_writes_both_sweeps(tmp_path):
     assert many["probes"] > 4 * few["probes"] and many["probes_captured"] > few["probes_captured"]
     for rec in data["vertices"] + data["probes"]:
         assert rec["peak_gb"] >= rec["before_gb"] > 0 and rec["timings"]["capture"] > 0
+        assert 0 < rec["longest_step_seconds"] < rec["seconds"] and rec["longest_step_after"]  # as the modal bake steps it
     assert set(data["fits"]) == {"seconds_vs_vertices", "seconds_vs_probes"}
     assert (tmp_path / "scaling.png").stat().st_size > 10_000
 

@@ -25,14 +25,15 @@ def _fail_at(monkeypatch, cubegi, stage):
     capture = __import__("cubegi.cubegi_engine.capture", fromlist=["x"])
     direct = __import__("cubegi.cubegi_engine.direct", fromlist=["x"])
     transport = __import__("cubegi.cubegi_engine.transport", fromlist=["x"])
+    gpu_capture = __import__("cubegi.cubegi_addon.gpu_capture", fromlist=["x"])
 
     def boom(*a, **k):
         raise Boom(stage)
 
     if stage == "collect":
-        monkeypatch.setattr(pipeline.scene_data, "collect", boom)
+        monkeypatch.setattr(pipeline.scene_data, "_assemble", boom)  # in the thread that makes the arrays
     elif stage == "gpu":
-        monkeypatch.setattr(pipeline, "GpuRenderer", boom)
+        monkeypatch.setattr(gpu_capture, "_batch_steps", boom)  # the scene's upload
     elif stage == "capture":
         monkeypatch.setattr(capture, "capture_cubes", boom)
     elif stage == "direct":

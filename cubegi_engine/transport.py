@@ -172,12 +172,12 @@ class Transport:
         self.index = index
         # Per point: trilinear weight x diffuse SH basis of its normal, (s, 8 * 9).
         basis = sh.diffuse_basis(scene.normals)
-        self.point_weights = (weight[:, :, None] * basis[:, None, :]).reshape(len(scene.points), COEFFS_PER_POINT).astype(np.float32)
+        self.point_weights = _outer_float32(weight, basis)
         self._dense = None  # the gather-project matrix, once made (gather_project_matrix)
         # (s,) points another object covers (no probe sees them: a floor point under a wall
         # standing on it, the underside of a block on the ground): they get no probe light,
         # and no sky.
-        self.covered = (np.abs(self.point_weights).max(axis=1) < 1e-6) & ~self.no_probe
+        self.covered = _weightless(self.point_weights) & ~self.no_probe
         # The near field (a final gather of each point's short-range surroundings), or None.
         self.near = None
         if near_field:
@@ -199,7 +199,7 @@ class Transport:
                 keep = ~self.near.enclosed(len(scene.points))[rows]
                 rows, w = rows[keep], w[keep]
             self.point_weights[rows] = (w[:, :, None] * basis[rows][:, None, :]).reshape(len(rows), COEFFS_PER_POINT)
-            self.covered[rows] = np.abs(self.point_weights[rows]).max(axis=1) < 1e-6
+            self.covered[rows] = _weightless(self.point_weights[rows])
         if self.near is not None and visibility and self.covered.any():
             self._light_under(scene, grid, index, trilinear_weight, basis, positions)
 
@@ -307,7 +307,7 @@ class Transport:
         light mostly leaves through the sky, or lands where no probe looks)."""
         unit = np.repeat(self.sky_projection[:, :, None], 3, axis=2)  # geometric: a uniform unit sky
         landing = np.clip(1.0 - self.interpolate(unit).astype(np.float64), 0.0, 1.0)
-        landing[np.abs(self.point_weights).max(axis=1) < 1e-6] = 0.0
+        landing[_weightless(self.point_weights)] = 0.0
         return landing
 
     def sky_coefficients(self, sky):
@@ -355,6 +355,21 @@ class Transport:
             g = np.take(flat, self.index[sl], axis=0).reshape(-1, COEFFS_PER_POINT, 3)
             out[sl] = np.matmul(self.point_weights[sl, None, :], g)[:, 0]
         return np.maximum(out, 0.0) if clamp else out
+
+
+def _outer_float32(weight, basis):
+    """``(s, 8 * 9)`` float32: each point's trilinear weights ``(s, 8)`` times its diffuse SH
+    basis ``(s, 9)``, products taken in float64 and rounded once (as a float64 array cast
+    would give), with no float64 array of that size made (1.2 GB at two million points)."""
+    out = np.empty((len(weight), 8, 9), dtype=np.float32)
+    np.multiply(weight[:, :, None], basis[:, None, :], out=out, casting="same_kind")
+    return out.reshape(len(weight), COEFFS_PER_POINT)
+
+
+def _weightless(point_weights):
+    """``(s,)`` bool: the rows of ``point_weights`` no probe light reaches (every entry
+    under 1e-6 in size), by two reductions rather than an absolute copy of the array."""
+    return np.maximum(point_weights.max(axis=1), -point_weights.min(axis=1)) < 1e-6
 
 
 def _gather_matrix(transport, s):

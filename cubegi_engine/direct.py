@@ -22,7 +22,7 @@ from . import cubemap, nearfield, sh
 from . import lights as lights_mod
 from .emitters import emitter_direct
 from .transport import CubeCapture, clip_planes
-from .working import CAPTURE_DRAWS_PER_STEP, in_background, in_batches, run
+from .working import CAPTURE_DRAWS_PER_STEP, in_background, in_batches, run, start, wait
 
 __all__ = ["DirectLight", "Shadow", "draw_shadow", "visibility", "light_direct", "direct_light", "EMISSION", "SKY"]
 
@@ -366,22 +366,37 @@ def sky_direct_steps(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY
     pts, nrm = scene.points[which], scene.normals[which]
     seen = np.zeros((len(which), 3))
     facing = np.zeros((len(which), 3))
+    sides, scale = scene.sides(), scene.scale
+
+    def tests(first, tid, dist, back):
+        """The shadow tests of a batch of maps: ``[(k, receivers, their visibility)]``."""
+        out = []
+        for j in range(len(tid)):
+            k = first + j
+            on = np.flatnonzero(nrm @ dirs[k] > 0)
+            if len(on):
+                out.append((k, on, lights_mod.ortho_visibility(pts[on], nrm[on], vps[k], -dirs[k], eyes[k], tid[j], dist[j], back[j],
+                                                                scene.triangles, scene.points, which[on], radius, scale, sides)))
+        return out
+
+    def add(done):
+        for k, on, vis in done:
+            w = (nrm[on] @ dirs[k])[:, None] * pattern[k][None, :]
+            seen[on] += w * vis[:, None]
+            facing[on] += w
+
+    # Each batch's maps are drawn (the GPU's work, on this thread) while the batch before is
+    # tested in a thread; the sums are taken in order.
+    job = None
     for first in range(0, len(dirs), SKY_MAPS_AT_ONCE):  # (a few hundred MB of maps at once, not more)
         tid, _, dist, back = renderer.render(vps[first : first + SKY_MAPS_AT_ONCE], eyes[first : first + SKY_MAPS_AT_ONCE],
                                              -dirs[first : first + SKY_MAPS_AT_ONCE], size, with_bary=False)
-        for j in range(len(tid)):
-            k = first + j
-            d = dirs[k]
-            cos = nrm @ d
-            on = np.flatnonzero(cos > 0)
-            if not len(on):
-                continue
-            vis = lights_mod.ortho_visibility(pts[on], nrm[on], vps[k], -d, eyes[k], tid[j], dist[j], back[j],
-                                              scene.triangles, scene.points, which[on], radius, scene.scale, scene.sides())
-            w = cos[on, None] * pattern[k][None, :]
-            seen[on] += w * vis[:, None]
-            facing[on] += w
-            yield _working(step, f"direct light: the sky, {k + 1} of {len(dirs)} directions")
+        if job is not None:
+            add((yield from wait(job, _working(step, f"direct light: the sky, {first} of {len(dirs)} directions"))))
+        job = start(tests, first, tid, dist, back)
+        yield _working(step, f"direct light: the sky, {first + len(tid)} of {len(dirs)} directions drawn")
+    if job is not None:
+        add((yield from wait(job, _working(step, f"direct light: the sky, {len(dirs)} of {len(dirs)} directions"))))
     open_sky = np.ones((len(which), 3))
     if getattr(scene, "sky_map", None) is not None:  # the pattern's SH, as diffuse light per normal
         n = 16

@@ -12,7 +12,7 @@ thread runs leaves the thread to finish in the background; its result is dropped
 
 import threading
 
-__all__ = ["WORKING_SECONDS", "CAPTURE_DRAWS_PER_STEP", "run", "in_background", "in_batches"]
+__all__ = ["WORKING_SECONDS", "CAPTURE_DRAWS_PER_STEP", "run", "in_background", "in_batches", "start", "wait"]
 
 # Seconds between the steps a long piece of work hands back.
 WORKING_SECONDS = 0.1
@@ -22,27 +22,45 @@ WORKING_SECONDS = 0.1
 CAPTURE_DRAWS_PER_STEP = 2_500_000
 
 
+class Job:
+    """``fn(*args, **kwargs)`` running in a thread of its own (see :func:`start`)."""
+
+    def __init__(self, fn, args, kwargs):
+        self.out = {}
+
+        def work():
+            try:
+                self.out["value"] = fn(*args, **kwargs)
+            except BaseException as exc:  # handed to the generator's caller
+                self.out["error"] = exc
+
+        self.thread = threading.Thread(target=work, name="cubegi-work", daemon=True)
+        self.thread.start()
+
+
+def start(fn, *args, **kwargs):
+    """Start ``fn(*args, **kwargs)`` in a thread; :func:`wait` for its result. Between the
+    two the caller can do work of its own (the GPU's, which is the main thread's)."""
+    return Job(fn, args, kwargs)
+
+
+def wait(job, working):
+    """A generator yielding ``working`` (a Progress) every WORKING_SECONDS until ``job``
+    ends, returning its result (or raising its exception)."""
+    while True:
+        job.thread.join(WORKING_SECONDS)
+        if not job.thread.is_alive():
+            break
+        yield working
+    if "error" in job.out:
+        raise job.out["error"]
+    return job.out["value"]
+
+
 def in_background(fn, working, *args, **kwargs):
     """``fn(*args, **kwargs)`` in a thread; a generator yielding ``working`` (a Progress) every
     WORKING_SECONDS while it runs, returning its result (or raising its exception)."""
-    out = {}
-
-    def work():
-        try:
-            out["value"] = fn(*args, **kwargs)
-        except BaseException as exc:  # handed to the generator's caller
-            out["error"] = exc
-
-    thread = threading.Thread(target=work, name="cubegi-work", daemon=True)
-    thread.start()
-    while True:
-        thread.join(WORKING_SECONDS)
-        if not thread.is_alive():
-            break
-        yield working
-    if "error" in out:
-        raise out["error"]
-    return out["value"]
+    return (yield from wait(start(fn, *args, **kwargs), working))
 
 
 def in_batches(count, size, run_batch, working):

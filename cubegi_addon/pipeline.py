@@ -161,9 +161,12 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
     result = yield from steps
 
     t = time.perf_counter()
-    layers_per_target = yield from in_background(
-        lambda: (_note_capture(collected, result, grid), [_layers(target, result, arrays, lit) for target in collected.targets])[1],
-        Progress(Stage.TAIL, total, total, "the light of each mesh's vertices", working=True))
+    def vertex_layers():  # numpy alone: in a thread
+        _note_capture(collected, result, grid)
+        return [_layers(target, result, arrays, lit) for target in collected.targets]
+
+    layers_per_target = yield from in_background(vertex_layers, Progress(Stage.TAIL, total, total, "the light of each mesh's vertices",
+                                                                         working=True))
     yield Progress(Stage.TAIL, total, total, "the light of every mesh is ready", working=True)
     state = None
     if groups is not None:  # each group's light: the bake's, per source (kept for updates too)

@@ -66,9 +66,11 @@ class ProbeCapture:
         cubes = CubeCapture(*(np.concatenate([getattr(c, f) for c in batches]) for f in ("tid", "bary", "dist", "backface")))
         t_capture = time.perf_counter() - t
         t = time.perf_counter()
-        transport = yield from in_background(
-            lambda: (Transport(scene, grid, cubes, visibility=visibility, proxy=proxy, near_field=near_field), scene.fingerprint())[0],
-            step("building the tables (what each probe sees, and each point's near field)"))
+        def tables():
+            scene.fingerprint()  # made here, in the thread, and kept on the snapshot for below
+            return Transport(scene, grid, cubes, visibility=visibility, proxy=proxy, near_field=near_field)
+
+        transport = yield from in_background(tables, step("building the tables (what each probe sees, and each point's near field)"))
         return cls(grid, int(cube_size), bool(visibility), scene.fingerprint(), cubes, transport, t_capture,
                    time.perf_counter() - t, proxy, budget, bool(near_field))
 

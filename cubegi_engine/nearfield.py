@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import sh
+from . import convergence, sh
 
 __all__ = ["NearField", "build", "ray_pattern", "NEAR_REACH", "NEAR_RAYS", "MAX_CANDIDATES", "MAX_PAIRS"]
 
@@ -222,19 +222,24 @@ class NearField:
             out[rows] = self._gather(radiance, local=True) - probe_part
         return out
 
-    def correct_sum(self, light, probe_part, albedo, before, iterations=4):
+    def correct_sum(self, light, probe_part, albedo, before):
         """The near field of a sum of bounces ``light (s, 3)`` (the probes' light of bounces
         N+1, N+2, ...; ``probe_part`` as in :meth:`correct`), each gathering from the one
         before: ``L' = light - probe_part + G albedo (before + L')``, with ``before`` bounce
-        N's light (corrected). A few Jacobi steps (``G albedo`` takes at most the albedo
-        of the light it gathers: the steps shrink like it)."""
+        N's light (corrected). Jacobi steps until settled (``G albedo`` takes at most the
+        albedo of the light it gathers: the steps shrink like it;
+        :func:`~cubegi_engine.convergence.fixed_point`)."""
         out = np.array(light, dtype=np.float64, copy=True)
         if not self.count:
             return out
         base = out[self.rows] - probe_part
         albedo = np.asarray(albedo, dtype=np.float64)
-        for _ in range(iterations):
-            out[self.rows] = np.maximum(base + self.gather(albedo * (before + out)), 0.0)
+
+        def step(rows_light):
+            out[self.rows] = rows_light
+            return np.maximum(base + self.gather(albedo * (before + out)), 0.0)
+
+        out[self.rows], _ = convergence.fixed_point(step, out[self.rows])
         return out
 
 

@@ -30,7 +30,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .convergence import gmres
+from .convergence import fixed_point, gmres
 from .errors import BakeError
 from .lights import light_keys
 from .solve import energy_factor
@@ -321,7 +321,7 @@ class SceneLight:
                 src.indirect = self.scene.zero_dark_points_inplace(self.op.light(src.bounces.sum(axis=0) + src.tail))
         self.solve_seconds = time.perf_counter() - t
 
-    def _near_field(self, near, iterations=4):
+    def _near_field(self, near):
         """Every source's light with the near field (:mod:`cubegi_engine.nearfield`), as the
         one-shot bake makes it: each bounce gathered once more from the one before, then
         scaled per channel to the total its probe light has (with the energy balance: the
@@ -355,9 +355,8 @@ class SceneLight:
             if k < count:
                 d = near.delta(base, part, albedo * prev)
             else:  # the tail: the sum of the bounces after the last, each from the one before
-                d = np.zeros_like(base)
-                for _ in range(iterations):
-                    d = near.delta(base, part, albedo * (prev + base + d))
+                settled, _ = fixed_point(lambda x: base + near.delta(base, part, albedo * (prev + x)), base)
+                d = settled - base
             if self.op.landing is not None:
                 probe = ((self.op.u @ c).reshape(n, 3) * weights).sum(axis=0)
                 added = ((balanced @ d).reshape(n, 3) * weights).sum(axis=0)

@@ -94,3 +94,15 @@ def test_energy_conservation_makes_received_power_equal_landed_power():
     # No light sent or received: factor 1, nothing divided by zero.
     _, factor = conserve_energy(np.zeros((50, 3)), sent, landing, areas)
     np.testing.assert_array_equal(factor, 1.0)
+
+
+def test_fixed_point_settles_a_contraction_and_stops_at_its_cap():
+    a = np.array([[0.4, 0.3], [0.2, 0.5]])  # eigenvalues 0.7 and 0.2
+    b = np.array([1.0, 2.0])
+    x, steps = convergence.fixed_point(lambda x: a @ x + b, np.zeros(2))
+    assert np.abs(x - np.linalg.solve(np.eye(2) - a, b)).max() <= 1e-5 * np.abs(x).max()
+    assert 20 < steps < convergence.FIXED_POINT_STEPS
+    _, capped = convergence.fixed_point(lambda x: 0.999 * x + 1.0, np.zeros(1), max_steps=7)
+    assert capped == 7
+    same, one = convergence.fixed_point(lambda x: x, np.ones(3))
+    assert one == 1 and np.array_equal(same, np.ones(3))

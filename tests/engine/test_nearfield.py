@@ -325,3 +325,43 @@ def test_longer_rays_for_some_points_replace_their_rows():
     # Replacing rows a field already has: the old ones go.
     again = far.replaced_rows(far)
     assert again.rows.tolist() == [1] and np.allclose(again.gather(radiance), far.gather(radiance))
+
+
+def _grid(lo, hi, z, n, up=True):
+    """A square from ``lo`` to ``hi`` (x, y) at height ``z`` cut into ``n`` x ``n`` cells:
+    its ``(n+1)^2`` points and ``2 n^2`` triangles facing up (or down)."""
+    t = np.linspace(lo, hi, n + 1)
+    pts = np.array([[x, y, z] for y in t for x in t])
+    k = np.arange(n * (n + 1)).reshape(n, n + 1)[:, :n].ravel()  # each cell's lower-left corner
+    a, b, c, d = k, k + 1, k + n + 2, k + n + 1
+    tris = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    return pts, (tris if up else tris[:, ::-1])
+
+
+def test_light_trapped_between_two_close_plates_is_summed_to_the_end():
+    """A lamp's white back 1 cm under a white ceiling: the tail's light bounces between them
+    (each round trip keeps albedo^2 of it); the near field's sum of those bounces equals the
+    linear system's solution, not the few first terms of it."""
+    lamp, ceiling = _grid(-0.2, 0.2, 0.0, 8), _grid(-0.3, 0.3, 0.01, 12, up=False)
+    pts, tris = _scene(lamp, ceiling)
+    normals = np.zeros_like(pts)
+    normals[: len(lamp[0]), 2], normals[len(lamp[0]):, 2] = 1.0, -1.0
+    near = nearfield.build(pts, normals, 0.05, tris, rays=64)
+    assert near.count > len(lamp[0])
+    albedo = np.full((len(pts), 3), 0.8)
+    light = np.full((len(pts), 3), 0.3)  # the probes' light of the tail
+    part = np.full((near.count, 3), 0.2)  # the probes' light in the hit directions
+    before = np.full((len(pts), 3), 1.0)
+    summed = near.correct_sum(light, part, albedo, before)
+    # The same sum solved: L_rows = base + G a (before + L), with L the probes' light off the rows.
+    g = np.stack([near.gather(np.repeat(np.eye(len(pts))[:, [k]], 3, axis=1))[:, 0] for k in range(len(pts))], axis=1)
+    rows = near.rows
+    off = np.setdiff1d(np.arange(len(pts)), rows)
+    rhs = light[rows] - part + g @ (0.8 * before) + 0.8 * g[:, off] @ light[off]
+    solved = np.linalg.solve(np.eye(near.count) - 0.8 * g[:, rows], rhs)
+    assert np.abs(summed[rows] - solved).max() <= 1e-5 * np.abs(solved).max()
+    # A handful of bounces would miss a good share of it: the sum is not a few terms.
+    few = light.copy()
+    for _ in range(4):
+        few[rows] = light[rows] - part + near.gather(albedo * (before + few))
+    assert (solved - few[rows]).max() > 0.05 * solved.max()

@@ -14,7 +14,7 @@ from dataclasses import replace
 import bpy
 import numpy as np
 
-from ..cubegi_engine import metrics, relight
+from ..cubegi_engine import emitters, metrics, relight
 from ..cubegi_engine.bake import bake_steps as engine_bake_steps
 from ..cubegi_engine.bake import run
 from ..cubegi_engine.errors import BakeError
@@ -231,6 +231,10 @@ def _coarse_objects(arrays, grid):
     return [arrays.object_names[k] for k in np.unique(owner) if np.median(edge[owner == k]) > cell]
 
 
+# Emitters close to a surface named one by one, up to this many.
+TRAPPED_NOTES = 3
+
+
 def _note_capture(collected, result, grid):
     no_probe = result.capture.transport.no_probe
     if collected.arrays.dark is not None:
@@ -243,6 +247,17 @@ def _note_capture(collected, result, grid):
             f"them all lie in a finer grid's box), on {', '.join(names)}; add a probe grid over them if they should "
             "get indirect light"
         )
+    names = collected.arrays.object_names
+    traps = emitters.trapped_light(collected.arrays, result.capture.transport.near)
+    for trap in traps[:TRAPPED_NOTES]:
+        collected.notes.append(
+            f"{names[trap.emitter]}: an emitter {100 * trap.gap:.2g} cm from {names[trap.surface]} ({trap.points} points of "
+            f"{names[trap.surface]} see it over up to {100 * trap.view:.0f}% of their view), a gap finer than the probes "
+            "resolve: the light bouncing between them is gathered by the near field alone and comes out darker than "
+            "Cycles' there (see docs/accuracy.md, a lamp close to a surface)"
+        )
+    if len(traps) > TRAPPED_NOTES:
+        collected.notes.append(f"and {len(traps) - TRAPPED_NOTES} more emitters as close to a surface (the same holds there)")
     coarse = _coarse_objects(collected.arrays, grid)
     if coarse:
         collected.notes.append(

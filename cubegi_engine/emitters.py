@@ -17,13 +17,15 @@ the points; see docs/accuracy.md), and ``SAMPLES`` cube maps per emissive
 object at the area-shadow size.
 """
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from . import cubemap
 from . import lights as lights_mod
 from .transport import capture_cubes, clip_planes
 
-__all__ = ["emissive_triangles", "emitter_direct", "SAMPLES"]
+__all__ = ["emissive_triangles", "emitter_direct", "trapped_light", "TrappedLight", "SAMPLES"]
 
 # Shadow sample points per emissive object (each drawn from both faces). The white box's
 # 0.5 m panel (8 triangles), direct light against Cycles: 8 points at the triangles'
@@ -49,6 +51,57 @@ def emissive_triangles(scene):
 # formula then sees edge-on (no light); moved into its face it sees that face's light, and
 # a coplanar emitter beside it (a panel set into a ceiling) falls below its hemisphere.
 RECEIVER_NUDGE = 1e-5
+# A surface point is between an emitter and itself (light trapped in the gap) where emissive
+# surfaces fill at least this share of its cosine-weighted view within the near field's reach.
+TRAPPED_VIEW = 0.5
+
+
+@dataclass(frozen=True)
+class TrappedLight:
+    """An emitter close in front of a surface, nearer than the near field's reach (a share of
+    a probe cell): the light bouncing between them is gathered by the near field alone.
+    ``emitter``, ``surface``: object indices (``SceneArrays.point_object``); ``gap``: the
+    median distance of the surface's points from the emitter, along their normals;
+    ``points``: the surface's points that face it; ``view``: the largest share of such a
+    point's view the emitter fills."""
+
+    emitter: int
+    surface: int
+    gap: float
+    points: int
+    view: float
+
+
+def trapped_light(scene, near, at_least=TRAPPED_VIEW):
+    """Where an emitter fills at least ``at_least`` of a surface point's view within the
+    near field's reach (``near``: :class:`~cubegi_engine.nearfield.NearField`): a list of
+    :class:`TrappedLight`, one per (emitter, surface) pair, largest first. Empty without a
+    near field or emitters, or where ``scene.point_object`` is not given."""
+    if near is None or not near.count or scene.point_object is None:
+        return []
+    emits = np.any(scene.emission > 0, axis=1)
+    if not emits.any():
+        return []
+    on_emitter = near.hit_weight * emits[near.hit_corner]  # (h, 3)
+    view = np.bincount(near.hit_row, on_emitter.sum(axis=1), minlength=near.count)
+    rows = np.flatnonzero((view >= at_least) & ~emits[near.rows])
+    if not len(rows):
+        return []
+    owner = scene.point_object
+    hits = np.flatnonzero(np.isin(near.hit_row, rows) & (on_emitter.sum(axis=1) > 0))
+    point = near.rows[near.hit_row[hits]]
+    # Each hit's distance along the point's normal, and the emitter object it lands on.
+    corner = near.hit_corner[hits]
+    offset = np.einsum("hkj,hj->hk", scene.points[corner] - scene.points[point][:, None], scene.normals[point])
+    dist = (on_emitter[hits] * offset).sum(axis=1) / on_emitter[hits].sum(axis=1)
+    emitter = owner[corner[np.arange(len(hits)), np.argmax(on_emitter[hits], axis=1)]]
+    found = []
+    for e, surface in {(int(a), int(b)) for a, b in zip(emitter, owner[point])}:
+        mine = (emitter == e) & (owner[point] == surface)
+        facing = np.unique(point[mine])
+        found.append(TrappedLight(e, surface, float(np.median(np.abs(dist[mine]))), len(facing),
+                                  float(view[np.isin(near.rows, facing)].max())))
+    return sorted(found, key=lambda t: -t.points)
 
 
 def _two_sided_ff(points, normals, tri):

@@ -505,6 +505,30 @@ def test_meshes_too_coarse_for_vertex_light_are_named(empty_scene, cubegi):
     assert len(coarse) == 1 and coarse[0].startswith("Slab:") and "Fine" not in coarse[0], notes
 
 
+def test_a_lamp_close_under_a_ceiling_is_named_with_the_gap(empty_scene, cubegi):
+    """An emissive panel 1 cm under a ceiling traps light in a gap no probe resolves: the
+    bake names the panel, the ceiling and the gap, and still gives the ceiling over it the
+    light bouncing between them (more indirect light there than beside the panel). The same
+    panel half a metre down is not named."""
+    v, f = scenes.box_mesh((-1, -1, 0), (1, 1, 2), (8, 8, 8), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    ceiling_v, ceiling_f = scenes.grid_patch((-1, -1, 1.99), (0, 2, 0), (2, 0, 0), 16, 16)  # faces down
+    ceiling = scenes.mesh_object("Ceiling", ceiling_v, ceiling_f, scenes.material("Plaster", (0.8, 0.8, 0.8)))
+    lamp_v, lamp_f = scenes.grid_patch((-0.25, -0.25, 1.98), (0, 0.5, 0), (0.5, 0, 0), 4, 4)
+    lamp = scenes.mesh_object("Panel", lamp_v, lamp_f, scenes.material("Glow", (0.8, 0.8, 0.8), emission=(1, 1, 1), strength=10.0))
+    assert bpy.ops.cubegi.bake(bounces=3, cube_size=8) == {"FINISHED"}
+    trapped = [n for n in _notes() if "gathered by the near field alone" in n]
+    assert len(trapped) == 1 and trapped[0].startswith("Panel: an emitter 1 cm from Ceiling"), _notes()
+    attrs = cubegi.cubegi_addon.attributes
+    indirect = attrs.read(ceiling.data, attrs.INDIRECT).mean(axis=1)
+    xy = np.array([v.co[:2] for v in ceiling.data.vertices])
+    over = np.all(np.abs(xy) < 0.2, axis=1)
+    assert over.any() and indirect[over].mean() > 2.0 * indirect[~over].mean()
+    lamp.location.z = -0.5
+    assert bpy.ops.cubegi.bake(bounces=3, cube_size=8) == {"FINISHED"}
+    assert not [n for n in _notes() if "gathered by the near field alone" in n], _notes()
+
+
 @pytest.mark.parametrize("how", ["hide_set", "hide_viewport", "collection"])
 def test_the_cycles_reference_bakes_objects_hidden_only_in_the_viewport(empty_scene, cubegi, how):
     """Cycles bakes only what it can select: a wall hidden in the viewport is shown for the

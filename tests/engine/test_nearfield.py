@@ -365,3 +365,27 @@ def test_light_trapped_between_two_close_plates_is_summed_to_the_end():
     for _ in range(4):
         few[rows] = light[rows] - part + near.gather(albedo * (before + few))
     assert (solved - few[rows]).max() > 0.05 * solved.max()
+
+
+def test_an_emitter_close_in_front_of_a_surface_is_found_with_its_gap():
+    from cubegi.cubegi_engine.emitters import trapped_light
+    from cubegi.cubegi_engine.scene import SceneArrays
+
+    def scene(gap):
+        lamp, ceiling = _grid(-0.2, 0.2, 0.0, 8), _grid(-0.3, 0.3, gap, 12, up=False)
+        pts, tris = _scene(lamp, ceiling)
+        normals = np.zeros_like(pts)
+        normals[: len(lamp[0]), 2], normals[len(lamp[0]):, 2] = 1.0, -1.0
+        emission = np.zeros_like(pts)
+        emission[: len(lamp[0])] = 5.0
+        owner = np.repeat([0, 1], [len(lamp[0]), len(ceiling[0])])
+        arrays = SceneArrays(pts, normals, np.full_like(pts, 0.8), emission, tris, point_object=owner, object_names=["Lamp", "Ceiling"])
+        return arrays, nearfield.build(pts, normals, 0.05, tris, rays=64)
+
+    arrays, near = scene(0.01)
+    (found,) = trapped_light(arrays, near)
+    assert (found.emitter, found.surface) == (0, 1) and abs(found.gap - 0.01) < 1e-6
+    assert found.points >= 25 and found.view > 0.9
+    assert trapped_light(*scene(0.2)) == []  # out of the near field's reach
+    arrays.emission[:] = 0.0
+    assert trapped_light(arrays, near) == []  # a plain surface close to another: nothing trapped

@@ -254,7 +254,8 @@ def _note_capture(collected, result, grid):
             f"{names[trap.emitter]}: an emitter {100 * trap.gap:.2g} cm from {names[trap.surface]} ({trap.points} points of "
             f"{names[trap.surface]} see it over up to {100 * trap.view:.0f}% of their view), a gap finer than the probes "
             "resolve: the light bouncing between them is gathered by the near field alone and comes out darker than "
-            "Cycles' there (see docs/accuracy.md, a lamp close to a surface)"
+            "Cycles' there, and the light leaking out of the gap is only estimated by the energy balance, so the rest "
+            "of the scene's indirect light can be off by a fifth either way (see docs/accuracy.md, a lamp close to a surface)"
         )
     if len(traps) > TRAPPED_NOTES:
         collected.notes.append(f"and {len(traps) - TRAPPED_NOTES} more emitters as close to a surface (the same holds there)")

@@ -27,8 +27,8 @@ DIVERGENT_RATIO = 0.999
 # Up to this estimated share of the indirect light still missing, the geometric tail is
 # used; above it, the tail is solved for.
 GEOMETRIC_TAIL_LIMIT = 0.01
-# A fixed-point iteration stops once a step changes its vector by at most this share of the
-# vector's largest entry, or after FIXED_POINT_STEPS steps.
+# A fixed-point iteration stops once the error it estimates is left is at most this share of
+# the vector's largest entry, or after FIXED_POINT_STEPS steps (see fixed_point).
 FIXED_POINT_TOLERANCE = 1e-6
 FIXED_POINT_STEPS = 64
 

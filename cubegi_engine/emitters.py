@@ -96,7 +96,7 @@ def trapped_light(scene, near, at_least=TRAPPED_VIEW):
     dist = (on_emitter[hits] * offset).sum(axis=1) / on_emitter[hits].sum(axis=1)
     emitter = owner[corner[np.arange(len(hits)), np.argmax(on_emitter[hits], axis=1)]]
     found = []
-    for e, surface in {(int(a), int(b)) for a, b in zip(emitter, owner[point])}:
+    for e, surface in np.unique(np.stack([emitter, owner[point]], axis=1), axis=0).tolist():
         mine = (emitter == e) & (owner[point] == surface)
         facing = np.unique(point[mine])
         found.append(TrappedLight(e, surface, float(np.median(np.abs(dist[mine]))), len(facing),

@@ -44,14 +44,15 @@ def main():
 
     import bpy
 
-    from cubegi_engine.__main__ import load_extension
+    from tools import load_extension
 
     load_extension()
-    from cubegi.cubegi_addon import animation, attributes, demo, pipeline, reference, scene_data, session
+    from cubegi.cubegi_addon import animation, attributes, pipeline, reference, scene_data, session
     from cubegi.cubegi_engine import benchmark as analysis
     from cubegi.cubegi_engine import metrics
     from cubegi.cubegi_engine.bake import run
     from cubegi.cubegi_engine.settings import BakeSettings
+    from tools import demo
 
     settings = BakeSettings()
     variants = {}

@@ -35,11 +35,12 @@ def main():
 
     import bpy
 
-    from cubegi_engine.__main__ import load_extension
+    from tools import load_extension
 
     load_extension()
-    from cubegi.cubegi_addon import demo, live, pipeline, session
+    from cubegi.cubegi_addon import live, pipeline, session
     from cubegi.cubegi_engine.settings import BakeSettings
+    from tools import demo
 
     demo.build_room()
     settings = BakeSettings(cube_size=32, bounces=5)

@@ -27,12 +27,13 @@ def main():
 
     import bpy
 
-    from cubegi_engine.__main__ import load_extension
+    from tools import load_extension
 
     load_extension()
-    from cubegi.cubegi_addon import demo, gpu_capture, grid_objects, pipeline, scene_data, session
+    from cubegi.cubegi_addon import gpu_capture, grid_objects, pipeline, scene_data, session
     from cubegi.cubegi_engine import transport
     from cubegi.cubegi_engine.settings import BakeSettings
+    from tools import demo
 
     demo.build_room()
     settings = BakeSettings(cube_size=32, bounces=args.bounces)

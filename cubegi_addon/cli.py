@@ -1,5 +1,6 @@
-"""Command line: ``python -m cubegi_engine bake IN.blend -o OUT.blend ...``, ``demo`` and
-``benchmark``.
+"""Command line: ``bake IN.blend -o OUT.blend ...``, ``bake-animation`` and ``batch``, from
+``blender -c cubegi`` (:mod:`.command`) and ``python -m cubegi_engine`` (the source tree's
+``tools/cli.py``, which adds ``demo`` and ``benchmark``).
 
 Arguments, settings and every path are checked before bpy is imported, so bad input fails
 fast with one line (exit status 2) and writes nothing. The bake runs the add-on's pipeline
@@ -8,10 +9,13 @@ written. Outputs are written whole or not at all (:mod:`.files`).
 """
 
 import argparse
+import importlib
 import json
 import os
 import signal
 import sys
+from collections.abc import Callable
+from dataclasses import dataclass
 
 from ..cubegi_engine.errors import BakeError, Interrupted
 from ..cubegi_engine.settings import QUALITY, BakeSettings
@@ -23,7 +27,7 @@ DEBUG_ENV = "CUBEGI_DEBUG"
 BLEND_MAGIC, GZIP_MAGIC, ZSTD_MAGIC = b"BLENDER", b"\x1f\x8b", b"\x28\xb5\x2f\xfd"
 
 
-def _parser(prog="python -m cubegi_engine"):
+def _parser(prog, more=None):
     p = argparse.ArgumentParser(prog=prog, description="CubeGI: cube-map probe global illumination for Blender")
     sub = p.add_subparsers(dest="command", required=True)
     b = sub.add_parser("bake", help="bake a .blend file's light into CubeGI colour attributes")
@@ -31,36 +35,25 @@ def _parser(prog="python -m cubegi_engine"):
     b.add_argument("-o", "--output", required=True, help="where to write the baked .blend")
     b.add_argument("--gltf", metavar="OUT.glb", help="also export the baked scene as glTF binary with its light kept above 1 "
                    "(float attributes _CUBEGI_LIGHT, _CUBEGI_INDIRECT; see docs/export.md)")
-    _bake_options(b)
+    bake_options(b)
     a = sub.add_parser("bake-animation", help="bake every frame's light into a cache folder beside the output (OUT.cubegi/)")
     a.add_argument("input", help="the .blend file to bake (never written)")
     a.add_argument("-o", "--output", required=True, help="where to write the baked .blend (its cache: OUT.cubegi/ beside it)")
     a.add_argument("--frames", nargs=2, type=int, metavar=("FIRST", "LAST"), help="frames to bake (default: the scene's range)")
     a.add_argument("--cache-dir", help=argparse.SUPPRESS)  # a chunk of a distributed run writes into the shared cache
-    _bake_options(a)
+    bake_options(a)
     _cluster_options(a)
     c = sub.add_parser("batch", help="bake many files on Dask (a local pool of processes, or a running scheduler)")
     c.add_argument("inputs", nargs="+", help="the .blend files to bake (never written)")
     c.add_argument("--out-dir", required=True, help="folder for NAME.blend and NAME.json per input, and batch.json")
-    _bake_options(c)
+    bake_options(c)
     _cluster_options(c)
-    d = sub.add_parser("demo", help="build, bake and render the demo Room")
-    d.add_argument("--out", default="out/demo", help="folder for room.blend, room.png and report.json")
-    d.add_argument("--no-render", action="store_true", help="skip the PNG")
-    _bake_options(d, demo=True)
-    m = sub.add_parser("benchmark", help="measure CubeGI's error against run time, and Cycles' (writes results.json/.md and a plot)")
-    m.add_argument("--out", default="out/benchmark", help="folder for the results (and the cached Cycles references)")
-    m.add_argument("--quick", action="store_true", help="a small sweep that runs in a few minutes (a smoke test)")
-    m.add_argument("--scenes", nargs="+", help="only these scenes (default: all; with --quick, the scenes built in code, not the public ones)")
-    m.add_argument(
-        "--scaling", action="store_true",
-        help="instead: bake the Room subdivided to 6K-1M vertices and with 50-2,000 probes, each in its own process, and "
-        "write scaling.json and scaling.png (time per stage, peak memory)",
-    )
+    if more:
+        more.parsers(sub)
     return p
 
 
-def _bake_options(p, demo=False):
+def bake_options(p, demo=False):
     d = BakeSettings()
     p.add_argument("--grid", nargs=3, type=int, metavar=("NX", "NY", "NZ"), help="probes along X, Y and Z")
     p.add_argument(
@@ -156,7 +149,7 @@ def _forwarded(args):
 
 
 def cmd_batch(args):
-    _settings(args)
+    checked_settings(args)
     if args.workers is not None and args.workers < 1:
         raise BakeError(f"--workers must be 1 or more, got {args.workers}")
     # A file that cannot be baked (missing, not a .blend) is reported in the summary, as a
@@ -209,7 +202,7 @@ def _validated(make):
         raise BakeError(f"{option}{exc}") from None
 
 
-def _settings(args):
+def checked_settings(args):
     """The arguments checked before Blender starts: the settings they give over the defaults,
     validated (a BakeError names the option)."""
     if args.grid is not None and min(args.grid) < 1:
@@ -261,12 +254,12 @@ def _check_io(args):
     return src, compressed, dst, report
 
 
-def _print_progress(step):
+def print_progress(step):
     interrupts.check()  # an interrupt that came in a Blender handler
     print(f"cubegi: [{step.done}/{step.total}] {step.message}", flush=True)
 
 
-def _save_blend(compress):
+def save_blend(compress):
     import bpy
 
     def write(tmp):
@@ -277,7 +270,7 @@ def _save_blend(compress):
     return write
 
 
-def _save_json(report):
+def save_json(report):
     def write(tmp):
         with open(tmp, "w") as fh:
             fh.write(report.to_json())
@@ -285,15 +278,13 @@ def _save_json(report):
     return write
 
 
-def _blender():
+def blender():
     """bpy, with the extension registered (a file's probe grids and settings are read
     through its properties) until the process ends."""
     import bpy
 
-    if not hasattr(bpy.types.Scene, "cubegi"):  # the bpy module, run from the source tree
-        from ..cubegi_engine.__main__ import load_extension
-
-        load_extension()
+    if not hasattr(bpy.types.Scene, "cubegi"):  # the bpy module: no Blender start-up enabled the extension
+        importlib.import_module(__package__.rpartition(".")[0]).register_in_process()
     return bpy
 
 
@@ -331,12 +322,12 @@ def _only(bpy, names):
 
 
 def cmd_bake(args):
-    settings = _settings(args)
+    settings = checked_settings(args)
     src, compressed, dst, report_path = _check_io(args)
     gltf_path = None
     if args.gltf:
         gltf_path = files.writable_target(args.gltf, "glTF export", [(src, "input"), (dst, "output"), (report_path, "report")])
-    bpy = _blender()
+    bpy = blender()
 
     from . import pipeline
 
@@ -347,27 +338,27 @@ def cmd_bake(args):
 
     detach_cache(bpy.context.scene)  # the output shows this bake's light, not an older animation's
     report = pipeline.bake(bpy.context, settings, tuple(args.grid) if args.grid else None, lit=lit,
-                           reference_samples=args.reference_samples if args.reference else None, progress=_print_progress,
+                           reference_samples=args.reference_samples if args.reference else None, progress=print_progress,
                            only=_only(bpy, args.only))
     report.input, report.output = src, dst
-    jobs = [(dst, _save_blend(compressed))]
+    jobs = [(dst, save_blend(compressed))]
     if report_path:
-        jobs.append((report_path, _save_json(report)))
+        jobs.append((report_path, save_json(report)))
     if gltf_path:
         from . import export
 
         jobs.append((gltf_path, lambda tmp: export.write_glb(bpy.context, tmp)))
     files.write_all(jobs)
-    _summary(report)
+    print_summary(report)
 
 
-def _summary(report):
+def print_summary(report):
     for line in report.summary_lines():
         print(f"cubegi: {line}", flush=True)
 
 
 def cmd_bake_animation(args):
-    settings = _settings(args)
+    settings = checked_settings(args)
     src, compressed, dst, report_path = _check_io(args)
     from .animation import cache_folder
 
@@ -378,7 +369,7 @@ def cmd_bake_animation(args):
         raise BakeError(f"--frames: the last frame comes before the first ({args.frames[0]} {args.frames[1]})")
     if args.workers is not None or args.scheduler:
         return _bake_animation_on_cluster(args, src, dst, report_path)
-    bpy = _blender()
+    bpy = blender()
     from ..cubegi_engine.bake import run
     from .animation import bake_animation_steps
 
@@ -389,14 +380,14 @@ def cmd_bake_animation(args):
     settings, lit = _file_settings(bpy, args), _file_lit(bpy, args)
     try:
         result = run(bake_animation_steps(bpy.context, settings, range(first, last + 1), folder,
-                                          tuple(args.grid) if args.grid else None, lit, only=_only(bpy, args.only)), _print_progress)
+                                          tuple(args.grid) if args.grid else None, lit, only=_only(bpy, args.only)), print_progress)
     except KeyboardInterrupt as exc:
         kept = getattr(exc, "kept", None)
         raise Interrupted.keeping(exc, kept and f"{kept}; {dst} was not written; a run again bakes every frame") from None
     scene.cubegi.animation_cache = folder
     scene.frame_set(first)  # the saved file shows the first frame's light
     scene.cubegi.animation_cache = "//" + os.path.basename(folder)  # beside the output
-    jobs = [(dst, _save_blend(compressed))]
+    jobs = [(dst, save_blend(compressed))]
     if report_path:
         text = json.dumps({"input": src, "output": dst, **result}, indent=2, allow_nan=False)
         jobs.append((report_path, files.text(text)))
@@ -430,57 +421,6 @@ def _bake_animation_on_cluster(args, src, dst, report_path):
           f"into {result['cache']}", flush=True)
 
 
-def cmd_demo(args):
-    settings = _settings(args)
-    out = os.path.abspath(args.out)
-    if os.path.exists(out) and not os.path.isdir(out):
-        raise BakeError(f"--out {args.out!r} is a file; give a folder")
-    os.makedirs(out, exist_ok=True)
-    blend = files.writable_target(os.path.join(out, "room.blend"), "demo file")
-    report_path = files.writable_target(os.path.join(out, "report.json"), "report")
-    demo = _from_source_tree("demo")
-    bpy = _blender()
-
-    from . import pipeline
-
-    demo.build_room()
-    report = pipeline.bake(bpy.context, settings, tuple(args.grid) if args.grid else None, lit="ALL",
-                           reference_samples=args.reference_samples if args.reference else None, progress=_print_progress)
-    files.write_all([(blend, _save_blend(False)), (report_path, _save_json(report))])
-    _summary(report)
-    print(f"cubegi: wrote {blend} and {report_path}")
-    if not args.no_render:
-        png = os.path.join(out, "room.png")
-        demo.render_png(png, attribute="CubeGI_lit")
-        print(f"cubegi: wrote {png}")
-
-
-def cmd_benchmark(args):
-    os.makedirs(args.out, exist_ok=True)
-    if not os.access(args.out, os.W_OK):
-        raise BakeError(f"output folder is not writable: {args.out}")
-    if args.scaling:
-        scaling = _from_source_tree("scaling")
-        scaling.run(args.out, quick=args.quick, log=lambda m: print(f"cubegi: {m}", flush=True))
-        return 0
-    benchmark = _from_source_tree("benchmark")
-    _blender()
-    benchmark.run(args.out, quick=args.quick, scenes=args.scenes, log=lambda m: print(f"cubegi: {m}", flush=True))
-    print(f"cubegi: wrote {', '.join(os.path.join(args.out, f) for f in ('results.json', 'results.md', 'error_vs_time.png'))}")
-
-
-def _from_source_tree(name):
-    """The development module ``name`` (the demo, the benchmark), which only the source tree
-    has; an installed extension refuses the command that needs it."""
-    import importlib
-
-    try:
-        return importlib.import_module(f".{name}", __package__)
-    except ImportError:
-        raise BakeError(f"this command runs from CubeGI's source tree (python -m cubegi_engine ...), not from the "
-                        f"installed extension, which leaves out its {name} module") from None
-
-
 def _written_before():
     """What an interrupted command had written (each file whole), in words."""
     if not files.written:
@@ -488,17 +428,26 @@ def _written_before():
     return f"{', '.join(files.written)} {'was' if len(files.written) == 1 else 'were'} written (whole) before it stopped"
 
 
-def main(argv=None, prog="python -m cubegi_engine"):
+@dataclass(frozen=True)
+class Commands:
+    """Commands a caller adds to the command line: ``parsers(subparsers)`` adds their
+    parsers, ``run`` maps each name to its function of the parsed arguments (the source
+    tree's ``demo`` and ``benchmark``: ``tools/cli.py``)."""
+
+    parsers: Callable
+    run: dict[str, Callable]
+
+
+def main(argv=None, prog="python -m cubegi_engine", more=None):
     """Run the command line; returns the exit status (0 done, 2 refused, 3 CubeGI failed,
     128 + the signal when interrupted). The same for ``python -m cubegi_engine`` and
-    ``blender -c cubegi`` (:mod:`.command`)."""
+    ``blender -c cubegi`` (:mod:`.command`); ``more``: :class:`Commands` added to these."""
+    commands = {"bake": cmd_bake, "bake-animation": cmd_bake_animation, "batch": cmd_batch, **(more.run if more else {})}
     try:
-        args = _parser(prog).parse_args(argv)
+        args = _parser(prog, more).parse_args(argv)
     except SystemExit as exc:  # --help, or a usage error argparse has printed
         return int(exc.code or 0)
     try:
-        commands = {"bake": cmd_bake, "bake-animation": cmd_bake_animation, "batch": cmd_batch, "demo": cmd_demo,
-                    "benchmark": cmd_benchmark}
         files.written.clear()
         with interrupts.interruptible():
             commands[args.command](args)

@@ -2,9 +2,8 @@
 ``bpy`` module from PyPI.
 
 Registered with ``bpy.utils.register_cli_command`` while the extension is enabled; it runs
-the same :func:`.cli.main` as ``python -m cubegi_engine`` (the same subcommands, options,
-messages and exit statuses). ``demo`` and ``benchmark`` need modules the installed extension
-leaves out and say so.
+the same :func:`.cli.main` as ``python -m cubegi_engine`` (the same options, messages and
+exit statuses). ``demo`` and ``benchmark`` run from the source tree only (``tools/cli.py``).
 """
 
 import bpy

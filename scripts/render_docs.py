@@ -18,10 +18,10 @@ sys.path.insert(0, ROOT)
 def main(out):
     import bpy
 
-    from cubegi_engine.__main__ import load_extension
+    from tools import load_extension
 
     load_extension()
-    from cubegi.cubegi_addon import demo
+    from tools import demo
 
     demo.build_room()
     scene = bpy.context.scene
@@ -53,10 +53,11 @@ def dynamic_sequence(out):
     import bpy
     import numpy as np
 
-    from cubegi_engine.__main__ import load_extension
+    from tools import load_extension
 
     load_extension()
-    from cubegi.cubegi_addon import demo, live
+    from cubegi.cubegi_addon import live
+    from tools import demo
 
     demo.build_room()
     scene = bpy.context.scene
@@ -122,10 +123,11 @@ def error_picture(out, samples=1024):
     import bpy
     import numpy as np
 
-    from cubegi_engine.__main__ import load_extension
+    from tools import load_extension
 
     load_extension()
-    from cubegi.cubegi_addon import attributes, demo, reference, session
+    from cubegi.cubegi_addon import attributes, reference, session
+    from tools import demo
 
     demo.build_room()
     objects = sorted((ob for ob in bpy.context.scene.objects if ob.type == "MESH"), key=lambda ob: ob.name)

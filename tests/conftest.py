@@ -1,5 +1,5 @@
 """Test set-up shared by both folders: this source tree loaded as the extension package
-``cubegi`` (one copy of every module; see ``cubegi_engine/__main__.py``).
+``cubegi`` (one copy of every module; see ``tools/launch.py``).
 
 ``tests/engine`` holds the engine's pure-numpy tests and runs without bpy;
 ``tests/blender`` holds the tests that drive real Blender (bpy, the GPU module on llvmpipe,
@@ -19,6 +19,6 @@ if "BLENDER_USER_RESOURCES" not in os.environ:
     atexit.register(shutil.rmtree, os.environ["BLENDER_USER_RESOURCES"], ignore_errors=True)
 sys.path.insert(0, ROOT)
 
-from cubegi_engine.__main__ import load_extension  # noqa: E402
+from tools import load_extension  # noqa: E402
 
 load_extension(register=False)

@@ -17,7 +17,7 @@ except ImportError:
 @pytest.fixture(scope="session")
 def cubegi():
     """The extension package (``cubegi``), registered."""
-    from cubegi_engine.__main__ import load_extension
+    from tools import load_extension
 
     return load_extension()
 

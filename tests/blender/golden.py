@@ -26,7 +26,7 @@ def bake_scene(name):
     """Build one benchmark scene, bake it, return ``{"<object>:<layer>": (v, 3) float32}``."""
     import bpy
 
-    from cubegi.cubegi_addon.benchmark import SCENES
+    from benchmarks.sweep import SCENES
 
     SCENES[name]()
     assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
@@ -47,7 +47,7 @@ def main():
 
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="cubegi-golden-"))
     sys.path.insert(0, os.path.dirname(os.path.dirname(HERE)))
-    from cubegi_engine.__main__ import load_extension
+    from tools import load_extension
 
     load_extension()
     arrays = {}

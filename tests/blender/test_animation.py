@@ -95,7 +95,7 @@ def test_renders_of_two_frames_show_each_frames_light(empty_scene, cubegi, tmp_p
     assert _cli("bake-animation", src, "-o", out, *FAST).returncode == 0
     bpy.ops.wm.open_mainfile(filepath=str(out))
     bpy.context.scene.view_settings.exposure = -4.0  # 150 W in a small room: keep the pixels below white
-    demo = __import__("cubegi.cubegi_addon.demo", fromlist=["x"])
+    from tools import demo
 
     def render(frame, name):
         bpy.context.scene.frame_set(frame)

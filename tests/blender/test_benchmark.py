@@ -61,7 +61,7 @@ def test_quick_scaling_benchmark_writes_both_sweeps(tmp_path):
 
 
 def test_scaling_helpers(cubegi):
-    from cubegi.cubegi_addon import scaling
+    from benchmarks import scaling
 
     assert abs(scaling.slope([1, 10, 100], [2, 20, 200]) - 1.0) < 1e-9
     assert abs(scaling.slope([1, 10, 100], [1, 100, 10_000]) - 2.0) < 1e-9

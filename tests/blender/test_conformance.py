@@ -5,7 +5,7 @@ tolerance per row; a feature CubeGI does not read is named by a note, which its 
 Every row records what it measured in ``out/conformance.json`` (feature, support, error
 against Cycles); ``scripts/support_table.py`` turns that into ``docs/blender-support.md``.
 
-The scene: the Cornell-like box of ``bench_scenes.cornell`` (2 m, open at the front), lit by
+The scene: the Cornell-like box of ``benchmarks.scenes.cornell`` (2 m, open at the front), lit by
 one light. Tolerances: Cycles at 64 samples is about 1.5% noisy in the mean of the box; the
 direct light's own error against Cycles is below 3% in bias and 8% in rel. RMSE for every
 light type (``test_cycles.py``), so a row that reads its feature right stays well inside

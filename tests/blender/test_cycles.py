@@ -1,6 +1,6 @@
 """CubeGI against Cycles, baked inside the test, on a small Cornell-box-like scene.
 
-The box (``bench_scenes.cornell``) is 2 m on a side, open at the front (-Y), with a red left
+The box (``benchmarks/scenes.py``, ``cornell``) is 2 m on a side, open at the front (-Y), with a red left
 and a green right wall and two blocks standing a little above the floor. Lights sit off the 0.1 m lattice of the
 geometry: a shadow boundary that passes exactly through a row of vertices (or a sun exactly
 edge-on to a wall) makes those vertices a coin toss for any method. Cycles bakes the same vertices' DIRECT and
@@ -179,7 +179,8 @@ SKY_TOL = {("uniform", False): (0.11, 0.07), ("image", False): (0.14, 0.10),
 
 @pytest.mark.parametrize("sky,per_vertex", list(SKY_TOL), ids=[f"{s}-{'per-vertex' if v else 'probes'}" for s, v in SKY_TOL])
 def test_the_sky_matches_cycles(empty_scene, cubegi, sky, per_vertex):
-    from cubegi.cubegi_addon import attributes, bench_scenes, reference, scene_data
+    from benchmarks import scenes as bench_scenes
+    from cubegi.cubegi_addon import attributes, reference, scene_data
 
     bench_scenes.courtyard()
     for ob in [o for o in bpy.data.objects if o.type == "LIGHT"]:
@@ -351,7 +352,8 @@ def test_a_raised_block_and_the_floor_under_it_get_their_light(empty_scene, cube
 def test_the_reference_report_leaves_black_vertices_out(empty_scene, cubegi):
     """Cycles' Diffuse bake reports no light on a black material (no diffuse closure); CubeGI
     reports the light that reaches it. The report's errors leave those vertices out."""
-    from cubegi.cubegi_addon import attributes, bench_scenes, pipeline, scene_data
+    from benchmarks import scenes as bench_scenes
+    from cubegi.cubegi_addon import attributes, pipeline, scene_data
 
     bench_scenes.white_box()  # its emissive panel is black
     report = pipeline.bake(bpy.context, reference_samples=16)

@@ -120,19 +120,21 @@ for name, module in list(sys.modules.items()):
         copies.setdefault(os.path.realpath(path), set()).add(id(module))
 import cubegi.cubegi_engine.settings as a, cubegi.cubegi_addon.cli as cli
 print(json.dumps({{"status": status, "files": len(copies), "twice": sorted(p for p, ids in copies.items() if len(ids) > 1),
-                  "same": sys.modules["cubegi_engine"] is sys.modules["cubegi.cubegi_engine"]
-                          and cli.BakeSettings is a.BakeSettings}}))
+                  "renamed": [m.__name__ for m in sys.modules.values() if getattr(m, "__name__", "").startswith("cubegi")
+                              and m is not sys.modules.get(m.__name__)],
+                  "outside": sorted(n for n in sys.modules if n.startswith("cubegi_engine.") or n.startswith("cubegi_addon")),
+                  "same": cli.BakeSettings is a.BakeSettings}}))
 """
     r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
     out = json.loads(r.stdout.strip().splitlines()[-1])
     assert out["status"] == 0 and out["files"] > 20, (out, r.stderr[-2000:])
-    assert out["twice"] == [] and out["same"]
+    assert out["twice"] == [] and out["renamed"] == [] and out["outside"] == [] and out["same"]
 
 
 def test_a_moved_object_recaptures_only_the_probes_it_concerns(empty_scene, cubegi):
     """Two rooms sealed by a wall: a block moved in the left room concerns the left room's
     probes only; the patched capture gives what a fresh one gives."""
-    from cubegi.cubegi_addon.bench_scenes import box, material, mesh_object, thin_wall
+    from benchmarks.scenes import box, material, mesh_object, thin_wall
 
     thin_wall()
     v, f = box((-2.5, -0.5, 0.0), (-1.9, 0.3, 0.8), (2, 2, 2))

@@ -79,8 +79,9 @@ def test_the_floor_under_a_rug_gets_no_probe_light(empty_scene, cubegi):
     crosses (at a grazing angle, near the carpet's edge), the triangles around them are asked
     too. Measured at the Room's own settings: 16 of 375 floor vertices under the carpet keep
     probe light, all within 0.3 m of its edge (200 before the neighbours were asked)."""
-    from cubegi.cubegi_addon import demo, session
+    from cubegi.cubegi_addon import session
     from cubegi.cubegi_engine.settings import BakeSettings
+    from tools import demo
 
     demo.build_room()
     cubegi.cubegi_addon.pipeline.bake(bpy.context, BakeSettings(cube_size=16, bounces=2))

@@ -56,7 +56,9 @@ def test_the_near_field_is_reported_and_dense_geometry_is_left_out_by_name(empty
     ones inside Suzanne's folds (hundreds of triangles within reach) are left out, and the
     report says how many. Without the near field the report has none, and the light along
     the walls and under the table differs."""
-    cubegi.cubegi_addon.demo.build_room()
+    from tools import demo
+
+    demo.build_room()
     assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
     report = json.loads(bpy.context.scene.cubegi.last_report)
     near = report["near_field"]

@@ -101,7 +101,7 @@ def test_light_edits_redraw_only_that_light_and_equal_a_full_bake(room, edit):
 
 
 def test_world_colour_and_material_edits_equal_a_full_bake(empty_scene, cubegi):
-    from cubegi.cubegi_addon.bench_scenes import courtyard
+    from benchmarks.scenes import courtyard
 
     courtyard()
     settings = dict(grid=(4, 4, 2), cube_size=16, bounces=3)
@@ -138,7 +138,7 @@ def test_an_environment_image_updates_with_its_strength_and_refuses_a_new_image(
     with the same settings; with the sky per vertex, baked dark and then lit, so that the
     update draws the sky's own lines of sight); new pixels change the probes' tables, so
     Update refuses with the reason and writes nothing."""
-    from cubegi.cubegi_addon.bench_scenes import courtyard
+    from benchmarks.scenes import courtyard
 
     courtyard()
     tree = bpy.context.scene.world.node_tree

@@ -126,10 +126,10 @@ def test_a_failed_write_leaves_every_target_as_it_was(tmp_path, cubegi):
 _TERM_DURING_SAVE = """
 import importlib, os, signal, sys
 sys.path.insert(0, {root!r})
-from cubegi_engine.__main__ import load_extension
+from tools import load_extension
 load_extension(register=False)
 cli = importlib.import_module("cubegi.cubegi_addon.cli")
-save = cli._save_blend
+save = cli.save_blend
 
 def save_then_term(compressed):
     write = save(compressed)
@@ -140,7 +140,7 @@ def save_then_term(compressed):
 
     return write_and_term
 
-cli._save_blend = save_then_term
+cli.save_blend = save_then_term
 sys.exit(cli.main(sys.argv[1:]))
 """
 

@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from cubegi.cubegi_engine import benchmark
+from benchmarks import analysis as benchmark
 
 
 def _rec(scene, method, seconds, err, **settings):

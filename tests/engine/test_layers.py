@@ -46,7 +46,7 @@ def test_the_engine_imports_without_bpy():
     modules = [f"cubegi.cubegi_engine.{m}" for m in _modules("cubegi_engine") if m not in ("__init__", "__main__")]
     code = (
         "import sys; sys.modules['bpy'] = None; sys.modules['gpu'] = None; sys.modules['mathutils'] = None\n"
-        "from cubegi_engine.__main__ import load_extension; load_extension(register=False)\n"
+        "from tools import load_extension\n"
         f"import {', '.join(modules)}\n"
         "import cubegi.cubegi_addon, cubegi.cubegi_addon.files\n"  # the add-on package and file checks: no bpy either
     )
@@ -59,6 +59,21 @@ def test_no_module_reaches_up_a_layer():
     for module, imports in graph.items():
         if module.startswith("cubegi_engine.") and module != "cubegi_engine.__main__":
             assert not any(i.startswith("cubegi_addon.") for i in imports), (module, imports)
+
+
+def test_what_ships_imports_nothing_that_stays_in_the_source_tree():
+    """tools/ and benchmarks/ are left out of the extension's zip (by folder): a shipped
+    module that imported them would fail in an installed Blender."""
+    assert _graph()["cubegi_addon.cli"]  # the walk sees the add-on's imports
+    for package in PACKAGES:
+        for module in _modules(package):
+            if (package, module) == ("cubegi_engine", "__main__"):  # the source tree's entry point, forwards to tools/
+                continue
+            path = os.path.join(ROOT, package, f"{module}.py")
+            for node in ast.walk(ast.parse(open(path).read(), path)):
+                names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                    [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else []
+                assert not [n for n in names if n.split(".")[0] in ("tools", "benchmarks")], (path, names)
 
 
 def test_the_import_graph_has_no_circle():

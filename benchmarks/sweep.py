@@ -3,7 +3,7 @@
 For each scene: a high-sample Cycles reference (cached on disk, the samples in the file
 name), then CubeGI over grid spacing x cube-map size x bounces, then Cycles vertex bakes at
 increasing samples. Every run is scored against the reference with the same measures
-(:mod:`cubegi_engine.metrics`); :mod:`cubegi_engine.benchmark` analyses the records.
+(:mod:`cubegi_engine.metrics`); :mod:`.analysis` analyses the records.
 """
 
 import itertools
@@ -15,11 +15,14 @@ import time
 import bpy
 import numpy as np
 
-from ..cubegi_engine import __version__, metrics
-from ..cubegi_engine import benchmark as analysis
-from ..cubegi_engine.grid import fit_bounds
-from ..cubegi_engine.report import BakeReport
-from . import attributes, bench_scenes, demo, grid_objects, public_scenes, reference, scene_data, session
+from cubegi.cubegi_addon import attributes, grid_objects, reference, scene_data, session
+from cubegi.cubegi_engine import __version__, metrics
+from cubegi.cubegi_engine.grid import fit_bounds
+from cubegi.cubegi_engine.report import BakeReport
+from tools import demo
+
+from . import analysis, public_scenes
+from . import scenes as bench_scenes
 
 SCENES = {
     "room": demo.build_room,

@@ -19,7 +19,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix, Vector
 
-from .bench_scenes import material, mesh_object, set_world
+from .scenes import material, mesh_object, set_world
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CREDIT = {

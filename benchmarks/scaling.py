@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from ..cubegi_engine import __version__
+from cubegi.cubegi_engine import __version__
 
 # (cuts, probes) of each sweep: vertices at about 200 probes, probes at about 95K vertices,
 # and the target point (a million vertices, a thousand probes).
@@ -39,8 +39,9 @@ def one(cuts, probes):
     import bmesh
     import bpy
 
-    from ..cubegi_engine.settings import BakeSettings
-    from . import demo, pipeline
+    from cubegi.cubegi_addon import pipeline
+    from cubegi.cubegi_engine.settings import BakeSettings
+    from tools import demo
 
     demo.build_room()
     for ob in bpy.context.scene.objects:
@@ -119,8 +120,8 @@ def _child(cuts, probes, timeout):
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     code = (
         "import json, sys; sys.path.insert(0, %r)\n"
-        "from cubegi_engine.__main__ import load_extension; load_extension()\n"
-        "from cubegi.cubegi_addon import scaling\n"
+        "from tools import load_extension; load_extension()\n"
+        "from benchmarks import scaling\n"
         "print('SCALING ' + json.dumps(scaling.one(%d, %d)))\n" % (root, cuts, probes)
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout)

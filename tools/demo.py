@@ -128,7 +128,7 @@ def build_room(subdivision=1):
     coll.objects.link(cam)
     scene.camera = cam
 
-    from .grid_objects import new_probe_grid
+    from cubegi.cubegi_addon.grid_objects import new_probe_grid
 
     new_probe_grid(coll, (-w / 2, -l / 2, 0.0), (w / 2, l / 2, h), DEMO_GRID)
     scene.cubegi.cube_size = 32

@@ -1,7 +1,7 @@
 """Scenes built in code, for the benchmark and the tests: a Cornell box, a sunlit courtyard
 under a blue sky, a closed white box of albedo 0.95 lit by an emissive panel in its
 ceiling, and two rooms
-with a thin wall between them (the Room of the demo is in :mod:`.demo`).
+with a thin wall between them (the Room of the demo is in :mod:`tools.demo`).
 
 Every builder starts from an empty file and returns the scene. Lights and blocks sit off
 the geometry's vertex lattice, so no shadow edge runs exactly through a row of vertices.
@@ -10,7 +10,7 @@ the geometry's vertex lattice, so no shadow edge runs exactly through a row of v
 import bpy
 import numpy as np
 
-from .demo import box, grid_patch
+from tools.demo import box, grid_patch
 
 
 def material(name, colour, emission=None, strength=1.0):

@@ -1,7 +1,7 @@
 """Benchmark analysis: Cycles' time to reach an error, the best trade-off, the tables.
 
 Pure numpy; must not import bpy. The runs themselves are made by
-``cubegi_addon.benchmark``; each is a record::
+``benchmarks.sweep``; each is a record::
 
     {"scene": str, "method": "cubegi" | "cycles", "settings": {...}, "seconds": float,
      "seconds_by_part": {"indirect": s, "total": s},

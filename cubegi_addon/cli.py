@@ -18,7 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from ..cubegi_engine.errors import BakeError, Interrupted
-from ..cubegi_engine.settings import QUALITY, BakeSettings
+from ..cubegi_engine.settings import OPTIONS, QUALITY, BakeSettings
 from . import files, interrupts
 
 # Set to 1 to see the traceback of a failure that is CubeGI's own defect.
@@ -54,47 +54,22 @@ def _parser(prog, more=None):
 
 
 def bake_options(p, demo=False):
-    d = BakeSettings()
+    """The bake options (every setting in :data:`OPTIONS`, and what is not a setting)."""
     p.add_argument("--grid", nargs=3, type=int, metavar=("NX", "NY", "NZ"), help="probes along X, Y and Z")
     p.add_argument(
         "--quality", choices=[q.lower() for q in QUALITY],
         help="a preset for --cells, --cube-size and --bounces (each still overrides it): draft (4 cells, 16, 3 bounces), "
         "balanced (8, 16, 5), final (12, 32, 5). Every option not given takes the file's own CubeGI settings",
     )
-    p.add_argument("--cells", type=int, help="cells along the longest side of a fitted grid (default: the preset's)")
-    p.add_argument("--probe-spacing", type=float, metavar="DISTANCE",
-                   help="instead of --cells: the distance between a fitted grid's probes, in scene units (metres)")
-    p.add_argument("--cube-size", type=int, help=f"cube-map face size in texels (default: the preset's, {d.cube_size})")
-    p.add_argument("--bounces", type=int, help=f"indirect bounces (default: the preset's, {d.bounces}; at most {d.MAX_BOUNCES})")
-    p.add_argument("--no-visibility", action="store_true", help="plain trilinear interpolation (lets light leak)")
-    p.add_argument(
-        "--tolerance", type=float,
-        help="stop once the estimated missing share of the indirect light is below this (e.g. 0.01); --bounces stays the cap",
-    )
-    p.add_argument("--no-tail", action="store_true", help="do not add the estimated light after the last bounce to CubeGI")
-    p.add_argument(
-        "--capture-triangles", type=int, metavar="N",
-        help=f"the probes draw a simplified copy of the scene with at most about N triangles (0: the full scene; default "
-        f"{d.capture_triangles:,}); direct light, shadows and the baked vertices use every triangle",
-    )
-    p.add_argument(
-        "--no-near-field", action="store_true",
-        help="leave each vertex's near surroundings to the probes (no rays; see docs/accuracy.md)",
-    )
-    p.add_argument(
-        "--keep-probes-in-place", action="store_true",
-        help="leave probes found inside geometry at their cell centres (the capture then leaves them out) instead of "
-        "moving them out",
-    )
-    p.add_argument(
-        "--sky-per-vertex", action="store_true",
-        help="shadow the sky at every vertex along its own lines of sight instead of through the probes (exact to a few "
-        "per cent; several times a small bake's time, growing with vertices; see docs/accuracy.md)",
-    )
-    p.add_argument(
-        "--no-energy-conservation", action="store_true",
-        help="leave each bounce's total as interpolated (for comparison; see docs/accuracy.md)",
-    )
+    for o in OPTIONS:
+        text = (o.help[0].lower() + o.help[1:]).replace("%", "%%")
+        if o.switch:
+            p.add_argument(o.flag, dest=o.name, action="store_const", const=not o.default, default=None,
+                           help=f"turn {o.label} {'off' if o.default else 'on'}: {text}")
+        else:
+            default = "none" if o.default is None else f"{o.default:,}" if o.kind is int else o.default
+            p.add_argument(o.flag, dest=o.name, type=o.kind, metavar=o.metavar or o.kind.__name__.upper(), default=None,
+                           help=f"{text} (default: the file's setting; {default} in a new file)")
     p.add_argument("--reference", choices=["cycles"], help="also bake a path-traced reference and report CubeGI's error against it")
     p.add_argument("--reference-samples", type=int, default=256, help="Cycles samples for --reference (default 256)")
     if not demo:
@@ -124,19 +99,11 @@ def _forwarded(args):
     """The bake options given in ``args`` as command-line words, for the bakes a cluster runs
     (each bake takes the rest from its file)."""
     words = ["--quality", args.quality] if args.quality else []
-    for flag, value in (("--cells", args.cells), ("--cube-size", args.cube_size), ("--bounces", args.bounces),
-                        ("--capture-triangles", args.capture_triangles), ("--probe-spacing", args.probe_spacing)):
-        if value is not None:
-            words += [flag, str(value)]
+    for o in OPTIONS:
+        if getattr(args, o.name) is not None:
+            words += o.words(getattr(args, o.name))
     if args.grid:
         words += ["--grid", *map(str, args.grid)]
-    if args.tolerance is not None:
-        words += ["--tolerance", str(args.tolerance)]
-    words += [flag for flag, on in (("--no-visibility", args.no_visibility), ("--no-tail", args.no_tail),
-                                    ("--no-energy-conservation", args.no_energy_conservation),
-                                    ("--no-near-field", args.no_near_field),
-                                    ("--keep-probes-in-place", args.keep_probes_in_place),
-                                    ("--sky-per-vertex", args.sky_per_vertex)) if on]
     if args.reference:
         words += ["--reference", args.reference, "--reference-samples", str(args.reference_samples)]
     if getattr(args, "lit", None):
@@ -181,15 +148,9 @@ def cmd_batch(args):
 
 def _given(args):
     """The bake settings the arguments set (name -> value); a file's own settings give the rest."""
-    given = {k: v for k, v in (("quality", args.quality), ("cells", args.cells), ("cube_size", args.cube_size),
-                               ("bounces", args.bounces), ("tolerance", args.tolerance),
-                               ("capture_triangles", args.capture_triangles), ("probe_spacing", args.probe_spacing)) if v is not None}
-    for name, off in (("visibility", args.no_visibility), ("add_tail", args.no_tail), ("near_field", args.no_near_field),
-                      ("move_probes", args.keep_probes_in_place)):
-        if off:
-            given[name] = False
-    if args.sky_per_vertex:
-        given["sky_per_vertex"] = True
+    given = {o.name: o.given(getattr(args, o.name)) for o in OPTIONS if getattr(args, o.name) is not None}
+    if args.quality:
+        given["quality"] = args.quality
     return given
 
 
@@ -211,9 +172,7 @@ def checked_settings(args):
         raise BakeError(f"--reference-samples must be 1 or more, got {args.reference_samples}")
     given = _given(args)
     quality = given.pop("quality", "balanced")
-    if given.get("capture_triangles") == 0:
-        given["capture_triangles"] = None
-    return _validated(lambda: BakeSettings.preset(quality, conserve_energy=not args.no_energy_conservation, **given))
+    return _validated(lambda: BakeSettings.preset(quality, **given))
 
 
 def _file_settings(bpy, args):
@@ -222,7 +181,7 @@ def _file_settings(bpy, args):
     every machine."""
     from . import props
 
-    return _validated(lambda: props.bake_settings(bpy.context.scene, _given(args), conserve_energy=not args.no_energy_conservation))
+    return _validated(lambda: props.bake_settings(bpy.context.scene, _given(args)))
 
 
 def _file_lit(bpy, args):

@@ -4,11 +4,11 @@ import json
 import os
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, IntVectorProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, IntProperty, IntVectorProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper
 
 from ..cubegi_engine.errors import BakeError
-from ..cubegi_engine.settings import MAX_BOUNCES, MAX_CELLS, MAX_CUBE_SIZE, MIN_CUBE_SIZE, BakeSettings
+from ..cubegi_engine.settings import OPTIONS
 from . import animation, attributes, display, export, files, grid_objects, live, materials, pipeline, prefs, probe_view, props, session
 
 # Seconds between the modal bake's steps: often enough to feel live, rarely enough that
@@ -18,7 +18,7 @@ MODAL_STEP_SECONDS = 0.05
 
 def _settings_from(op, scene):
     """The operator's settings where the call set them, else the scene's (props.bake_settings)."""
-    given = {name: getattr(op, name) for name in (*props.BAKE_FIELDS, "quality")
+    given = {name: getattr(op, name) for name in (*(o.name for o in OPTIONS), "quality")
              if hasattr(op, name) and op.properties.is_property_set(name)}
     return props.bake_settings(scene, given)
 
@@ -150,51 +150,10 @@ class CUBEGI_OT_bake(_ModalJob, bpy.types.Operator):
     # again, at once (Blender's own bake operators do the same).
     bl_options = {"UNDO"}
 
-    cube_size: IntProperty(
-        name="Cube-Map Size", description="Cube-map face size (default: the scene's setting)",
-        default=BakeSettings.cube_size, soft_min=MIN_CUBE_SIZE, soft_max=MAX_CUBE_SIZE,
-    )
-    bounces: IntProperty(
-        name="Bounces", description="Indirect bounces (default: the scene's setting)", default=BakeSettings.bounces, soft_min=0, soft_max=MAX_BOUNCES
-    )
-    visibility: BoolProperty(
-        name="Probe Visibility", description="Leave out probes that cannot see a vertex", default=BakeSettings.visibility
-    )
     grid: IntVectorProperty(name="Grid", description="Probes along X, Y, Z (default: probe grid objects, or fitted)", size=3, default=(0, 0, 0))
-    tolerance: FloatProperty(
-        name="Tolerance", description="Stop once the estimated missing share of the indirect light is below this (0: run all bounces)",
-        default=0.0, min=0.0, max=0.5,
-    )
-    add_tail: BoolProperty(
-        name="Add Tail", description="Add the estimated light after the last bounce to CubeGI", default=BakeSettings.add_tail
-    )
-    capture_triangles: IntProperty(
-        name="Capture Triangles", description="Triangles the probes draw at most, simplified (0: the full scene; default: "
-        "the scene's setting)", default=BakeSettings.capture_triangles, min=0,
-    )
-    near_field: BoolProperty(
-        name="Near Field", description="Gather each vertex's near surroundings by rays (default: the scene's setting)",
-        default=BakeSettings.near_field,
-    )
-    move_probes: BoolProperty(
-        name="Move Probes Out", description="Move probes inside geometry out of it, within their cells (default: the "
-        "scene's setting)", default=BakeSettings.move_probes,
-    )
-    sky_per_vertex: BoolProperty(
-        name="Sky per Vertex", description="Shadow the sky at every vertex along its own lines of sight (default: the "
-        "scene's setting)", default=BakeSettings.sky_per_vertex,
-    )
     quality: EnumProperty(
         name="Quality", description="A preset for the grid cells, cube-map size and bounces not given (default: the "
         "scene's settings)", items=props.QUALITY_ITEMS, default="BALANCED",
-    )
-    cells: IntProperty(
-        name="Grid Cells", description="Cells along the longest side of a fitted grid (default: the scene's setting)",
-        default=BakeSettings.cells, soft_min=1, soft_max=MAX_CELLS,
-    )
-    probe_spacing: FloatProperty(
-        name="Probe Spacing", description="Distance between the probes of a fitted grid (0: Grid Cells; default: the scene's)",
-        default=0.0, min=0.0, subtype="DISTANCE", unit="LENGTH",
     )
     reference_samples: IntProperty(
         name="Cycles Reference Samples", description="Also bake a Cycles reference with this many samples (0: none)", default=0, min=0
@@ -251,6 +210,9 @@ class CUBEGI_OT_bake(_ModalJob, bpy.types.Operator):
             + (" (added as the tail)" if report.tail.added else ""),
         )
         return {"FINISHED"}
+
+
+props.with_bake_options(CUBEGI_OT_bake, operator=True)
 
 
 class CUBEGI_OT_bake_animation(_ModalJob, bpy.types.Operator):

@@ -4,6 +4,7 @@ to display, showing it in renders, and the last bake's report."""
 import bpy
 
 from ..cubegi_engine.report import BakeReport
+from ..cubegi_engine.settings import OPTIONS, SECTIONS
 from . import grid_objects
 
 
@@ -55,23 +56,11 @@ class VIEW3D_PT_cubegi(_SidebarTab, bpy.types.Panel):
             col.label(text=f"{len(grids)} probe grid objects" if grids else "Fitted to the scene (no grid object)")
         col.operator("cubegi.add_probe_grid", icon="LIGHTPROBE_VOLUME")
         layout.row().prop(settings, "quality", expand=True)
-        col = layout.column(heading="Capture")
-        col.prop(settings, "cells")
-        col.prop(settings, "probe_spacing")
-        col.prop(settings, "cube_size")
-        col.prop(settings, "visibility")
-        col.prop(settings, "capture_triangles")
-        col.prop(settings, "near_field")
-        col.prop(settings, "move_probes")
-        col.prop(settings, "sky_per_vertex")
-        col = layout.column(heading="Shadows")
-        col.prop(settings, "shadow_size")
-        col.prop(settings, "sun_shadow_size")
-        col.prop(settings, "area_shadow_size")
-        col = layout.column(heading="Bounces")
-        col.prop(settings, "bounces")
-        col.prop(settings, "tolerance")
-        col.prop(settings, "add_tail")
+        for section in SECTIONS:
+            col = layout.column(heading=section)
+            for o in OPTIONS:
+                if o.section == section:
+                    col.prop(settings, o.name)
         layout.prop(settings, "lit")
         row = layout.row(align=True)
         row.operator("cubegi.bake", icon="RENDER_STILL")

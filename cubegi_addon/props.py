@@ -5,7 +5,7 @@ the file."""
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, IntVectorProperty, PointerProperty, StringProperty
 
-from ..cubegi_engine.settings import MAX_BOUNCES, MAX_CELLS, MAX_CUBE_SIZE, MIN_CUBE_SIZE, QUALITY, BakeSettings
+from ..cubegi_engine.settings import MAX_BOUNCES, OPTIONS, QUALITY, BakeSettings
 from . import display, live, session
 
 LIT_ITEMS = (
@@ -22,25 +22,51 @@ QUALITY_ITEMS = (
 )
 
 
-# The scene settings a bake reads (BakeSettings fields of the same names).
-BAKE_FIELDS = ("cube_size", "bounces", "cells", "visibility", "tolerance", "add_tail", "capture_triangles", "near_field",
-               "move_probes", "sky_per_vertex", "shadow_size", "sun_shadow_size", "area_shadow_size", "probe_spacing")
-
-
-def bake_settings(scene, given=None, **fixed):
+def bake_settings(scene, given=None):
     """The BakeSettings a bake of ``scene`` uses: the values in ``given`` (name -> value, what
     an operator call or the command line set), then those of a ``quality`` preset among
-    them, then the scene's own CubeGI settings, which are saved in the file. ``fixed``: other
-    BakeSettings fields. Tolerance and Capture Triangles of 0 mean none."""
+    them, then the scene's own CubeGI settings, which are saved in the file (an option not
+    in the file: its default)."""
     given = dict(given or {})
     quality = given.pop("quality", None)
     preset = QUALITY[str(quality).upper()] if quality else {}
     s = scene.cubegi
-    values = {name: given[name] if name in given else preset[name] if name in preset else getattr(s, name) for name in BAKE_FIELDS}
-    values["tolerance"] = values["tolerance"] or None
-    values["capture_triangles"] = values["capture_triangles"] or None
-    values["probe_spacing"] = values["probe_spacing"] or None
-    return BakeSettings(**values, **fixed)
+    values = {}
+    for o in OPTIONS:
+        if o.name in given or o.name in preset:
+            values[o.name] = o.given(given[o.name] if o.name in given else preset[o.name])
+        elif o.section is not None:
+            values[o.name] = o.given(getattr(s, o.name))
+    return BakeSettings(**values)
+
+
+def _property(o, operator):
+    """The bpy property of the option ``o``: the scene's (held to the option's range) or the
+    operator's (a soft range: validate refuses a script's bad value with the reason)."""
+    description = f"{o.help} (default: the scene's setting)" if operator and o.section else o.help
+    kw = dict(name=o.label, description=description, default=o.stored(o.default))
+    if o.kind is bool:
+        return BoolProperty(**kw)
+    if o.subtype != "NONE":
+        kw["subtype"] = o.subtype
+        if o.subtype == "DISTANCE":
+            kw["unit"] = "LENGTH"
+    low, high = ("soft_min", "soft_max") if operator else ("min", "max")
+    if o.minimum is not None:
+        kw[low] = o.minimum
+    if o.maximum is not None:
+        kw[high] = o.maximum
+    if o.soft_maximum is not None:
+        kw["soft_max"] = o.soft_maximum
+    return (IntProperty if o.kind is int else FloatProperty)(**kw)
+
+
+def with_bake_options(cls, operator=False):
+    """``cls`` (a property group or an operator) with a property for every bake option
+    (for a property group, the options saved in the file), before it is registered."""
+    made = {o.name: _property(o, operator) for o in OPTIONS if operator or o.section is not None}
+    cls.__annotations__ = {**made, **cls.__annotations__}
+    return cls
 
 
 def _apply_quality(settings, context):
@@ -53,75 +79,6 @@ class CubeGISceneSettings(bpy.types.PropertyGroup):
     quality: EnumProperty(
         name="Quality", description="Set the grid cells, cube-map size and bounces to a preset (from the benchmark's "
         "error-time front); each stays editable", items=QUALITY_ITEMS, default="BALANCED", update=_apply_quality,
-    )
-    cells: IntProperty(
-        name="Grid Cells", description="Cells along the longest side of the grid fitted to the scene (when it has no "
-        "probe grid object)", default=BakeSettings.cells, min=1, max=MAX_CELLS,
-    )
-    probe_spacing: FloatProperty(
-        name="Probe Spacing", description="Distance between the probes of the grid fitted to the scene (0: Grid Cells sets it)",
-        default=0.0, min=0.0, soft_max=10.0, subtype="DISTANCE", unit="LENGTH",
-    )
-    cube_size: IntProperty(
-        name="Cube-Map Size",
-        description="Edge length in texels of each probe's cube-map faces",
-        default=BakeSettings.cube_size,
-        min=MIN_CUBE_SIZE,
-        max=MAX_CUBE_SIZE,
-    )
-    bounces: IntProperty(
-        name="Bounces", description="Number of indirect bounces to compute (at most; Tolerance can stop earlier)",
-        default=BakeSettings.bounces, min=0, max=MAX_BOUNCES,
-    )
-    visibility: BoolProperty(
-        name="Probe Visibility",
-        description="Leave out, per vertex, the probes that cannot see it (stops light leaking through thin walls)",
-        default=BakeSettings.visibility,
-    )
-    tolerance: FloatProperty(
-        name="Tolerance",
-        description="Stop once the estimated missing share of the indirect light is below this; Bounces is the cap (0: run all bounces)",
-        default=0.0, min=0.0, max=0.5, subtype="FACTOR",
-    )
-    add_tail: BoolProperty(
-        name="Add Tail", description="Add the estimated light after the last bounce to CubeGI (the total)", default=BakeSettings.add_tail
-    )
-    capture_triangles: IntProperty(
-        name="Capture Triangles",
-        description="The probes draw a simplified copy of the scene with at most about this many triangles (0: the full "
-        "scene). Direct light, shadows and the baked vertices always use every triangle",
-        default=BakeSettings.capture_triangles, min=0, soft_max=1_000_000,
-    )
-    near_field: BoolProperty(
-        name="Near Field",
-        description="Gather each vertex's near surroundings (surfaces within a quarter of a cell: where walls meet, under "
-        "furniture) by rays, instead of the probes' view of them from up to a cell away",
-        default=BakeSettings.near_field,
-    )
-    move_probes: BoolProperty(
-        name="Move Probes Out",
-        description="Move probes found inside geometry (walls, furniture) out of it, within their cells, before the "
-        "capture; a probe with no way out is left out. Off: every probe stays at its cell centre",
-        default=BakeSettings.move_probes,
-    )
-    sky_per_vertex: BoolProperty(
-        name="Sky per Vertex",
-        description="Shadow the sky at every vertex along 256 lines of sight of its own, instead of through the "
-        "probes: the sky's contact shadows and open edges exact to a few per cent, at several times a small bake's "
-        "time (it grows with vertices x directions)",
-        default=BakeSettings.sky_per_vertex,
-    )
-    shadow_size: IntProperty(
-        name="Point and Spot Shadows", description="Shadow cube-map face size of point and spot lights, in texels",
-        default=BakeSettings.shadow_size, min=16, max=4096, subtype="PIXEL",
-    )
-    sun_shadow_size: IntProperty(
-        name="Sun Shadows", description="Shadow map size of sun lights, in texels", default=BakeSettings.sun_shadow_size,
-        min=16, max=8192, subtype="PIXEL",
-    )
-    area_shadow_size: IntProperty(
-        name="Area Shadows", description="Shadow map size of each sample point of an area light, in texels",
-        default=BakeSettings.area_shadow_size, min=16, max=2048, subtype="PIXEL",
     )
     lit: EnumProperty(
         name="Lit Color", description="Also write CubeGI_lit, the lit color that glTF export carries as COLOR_0",
@@ -150,6 +107,9 @@ class CubeGISceneSettings(bpy.types.PropertyGroup):
         "Animation); each frame's light is shown when the frame changes", default="", subtype="DIR_PATH",
         options={"PATH_SUPPORTS_BLEND_RELATIVE"},
     )
+
+
+with_bake_options(CubeGISceneSettings)
 
 
 class CubeGIObjectSettings(bpy.types.PropertyGroup):

@@ -165,10 +165,10 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
         grid = ProbeSubset(grid, used, None if placement is None else placement.displacement)
 
     budget = settings.capture_triangles
-    reused = capture is not None and capture.valid_for(scene, grid, settings.cube_size, settings.visibility, budget, settings.near_field)
+    reused = capture is not None and capture.valid_for(scene, grid, settings)
     patched = None
     if not reused and capture is not None:
-        patched = capture.patched(scene, grid, renderer, settings.cube_size, settings.visibility, budget, settings.near_field)
+        patched = capture.patched(scene, grid, renderer, settings)
     if reused:
         yield Progress(Stage.CAPTURE, 0, total, f"reusing the capture of {grid.count} probes (the geometry is unchanged)")
         timings["capture"] = timings["tables"] = 0.0
@@ -197,8 +197,7 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
         timings["simplify"] = time.perf_counter() - t
         drawn = f" ({len(proxy.triangles):,} of {len(scene.triangles):,} triangles)" if proxy is not None else ""
         yield Progress(Stage.CAPTURE, 0, total, f"capturing {grid.count} probes at {settings.cube_size}x{settings.cube_size}{drawn}")
-        capture = yield from ProbeCapture.take_steps(scene, grid, drawer, settings.cube_size, settings.visibility, proxy, budget,
-                                                     settings.near_field, step=working(Stage.CAPTURE, 0))
+        capture = yield from ProbeCapture.take_steps(scene, grid, drawer, settings, proxy, step=working(Stage.CAPTURE, 0))
         capture.small_objects = tuple(int(k) for k in np.flatnonzero(small))
         timings["capture"], timings["tables"] = capture.capture_seconds, capture.tables_seconds
     transport = capture.transport

@@ -34,26 +34,24 @@ class ProbeCapture:
     capture_seconds: float = 0.0
     tables_seconds: float = 0.0
     proxy: object = None  # the CaptureProxy drawn instead of the scene's triangles, if any
-    budget: int | None = None  # the capture-triangle budget it was taken with
-    near_field: bool = True  # whether the tables gather each point's near field
+    key: tuple = ()  # the settings it was taken with that it depends on (BakeSettings.capture_key)
     small_objects: tuple = ()  # objects left out of the capture: under a texel from every probe
 
     @classmethod
-    def take(cls, scene, grid, renderer, cube_size: int, visibility: bool = True, proxy=None, budget=None,
-             near_field: bool = True) -> "ProbeCapture":
-        """Draw every probe's cube map of ``scene`` and build the tables. With ``proxy``
-        (a :class:`~cubegi_engine.proxy.CaptureProxy`), ``renderer`` draws the proxy's
-        triangles and the tables gather through its clusters; ``budget``: the setting it
-        was made for; ``near_field``: the tables gather each point's near field."""
-        return run(cls.take_steps(scene, grid, renderer, cube_size, visibility, proxy, budget, near_field))
+    def take(cls, scene, grid, renderer, settings, proxy=None) -> "ProbeCapture":
+        """Draw every probe's cube map of ``scene`` at ``settings`` (a BakeSettings: the
+        cube-map size, visibility, near field) and build the tables. With ``proxy`` (a
+        :class:`~cubegi_engine.proxy.CaptureProxy`), ``renderer`` draws the proxy's
+        triangles and the tables gather through its clusters."""
+        return run(cls.take_steps(scene, grid, renderer, settings, proxy))
 
     @classmethod
-    def take_steps(cls, scene, grid, renderer, cube_size: int, visibility: bool = True, proxy=None, budget=None,
-                   near_field: bool = True, step=None):
+    def take_steps(cls, scene, grid, renderer, settings, proxy=None, step=None):
         """:meth:`take` as a generator of working steps (:mod:`cubegi_engine.working`): the
         probes drawn in batches, the tables built in a thread. ``step(message)``: the working
         Progress to yield. Returns the ProbeCapture."""
         step = step or (lambda message: Progress(Stage.CAPTURE, 0, 1, message, working=True))
+        cube_size, visibility = int(settings.cube_size), bool(settings.visibility)
         positions = grid.positions()
         near, far = clip_planes(scene.scale, grid.point_cell_edge(positions))
         near = np.broadcast_to(np.asarray(near, dtype=np.float64), (len(positions),))
@@ -68,23 +66,22 @@ class ProbeCapture:
         t = time.perf_counter()
         def tables():
             scene.fingerprint()  # made here, in the thread, and kept on the snapshot for below
-            return Transport(scene, grid, cubes, visibility=visibility, proxy=proxy, near_field=near_field)
+            return Transport(scene, grid, cubes, visibility=visibility, proxy=proxy, near_field=settings.near_field)
 
         transport = yield from in_background(tables, step("building the tables (what each probe sees, and each point's near field)"))
-        return cls(grid, int(cube_size), bool(visibility), scene.fingerprint(), cubes, transport, t_capture,
-                   time.perf_counter() - t, proxy, budget, bool(near_field))
+        return cls(grid, cube_size, visibility, scene.fingerprint(), cubes, transport, t_capture,
+                   time.perf_counter() - t, proxy, settings.capture_key())
 
-    def valid_for(self, scene, grid, cube_size: int, visibility: bool, budget=None, near_field: bool = True) -> bool:
-        """True if this capture applies to ``scene`` baked on ``grid`` at these settings (and
+    def valid_for(self, scene, grid, settings) -> bool:
+        """True if this capture applies to ``scene`` baked on ``grid`` at ``settings`` (and
         its sky pattern, which the tables hold)."""
         return (
-            self.cube_size == int(cube_size) and self.visibility == bool(visibility) and self.budget == budget
-            and self.near_field == bool(near_field)
+            self.key == settings.capture_key()
             and _same_grid(self.grid, grid) and not self.fingerprint.changed(scene.fingerprint())
             and _same_sky(self.transport, scene)
         )
 
-    def patched(self, scene, grid, renderer, cube_size: int, visibility: bool = True, budget=None, near_field: bool = True):
+    def patched(self, scene, grid, renderer, settings):
         """This capture brought up to date for ``scene`` whose geometry moved but kept its
         layout (the same objects, point counts and triangles): only the probes that saw a
         moved object, or may see it where it is now, are drawn again; the tables are built
@@ -92,8 +89,7 @@ class ProbeCapture:
         (another grid or setting, a changed layout, or a simplified capture, whose clusters
         move with the geometry: take a new capture)."""
         fingerprint = scene.fingerprint()
-        if (self.cube_size != int(cube_size) or self.visibility != bool(visibility) or not _same_grid(self.grid, grid)
-                or self.budget != budget or self.near_field != bool(near_field) or self.proxy is not None
+        if (self.key != settings.capture_key() or not _same_grid(self.grid, grid) or self.proxy is not None
                 or not fingerprint.same_layout(self.fingerprint)
                 or not _same_sky(self.transport, scene)):
             return None
@@ -108,14 +104,14 @@ class ProbeCapture:
         if redraw.any():
             eyes = grid.positions()[redraw]
             near, far = clip_planes(scene.scale, grid.point_cell_edge(eyes))
-            fresh = capture_cubes(renderer, eyes, cube_size, near, far)
+            fresh = capture_cubes(renderer, eyes, self.cube_size, near, far)
             for mine, theirs in zip((cubes.tid, cubes.bary, cubes.dist, cubes.backface), (fresh.tid, fresh.bary, fresh.dist, fresh.backface)):
                 mine[redraw] = theirs
         t_capture = time.perf_counter() - t
         t = time.perf_counter()
-        transport = Transport(scene, grid, cubes, visibility=visibility, near_field=near_field)
-        patched = ProbeCapture(grid, int(cube_size), bool(visibility), fingerprint, cubes, transport, t_capture,
-                               time.perf_counter() - t, None, budget, bool(near_field))
+        transport = Transport(scene, grid, cubes, visibility=self.visibility, near_field=settings.near_field)
+        patched = ProbeCapture(grid, self.cube_size, self.visibility, fingerprint, cubes, transport, t_capture,
+                               time.perf_counter() - t, None, self.key)
         return patched, int(redraw.sum())
 
     def _may_see(self, scene, objects) -> np.ndarray:

@@ -95,7 +95,7 @@ def test_every_operator_says_why_it_refuses(empty_scene, cubegi):
 
 def _job(cubegi, bounces=3):
     ops = cubegi.cubegi_addon.operators
-    settings = ops.BakeSettings(cube_size=8, bounces=bounces)
+    settings = cubegi.cubegi_engine.settings.BakeSettings(cube_size=8, bounces=bounces)
     return ops.BakeJob(bpy.context, settings, progressive=True)
 
 
@@ -486,8 +486,13 @@ def test_probe_spacing_fits_a_grid_of_probes_that_far_apart(empty_scene, cubegi,
     assert r.returncode == 0, r.stderr
     assert json.loads((tmp_path / "r.json").read_text())["grid"]["resolution"] == [int(r) for r in np.round(size / 0.5)]
     r = subprocess.run([sys.executable, "-m", "cubegi_engine", "bake", str(src), "-o", str(tmp_path / "o.blend"),
-                        "--probe-spacing", "0"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+                        "--probe-spacing", "-1"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert r.returncode == 2 and "--probe-spacing: probe spacing must be a distance above 0" in r.stderr, r.stderr
+    r = subprocess.run([sys.executable, "-m", "cubegi_engine", "bake", str(src), "-o", str(tmp_path / "o.blend"), "--report",
+                        str(tmp_path / "r.json"), "--probe-spacing", "0", "--cells", "4", "--bounces", "1", "--cube-size", "8"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr  # 0, as in the panel: Grid Cells sets the spacing
+    assert max(json.loads((tmp_path / "r.json").read_text())["grid"]["resolution"]) == 4
 
 
 def box_cap(cubegi):
@@ -548,3 +553,53 @@ def test_a_long_bake_hands_control_back_in_short_steps_and_esc_in_any_of_them_ch
             assert not job.step(), kind
         job.cancel()
         assert scene_state() == before, kind
+
+
+# --- every bake setting declared once ------------------------------------------------------
+
+def _another(o):
+    """A valid value of the option ``o`` other than its default."""
+    if o.switch:
+        return not o.default
+    if o.kind is float:
+        return 0.05 if o.default is None else o.default * 2
+    return o.minimum if o.minimum is not None and o.minimum != o.default else o.default * 2
+
+
+def test_every_bake_option_is_a_property_a_panel_entry_a_flag_a_forwarded_word_and_a_report_entry(box, cubegi):
+    """The settings declaration (cubegi_engine/settings.py) makes the scene's properties,
+    the operator's, the panel's rows, the command line's options, the words a cluster's
+    bakes get, the report's settings and the capture's key: a setting declared there is in
+    every one, with its label, default and range."""
+    from cubegi.cubegi_addon import cli
+    from cubegi.cubegi_engine.settings import OPTIONS, SECTIONS, BakeSettings
+
+    scene_props = bpy.context.scene.cubegi.bl_rna.properties
+    op_props = bpy.ops.cubegi.bake.get_rna_type().properties
+    drawn = _draw("VIEW3D_PT_cubegi").props
+    assert len(OPTIONS) >= 15 and {o.section for o in OPTIONS} == {*SECTIONS, None}
+    parser = cli._parser("cubegi")
+    for o in OPTIONS:
+        if o.section is not None:
+            prop = scene_props[o.name]
+            assert prop.name == o.label and prop.description == o.help and o.name in drawn, o.name
+            assert getattr(bpy.context.scene.cubegi, o.name) == o.stored(o.default) or o.name in ("cube_size", "bounces"), o.name
+            if o.minimum is not None:
+                assert prop.hard_min == pytest.approx(o.minimum), o.name
+            if o.maximum is not None:
+                assert prop.hard_max == pytest.approx(o.maximum), o.name
+        else:
+            assert o.name not in scene_props and o.name not in drawn, o.name
+        assert op_props[o.name].name == o.label, o.name
+        if o.minimum is not None:
+            assert op_props[o.name].soft_min == pytest.approx(o.minimum), o.name  # soft: validate names a bad value
+        value = _another(o)
+        args = parser.parse_args(["bake", "in.blend", "-o", "out.blend", *o.words(value)])
+        assert cli._given(args) == {o.name: o.given(value)}, o.name
+        assert cli._forwarded(args) == o.words(value), o.name
+        settings = cli.checked_settings(args)
+        assert getattr(settings, o.name) == o.given(value) and settings.as_dict()[o.name] == o.given(value), o.name
+        changed = BakeSettings(**{o.name: o.given(value)}).capture_key() != BakeSettings().capture_key()
+        assert changed == o.capture, o.name
+    assert set(BakeSettings().as_dict()) == {o.name for o in OPTIONS}
+    assert {o.name for o in OPTIONS if o.capture} == {"cube_size", "visibility", "capture_triangles", "near_field"}

@@ -126,7 +126,7 @@ def test_cli_reference_writes_its_attributes_and_errors(saved_scene, tmp_path, c
         (["bake", "{src}", "-o", "{tmp}/o.blend", "--grid", "0", "2", "2"], "--grid"),
         (["bake", "{src}", "-o", "{tmp}/o.blend", "--cube-size", "2"], "--cube-size"),
         (["bake", "{src}", "-o", "{tmp}/o.blend", "--bounces", "-1"], "--bounces"),
-        (["bake", "{src}", "-o", "{tmp}/o.blend", "--tolerance", "0"], "--tolerance"),
+        (["bake", "{src}", "-o", "{tmp}/o.blend", "--tolerance", "-0.1"], "--tolerance"),
         (["bake", "{src}", "-o", "{tmp}/o.blend", "--tolerance", "1.5"], "--tolerance"),
         (["bake", "{src}", "-o", "{tmp}/o.blend", "--reference", "cycles", "--reference-samples", "0"], "--reference-samples"),
         (["bake", "{src}", "-o", "{tmp}/o.blend", "--cells", "0"], "--cells"),

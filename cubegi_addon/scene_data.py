@@ -1,14 +1,10 @@
 """Blender scene to CubeGI arrays: the objects that render, evaluated as a render evaluates
-them, their meshes, and the lights and world (read by :mod:`.read_lights`,
-:mod:`.read_materials` and :mod:`.read_world`).
+them, and their meshes, lights, materials and world (read by :mod:`.read_meshes`,
+:mod:`.read_lights`, :mod:`.read_materials` and :mod:`.read_world`).
 
-The scene reader: with those three, the only code that reads the scene's data for a bake.
+The scene reader: with those four, the only code that reads the scene's data for a bake.
 Bulk data moves with ``foreach_get`` into numpy arrays; nothing loops over vertices in
 Python.
-
-Shading points: CubeGI computes light at one point per distinct (vertex, corner normal,
-material) of each mesh, so a flat-shaded corner gets the light of each of its faces (as a
-Cycles bake of the face corners does); a vertex's value is the mean over its corners.
 """
 
 import hashlib
@@ -20,7 +16,7 @@ import numpy as np
 from ..cubegi_engine import working as working_steps
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.scene import SceneArrays
-from . import attributes, read_lights, read_materials, read_world
+from . import attributes, read_lights, read_meshes, read_world
 
 
 @dataclass
@@ -78,207 +74,6 @@ def _indirect_only_collections(view_layer):
 
     walk(view_layer.layer_collection)
     return found
-
-
-def corner_vertices(mesh):
-    """``(corners,)`` int64: each corner's vertex (the ``.corner_vert`` attribute where
-    Blender lists it, 200 times faster than ``loops``' ``vertex_index``)."""
-    out = np.empty(len(mesh.loops), dtype=np.int32)
-    attr = mesh.attributes.get(".corner_vert")
-    if attr is not None and attr.domain == "CORNER" and attr.data_type == "INT":
-        attr.data.foreach_get("value", out)
-    else:
-        mesh.loops.foreach_get("vertex_index", out)
-    return out.astype(np.int64)
-
-
-def vertex_positions(mesh):
-    """``(vertices, 3)`` float64 object-space positions (read as the float32 Blender stores:
-    a float64 buffer takes Blender's slow path, 3 times slower)."""
-    co = np.empty(len(mesh.vertices) * 3, dtype=np.float32)
-    mesh.vertices.foreach_get("co", co)
-    return co.reshape(-1, 3).astype(np.float64)
-
-
-def _triangle_materials(mesh):
-    """``(triangles,)`` int64: each loop triangle's material index (its face's)."""
-    tri_face = np.empty(len(mesh.loop_triangles), dtype=np.int32)
-    mesh.loop_triangle_polygons.foreach_get("value", tri_face)
-    attr = mesh.attributes.get("material_index")
-    if attr is None or attr.domain != "FACE":
-        return np.zeros(len(tri_face), dtype=np.int64)
-    face_mat = np.empty(len(mesh.polygons), dtype=np.int32)
-    attr.data.foreach_get("value", face_mat)
-    return face_mat[tri_face].astype(np.int64)
-
-
-def _mesh_arrays(ob_eval, matrix, notes):
-    """World-space corner data of one evaluated object, or None if it has no triangles."""
-    mesh = ob_eval.to_mesh()
-    try:
-        mesh.calc_loop_triangles()
-        t = len(mesh.loop_triangles)
-        if t == 0:
-            return None
-        nv, nl = len(mesh.vertices), len(mesh.loops)
-        local_co = vertex_positions(mesh)
-        tri_loops = np.empty(t * 3, dtype=np.int32)
-        mesh.loop_triangles.foreach_get("loops", tri_loops)
-        tri_mat = _triangle_materials(mesh)
-        loop_vertex = corner_vertices(mesh)
-        cn = np.empty(nl * 3, dtype=np.float32)
-        mesh.corner_normals.foreach_get("vector", cn)
-
-        m = np.array(matrix, dtype=np.float64)
-        co = local_co @ m[:3, :3].T + m[:3, 3]
-        normal_m = np.linalg.inv(m[:3, :3]).T if abs(np.linalg.det(m[:3, :3])) > 1e-300 else m[:3, :3]
-        tri_loops = tri_loops.reshape(-1, 3).astype(np.int64)
-        if np.linalg.det(m[:3, :3]) < 0:  # mirrored: keep front faces front
-            tri_loops = tri_loops[:, ::-1]
-
-        # Material of each corner (a corner's material is its face's).
-        loop_mat = np.zeros(nl, dtype=np.int64)
-        loop_mat[tri_loops.ravel()] = np.repeat(tri_mat, 3)
-        albedo = np.empty((nl, 3))
-        emission = np.empty((nl, 3))
-        slots = [s.material for s in ob_eval.material_slots] or [None]
-        used = np.flatnonzero(np.bincount(loop_mat))
-        for mi in used:
-            ids = np.arange(nl) if len(used) == 1 else np.flatnonzero(loop_mat == mi)
-            mat = slots[mi] if mi < len(slots) else None
-            rows = slice(None) if len(used) == 1 else ids
-            albedo[rows], emission[rows] = read_materials.material_corners(mat, mesh, ids, loop_vertex, notes)
-        np.clip(albedo, 0.0, 1.0, out=albedo)
-        np.maximum(emission, 0.0, out=emission)
-        return {
-            "co": co,
-            "local_co": local_co,
-            "loop_vertex": loop_vertex,
-            "corner_normal": cn.reshape(-1, 3),  # object space until _shading_points turns it (numpy alone)
-            "normal_matrix": normal_m,
-            "tri_loops": tri_loops,
-            "loop_mat": loop_mat,
-            "albedo": albedo,
-            "emission": emission,
-            "vertex_count": nv,
-        }
-    finally:
-        ob_eval.to_mesh_clear()
-
-
-def _shading_points(data):
-    """Merge corners that share vertex, normal and material into shading points."""
-    if "normal_matrix" in data:  # corner normals to world space, unit length
-        cn = data["corner_normal"] @ data.pop("normal_matrix").T
-        cn /= np.maximum(np.linalg.norm(cn, axis=1, keepdims=True), 1e-300)
-        data["corner_normal"] = cn
-    first, inverse = _groups(data["loop_vertex"], np.round(data["corner_normal"] * 1e4).astype(np.int64), data["loop_mat"])
-    count = np.bincount(inverse).astype(np.float64)[:, None]
-
-    def mean(values):
-        return np.stack([np.bincount(inverse, values[:, c], minlength=len(first)) for c in range(3)], axis=1) / count
-
-    normals = mean(data["corner_normal"])
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
-    return {
-        "points": data["co"][data["loop_vertex"][first]],
-        "normals": normals,
-        "albedo": mean(data["albedo"]),
-        "emission": mean(data["emission"]),
-        "triangles": inverse[data["tri_loops"]],
-        "loop_point": inverse,
-    }
-
-
-def _is_open(data):
-    """Whether the mesh has an edge that only one of its faces uses (a sheet: a plane, a
-    slat, a lamp's quad), by where its vertices stand (shading points split at seams, and a
-    box whose sides are separate pieces meeting at its edges, are closed)."""
-    if not len(data["tri_loops"]):
-        return False
-    tri = _welded(data["co"])[data["loop_vertex"][data["tri_loops"]]]
-    a = tri.ravel()
-    b = np.roll(tri, -1, axis=1).ravel()
-    edges = np.minimum(a, b) * (int(tri.max()) + 1) + np.maximum(a, b)
-    edges.sort()
-    single = np.ones(len(edges), dtype=bool)
-    same = edges[1:] == edges[:-1]
-    single[1:] &= ~same
-    single[:-1] &= ~same
-    return bool(single.any())
-
-
-def _mixed(x):
-    """SplitMix64's finaliser of each uint64 (every input bit moves every output bit)."""
-    x = x ^ (x >> np.uint64(30))
-    x *= np.uint64(0xBF58476D1CE4E5B9)
-    x ^= x >> np.uint64(27)
-    x *= np.uint64(0x94D049BB133111EB)
-    x ^= x >> np.uint64(31)
-    return x
-
-
-def _welded(co):
-    """``(vertices,)`` a label per position, equal for vertices that stand at one spot (as
-    ``np.unique(co, axis=0, return_inverse=True)`` labels them, ten times faster: one sort
-    of a 64-bit hash of each position, checked, and the row sort where two positions share
-    a hash)."""
-    exact = co + 0.0  # -0.0 and 0.0 are one position
-    bits = exact.view(np.uint64)
-    h = _mixed(bits[:, 0])
-    h = _mixed(h ^ bits[:, 1])
-    h = _mixed(h ^ bits[:, 2])
-    _, first, labels = np.unique(h, return_index=True, return_inverse=True)
-    labels = labels.ravel()
-    if not np.array_equal(exact[first][labels], exact):  # a shared hash (or a NaN)
-        labels = np.unique(exact, axis=0, return_inverse=True)[1].ravel()
-    return labels
-
-
-def _with_back_side(pts, data):
-    """An open mesh's shading points with their back side added: Cycles shades both sides of
-    a surface, so each point of a sheet gets a twin facing the other way (its light is not
-    written; it lights others), and each triangle a twin over them, wound the other way
-    (see ``SceneArrays.back``). A closed mesh keeps one side (its inside is no surface)."""
-    n = len(pts["points"])
-    pts["back"] = np.zeros(n, dtype=bool)
-    if not _is_open(data):
-        return pts
-    for key in ("points", "albedo", "emission"):
-        pts[key] = np.concatenate([pts[key], pts[key]])
-    pts["normals"] = np.concatenate([pts["normals"], -pts["normals"]])
-    pts["triangles"] = np.concatenate([pts["triangles"], pts["triangles"][:, ::-1] + n])
-    pts["back"] = np.concatenate([pts["back"], np.ones(n, dtype=bool)])
-    return pts
-
-
-def _groups(vertex, normal, material):
-    """``np.unique`` of the rows (vertex, normal x, y, z, material) with ``return_index`` and
-    ``return_inverse``, in its order, by one stable sort on three integer keys (the normal's
-    components, within +-10,000, packed into one): five times faster than sorting rows."""
-    packed = ((normal[:, 0] + 16384) << 30) | ((normal[:, 1] + 16384) << 15) | (normal[:, 2] + 16384)
-    order = np.lexsort((material, packed, vertex))
-    change = np.zeros(len(order), dtype=bool)  # a group starts where any key changes
-    change[:1] = True
-    for key in (vertex, packed, material):
-        k = key[order]
-        change[1:] |= k[1:] != k[:-1]
-    inverse = np.empty(len(order), dtype=np.int64)
-    inverse[order] = np.cumsum(change) - 1
-    return order[change], inverse
-
-
-def _same_vertices(mesh, data):
-    """True if the evaluated mesh's vertices are the original mesh's, one for one, so its
-    light can be written to them: its corners name the same vertices (modifiers that only
-    move vertices), or its vertices stand where the original's do (modifiers that only
-    change faces: Triangulate). False if modifiers add, remove or reorder vertices (a Sort
-    Elements node keeps the count but not the order)."""
-    if data["vertex_count"] != len(mesh.vertices):
-        return False
-    if len(data["loop_vertex"]) == len(mesh.loops) and np.array_equal(corner_vertices(mesh), data["loop_vertex"]):
-        return True
-    return bool(np.array_equal(vertex_positions(mesh), data["local_co"]))
 
 
 NON_MESH_GEOMETRY = {"CURVE", "SURFACE", "FONT", "META", "CURVES", "POINTCLOUD", "VOLUME"}
@@ -410,12 +205,12 @@ def receives(ob, only=None):
 
 def _moving_object(ob, inst, original, notes):
     """``(SceneArrays, MeshTarget)`` of one dynamic object as it stands, or None."""
-    data = _mesh_arrays(ob, inst.matrix_world, notes)
+    data = read_meshes.mesh_arrays(ob, inst.matrix_world, notes)
     if data is None:
         return None
-    pts = _shading_points(data)
+    pts = read_meshes.shading_points(data)
     mesh = original.data
-    if mesh.library is not None or not _same_vertices(mesh, data):
+    if mesh.library is not None or not read_meshes.same_vertices(mesh, data):
         notes.append(f"{original.name}: dynamic, but its mesh is linked or its modifiers change its vertices; not lit")
         return None
     n = len(pts["points"])
@@ -562,7 +357,7 @@ def _read(context, depsgraph, only):
             if part is not None:
                 moving.append(part)
             continue
-        data = _mesh_arrays(ob, inst.matrix_world, notes)
+        data = read_meshes.mesh_arrays(ob, inst.matrix_world, notes)
         if data is None:
             continue
         _note_unread_visibility(original, notes)
@@ -610,7 +405,7 @@ def _target(inst, original, top, data, only, claimed_meshes, notes):
     if mesh.name in claimed_meshes:
         notes.append(f"{original.name}: shares mesh {mesh.name!r} with an object already baked; not baked again")
         return None
-    if not _same_vertices(mesh, data):
+    if not read_meshes.same_vertices(mesh, data):
         notes.append(
             f"{original.name}: modifiers change its vertex count or order; it lights others but is not baked "
             "(apply them, or bake a copy without them)"
@@ -626,7 +421,7 @@ def _assemble(reading):
     parts, targets, offset = [], [], 0
     while reading.meshes:
         data, name, target = reading.meshes.pop(0)
-        pts = _with_back_side(_shading_points(data), data)
+        pts = read_meshes.with_back_side(read_meshes.shading_points(data), data)
         pts["name"] = name
         parts.append(pts)
         if target is not None:
@@ -679,7 +474,7 @@ def vertex_areas(ob):
     mesh = ob.data
     mesh.calc_loop_triangles()
     m = np.array(ob.matrix_world, dtype=np.float64)
-    co = vertex_positions(mesh) @ m[:3, :3].T
+    co = read_meshes.vertex_positions(mesh) @ m[:3, :3].T
     tri = np.empty(len(mesh.loop_triangles) * 3, dtype=np.int64)
     mesh.loop_triangles.foreach_get("vertices", tri)
     tri = tri.reshape(-1, 3)

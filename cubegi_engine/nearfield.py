@@ -24,7 +24,7 @@ before, near field included (:meth:`NearField.correct`, :meth:`NearField.correct
 What it costs, and what it leaves out: a point's candidates are the triangles within reach
 with a corner in front of its tangent plane (its own flat surface never is one), so a
 point in the open casts no rays. A point with more than MAX_CANDIDATES candidates, or more
-than MAX_NEARBY triangles in the voxels (of edge ``reach``) around it (dense, folded
+than MAX_NEARBY (:mod:`.spatial`) triangles in the voxels (of edge ``reach``) around it (dense, folded
 geometry: the inside of a sculpt's ear), is left out, and so is the whole near field of a scene whose
 candidate pairs would exceed MAX_PAIRS (estimated from a sample first); the report names
 both. Left-out points keep the probes' light.
@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import convergence, sh
+from .spatial import COORD_SLACK, SLACK, VoxelIndex
 
 __all__ = ["NearField", "build", "ray_pattern", "NEAR_REACH", "NEAR_RAYS", "MAX_CANDIDATES", "MAX_PAIRS"]
 
@@ -47,17 +48,10 @@ NEAR_RAYS = 32
 # A point with more candidate triangles than this is left out; a scene with more candidate
 # pairs in all than MAX_PAIRS gets no near field (each pair costs ``rays`` ray tests).
 MAX_CANDIDATES = 256
-MAX_NEARBY = 1024
 MAX_PAIRS = 2_000_000
-# Points whose candidates are found at a time, (pair, ray) tests at a time, and the sample
-# that estimates a scene's pairs.
-POINT_CHUNK = 4096
-TEST_CHUNK = 1 << 21
+# The sample that estimates a scene's pairs.
 SAMPLE = 2048
 GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
-# Tolerances: a ray starts SLACK x reach + COORD_SLACK x |coordinates| off its surface (see
-# build); a hit within BARY_SLACK outside a triangle's edge counts (a ray along an edge).
-SLACK, COORD_SLACK, BARY_SLACK = 1e-5, 4e-6, 1e-5
 # Hits fade out over this last share of the reach.
 FADE = 0.25
 # A covered point counts as hidden from the near field's hits (its light stands for no
@@ -379,18 +373,6 @@ def resting(points, normals, triangles, scale, which, twins=None):
     return out
 
 
-def _over(x, a, b, c, unit):
-    """Whether points ``x`` project into triangles ``a, b, c`` (unit normals ``unit``), with
-    BARY_SLACK at the edges."""
-    e = BARY_SLACK
-    inside = np.ones(len(x), dtype=bool)
-    for p, q in ((a, b), (b, c), (c, a)):
-        edge = q - p
-        side = np.einsum("ij,ij->i", np.cross(edge, x - p), unit)
-        inside &= side >= -e * np.einsum("ij,ij->i", edge, edge)
-    return inside
-
-
 def _uncover(index, weight, corners, hidden, tri, reach):
     """Barycentric ``weight (h, 3)`` of hits on triangles ``tri`` with ``corners`` some of
     which are ``hidden`` (under another object: a floor point under a wall standing on it,
@@ -454,192 +436,3 @@ def _gap_darkening(index, weight, corners, openness, at, tri, front, reach, turn
     ratio = np.minimum(1.0, (open_hit[:, None] + OPENNESS_FLOOR) / (open_c[ask] + OPENNESS_FLOOR))
     out[ask] *= ratio
     return out
-
-
-def _intersect(o, d, a, b, c, reach, start):
-    """Paired rays ``o + t d`` and triangles (Moller-Trumbore): ``(t, u, v, hit, front)``.
-    A hit lies within ``start < t < reach``; a ray that starts on a triangle's plane (within
-    ``start``: where two surfaces meet) is stopped by it only if it heads into its front."""
-    e1, e2 = b - a, c - a
-    pvec = np.cross(d, e2)
-    det = np.einsum("ij,ij->i", e1, pvec)
-    ok = np.abs(det) > 1e-12 * np.einsum("ij,ij->i", e1, e1)
-    inv = 1.0 / np.where(ok, det, 1.0)
-    tvec = o - a
-    u = np.einsum("ij,ij->i", tvec, pvec) * inv
-    qvec = np.cross(tvec, e1)
-    v = np.einsum("ij,ij->i", d, qvec) * inv
-    t = np.einsum("ij,ij->i", e2, qvec) * inv
-    front = np.einsum("ij,ij->i", d, np.cross(e1, e2)) < 0
-    e = BARY_SLACK  # a ray along a triangle's edge (from a point where surfaces meet) hits it
-    hit = ok & (u >= -e) & (v >= -e) & (u + v <= 1 + e) & (t < reach) & ((t > start) | ((t >= -start) & front))
-    return t, u, v, hit, front
-
-
-class VoxelIndex:
-    """Triangles ``a, b, c`` listed in the voxels (edge ``voxel``) their boxes overlap;
-    ``sheets``: the scene's two-sided objects (see :func:`build`)."""
-
-    def __init__(self, a, b, c, voxel, sheets=None):
-        self.a, self.b, self.c = a, b, c
-        self.sheets = sheets
-        self.centre = (a + b + c) / 3.0
-        self.radius = np.sqrt(np.max(np.stack([np.sum((v - self.centre) ** 2, axis=1) for v in (a, b, c)]), axis=0))
-        normal = np.cross(b - a, c - a)
-        self.unit = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
-        self.offset = np.einsum("ij,ij->i", self.unit, a)
-        self.lo = lo = np.minimum(np.minimum(a, b), c)
-        self.hi = hi = np.maximum(np.maximum(a, b), c)
-        self.origin = lo.min(axis=0) - voxel
-        self.h = max(voxel, float(np.max(hi.max(axis=0) - lo.min(axis=0))) / 256.0, 1e-12)
-        self.dims = np.floor((hi.max(axis=0) - self.origin) / self.h).astype(np.int64) + 3
-        box_lo = np.floor((lo - self.origin) / self.h).astype(np.int64)
-        span = np.floor((hi - self.origin) / self.h).astype(np.int64) - box_lo + 1
-        count = np.prod(span, axis=1)
-        tri = np.repeat(np.arange(len(a)), count)
-        k = np.arange(len(tri)) - np.repeat(np.cumsum(count) - count, count)
-        sx, sy = span[tri, 0], span[tri, 1]
-        key = self._key(box_lo[tri, 0] + k % sx, box_lo[tri, 1] + (k // sx) % sy, box_lo[tri, 2] + k // (sx * sy))
-        order = np.argsort(key, kind="stable")
-        key, self.tri = key[order], tri[order]
-        self.keys, self.start = np.unique(key, return_index=True)
-        self.end = np.append(self.start[1:], len(key))
-
-    def trace(self, points, normals, dirs, reach, slack, pair_p, pair_t):
-        """The nearest hit of every ray ``points + slack normals + t dirs`` (``dirs (s, k, 3)``)
-        within ``reach`` among the candidate pairs: ``(t (s, k) inf where none, triangle (s, k)
-        -1 where none, (u, v) (s, k, 2), front (s, k))``. Only the rays inside the cone around a
-        triangle's bounding sphere are tested against it."""
-        a, b, c = self.a, self.b, self.c
-        s, rays = dirs.shape[:2]
-        best = np.full((s, rays), np.inf)
-        hit_tri = np.full((s, rays), -1, dtype=np.int64)
-        hit_uv = np.zeros((s, rays, 2))
-        hit_front = np.zeros((s, rays), dtype=bool)
-        step = max(1, TEST_CHUNK // rays)
-        for lo in range(0, len(pair_p), step):
-            pp, tt = pair_p[lo : lo + step], pair_t[lo : lo + step]
-            to = self.centre[tt] - points[pp]
-            dist = np.linalg.norm(to, axis=1)
-            cos_cone = np.sqrt(np.clip(1.0 - (self.radius[tt] / np.maximum(dist, 1e-300)) ** 2, 0.0, 1.0))
-            cos_cone[dist <= self.radius[tt]] = -1.0
-            along = np.einsum("pkc,pc->pk", dirs[pp], to) / np.maximum(dist, 1e-300)[:, None]
-            pi, ki = np.nonzero(along >= cos_cone[:, None] - 1e-9)
-            p, t_ = pp[pi], tt[pi]
-            origin = points[p] + slack[p, None] * normals[p]
-            t, u, v, hit, front = _intersect(origin, dirs[p, ki], a[t_], b[t_], c[t_], reach[p], 2.0 * slack[p])
-            if self.sheets is not None:
-                # A sheet is met on the side a ray comes from: its back faces are its twin's
-                # fronts. A ray from a point on a sheet's plane (a wall's foot on a floor) is
-                # stopped there by the sheet's front only, not by the twin behind it.
-                hit &= (front | ~self.sheets.triangles[t_]) & ((t > 2.0 * slack[p]) | ~self.sheets.triangle_back[t_])
-            p, k, t_, t, u, v, front = p[hit], ki[hit], t_[hit], t[hit], u[hit], v[hit], front[hit]
-            order = np.lexsort((t, p * rays + k))
-            p, k, t_, t, u, v, front = (x[order] for x in (p, k, t_, t, u, v, front))
-            head = np.ones(len(p), dtype=bool)
-            head[1:] = (p[1:] != p[:-1]) | (k[1:] != k[:-1])
-            p, k, t_, t, u, v, front = (x[head] for x in (p, k, t_, t, u, v, front))
-            nearer = t < best[p, k]
-            p, k = p[nearer], k[nearer]
-            best[p, k], hit_tri[p, k] = t[nearer], t_[nearer]
-            hit_uv[p, k] = np.stack([u[nearer], v[nearer]], axis=1)
-            hit_front[p, k] = front[nearer]
-        return best, hit_tri, hit_uv, hit_front
-
-    def _key(self, ix, iy, iz):
-        d = self.dims
-        return (np.clip(iz, 0, d[2] - 1) * d[1] + np.clip(iy, 0, d[1] - 1)) * d[0] + np.clip(ix, 0, d[0] - 1)
-
-    def _voxels(self, pt, key):
-        """The points ``pt`` and the slots (indices into :attr:`keys`) of their voxel ``key``s
-        that hold triangles; empty voxels dropped."""
-        slot = np.minimum(np.searchsorted(self.keys, key), len(self.keys) - 1)
-        found = self.keys[slot] == key
-        return pt[found], slot[found]
-
-    def _listed(self, pt, slot):
-        """Every (point, triangle) pair of points ``pt`` and the triangles listed in their
-        voxels ``slot`` (indices into :attr:`keys`), one pair per listing."""
-        count = self.end[slot] - self.start[slot]
-        pp = np.repeat(pt, count)
-        tt = self.tri[np.repeat(self.start[slot], count) + np.arange(len(pp)) - np.repeat(np.cumsum(count) - count, count)]
-        return pp, tt
-
-    def segment_candidates(self, starts, ends):
-        """(segment, triangle) pairs: the triangles whose boxes meet the box of each segment
-        ``starts``..``ends`` (``(m, 3)`` each, no longer than a voxel's edge: at most 2 x 2 x 2
-        voxels hold it). What one ray along a normal needs, for an eighth of the voxels
-        :meth:`candidates` asks."""
-        lo = np.minimum(starts, ends)
-        hi = np.maximum(starts, ends)
-        first = np.floor((lo - self.origin) / self.h).astype(np.int64)
-        last = np.floor((hi - self.origin) / self.h).astype(np.int64)
-        offsets = np.array([[i >> 0 & 1, i >> 1 & 1, i >> 2 & 1] for i in range(8)], dtype=np.int64)
-        out_p, out_t = [], []
-        for at in range(0, len(starts), POINT_CHUNK):
-            sl = slice(at, at + POINT_CHUNK)
-            idx = first[sl, None, :] + offsets[None]  # (m, 8, 3)
-            use = np.all(idx <= last[sl, None, :], axis=2)
-            key = np.where(use, self._key(idx[..., 0], idx[..., 1], idx[..., 2]), -1)
-            pt, col = np.nonzero(key >= 0)
-            pt, slot = self._voxels(pt, key[pt, col])
-            pp, tt = self._listed(pt, slot)
-            pp += at
-            keep = np.all((lo[pp] <= self.hi[tt]) & (hi[pp] >= self.lo[tt]), axis=1)
-            pair = np.unique(pp[keep] * len(self.a) + tt[keep])  # a triangle in several voxels, once
-            out_p.append(pair // len(self.a))
-            out_t.append(pair % len(self.a))
-        if not out_p:
-            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-        return np.concatenate(out_p), np.concatenate(out_t)
-
-    def candidates(self, points, normals, reach, touching=False):
-        """(point, triangle) pairs a ray from the point into its hemisphere may hit within
-        its reach (see the module docstring), and ``(s,)`` bool: the points left out as
-        crowded (their pairs are not made). ``touching``: instead, the triangles that lie in
-        a point's plane, facing the other way, over it (see :func:`resting`)."""
-        a, b, c = self.a, self.b, self.c
-        base = np.floor((points - self.origin) / self.h).astype(np.int64)
-        crowded = np.zeros(len(points), dtype=bool)
-        offsets = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
-        out_p, out_t = [], []
-        for lo in range(0, len(points), POINT_CHUNK):
-            sl = slice(lo, lo + POINT_CHUNK)
-            idx = base[sl, None, :] + offsets[None]  # (m, 27, 3)
-            # Only the voxels within reach with a part in front of the point's tangent plane.
-            rel = self.origin + (idx + 0.5) * self.h - points[sl, None, :]
-            gap = np.maximum(np.abs(rel) - 0.5 * self.h, 0.0)
-            ahead = np.einsum("mvc,mc->mv", rel, normals[sl]) + 0.5 * self.h * np.abs(normals[sl]).sum(axis=1)[:, None]
-            use = (np.einsum("mvc,mvc->mv", gap, gap) <= reach[sl, None] ** 2) & (ahead >= -1e-9 * self.h)  # or touching it
-            key = np.where(use, self._key(idx[..., 0], idx[..., 1], idx[..., 2]), -1)
-            key = np.sort(key, axis=1)
-            new = key >= 0
-            new[:, 1:] &= key[:, 1:] != key[:, :-1]
-            pt, col = np.nonzero(new)
-            pt, slot = self._voxels(pt, key[pt, col])
-            count = self.end[slot] - self.start[slot]
-            # Points with more triangles than MAX_NEARBY listed around them are left out
-            # before their pairs are made (dense, folded geometry).
-            many = np.bincount(pt, count, minlength=len(idx)) > MAX_NEARBY
-            crowded[lo : lo + POINT_CHUNK] = many
-            pp, tt = self._listed(pt[~many[pt]], slot[~many[pt]])
-            pp += lo
-            # Cheapest tests first: the boxes, then the plane, then a corner in front.
-            x, r = points[pp], reach[pp][:, None]
-            keep = np.all((x >= self.lo[tt] - r) & (x <= self.hi[tt] + r), axis=1)
-            pp, tt, x, r = pp[keep], tt[keep], x[keep], r[keep, 0]
-            keep = np.abs(np.einsum("ij,ij->i", x, self.unit[tt]) - self.offset[tt]) <= r
-            pp, tt, x, r = pp[keep], tt[keep], x[keep], r[keep]
-            nx = normals[pp]
-            front = np.maximum(np.maximum(np.einsum("ij,ij->i", a[tt] - x, nx), np.einsum("ij,ij->i", b[tt] - x, nx)),
-                               np.einsum("ij,ij->i", c[tt] - x, nx))
-            slack = SLACK * r + COORD_SLACK * np.abs(x).max(axis=1)
-            if touching:  # lying in the point's plane, facing the other way, over the point
-                keep = (np.abs(np.einsum("ij,ij->i", x, self.unit[tt]) - self.offset[tt]) <= 2.0 * slack) & (
-                    np.einsum("ij,ij->i", self.unit[tt], nx) < -0.5) & _over(x, a[tt], b[tt], c[tt], self.unit[tt])
-            else:
-                keep = front > slack
-            pair = np.unique(pp[keep] * len(a) + tt[keep])  # a triangle listed in several voxels, once
-            out_p.append(pair // len(a))
-            out_t.append(pair % len(a))
-        return np.concatenate(out_p), np.concatenate(out_t), crowded

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import sh
-from .nearfield import VoxelIndex
+from .spatial import VoxelIndex
 from .transport import INSIDE_BACKFACE_SHARE as INSIDE_SHARE  # the capture's own test, asked first
 
 __all__ = ["Placement", "place", "trace", "inside", "PROBE_RAYS", "PROBE_REACH", "INSIDE_SHARE", "MAX_SHIFT", "MARGIN", "BEYOND"]

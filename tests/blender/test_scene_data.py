@@ -173,7 +173,7 @@ def test_points_no_probe_lights_are_noted(empty_scene, cubegi):
 def test_corner_groups_are_numpys_unique_rows(cubegi):
     """Corners merge into shading points by (vertex, normal, material): the fast grouping
     gives np.unique's rows, first indices and inverse, in its order."""
-    from cubegi.cubegi_addon.scene_data import _groups
+    from cubegi.cubegi_addon.read_meshes import _groups
 
     rng = np.random.default_rng(4)
     for n in (0, 1, 7, 5000):
@@ -229,7 +229,7 @@ def test_the_fast_mesh_readers_read_what_blenders_plain_api_gives(empty_scene, c
     attribute, positions as float32: the same numbers as ``loops``' ``vertex_index``, the loop
     triangles' ``material_index`` and a float64 read of ``co`` (on every Blender version: a
     version without the attribute takes the plain path)."""
-    sd = cubegi.cubegi_addon.scene_data
+    sd = cubegi.cubegi_addon.read_meshes
     for ob in _large_mixed_scene():
         mesh = ob.data
         mesh.calc_loop_triangles()
@@ -248,7 +248,7 @@ def test_the_fast_mesh_readers_read_what_blenders_plain_api_gives(empty_scene, c
 def test_welding_by_hash_groups_positions_as_numpys_unique_rows(cubegi):
     """``_welded`` labels positions as ``np.unique(axis=0)`` groups them, on a float32 grid's
     positions (regular bits, where a weak hash collides) with duplicates, -0.0 and NaN."""
-    sd = cubegi.cubegi_addon.scene_data
+    sd = cubegi.cubegi_addon.read_meshes
     rng = np.random.default_rng(5)
     grid = np.stack(np.meshgrid(*[np.linspace(-1, 1, 80, dtype=np.float32)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
     co = np.concatenate([grid, grid[:1000], -0.0 * grid[:1]]).astype(np.float64)[rng.permutation(len(grid) + 1001)]

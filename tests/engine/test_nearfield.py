@@ -4,7 +4,7 @@ brute-force ray caster."""
 import numpy as np
 import pytest
 
-from cubegi.cubegi_engine import nearfield, sh
+from cubegi.cubegi_engine import nearfield, sh, spatial
 
 
 def _quad(lo, hi, z, up=True):
@@ -100,14 +100,14 @@ def _brute_force_hits(points, normals, reach, vertices, triangles, rays):
     triangle with the same rays as the near field."""
     turn = 2.0 * np.pi * ((points / reach) @ nearfield.TURN_HASH % 1.0)
     dirs = nearfield._directions(normals, rays, turn)
-    slack = nearfield.SLACK * reach + nearfield.COORD_SLACK * np.abs(points).max(axis=1)
+    slack = spatial.SLACK * reach + spatial.COORD_SLACK * np.abs(points).max(axis=1)
     out = np.full((len(points), rays), -1)
     a, b, c = (vertices[triangles[:, i]] for i in range(3))
     for i in range(len(points)):
         o = np.repeat(points[i : i + 1] + slack[i] * normals[i], len(a), axis=0)
         for k in range(rays):
             d = np.repeat(dirs[i, k][None], len(a), axis=0)
-            t, _, _, hit, _ = nearfield._intersect(o, d, a, b, c, np.full(len(a), reach), np.full(len(a), 2 * slack[i]))
+            t, _, _, hit, _ = spatial.intersect_pairs(o, d, a, b, c, np.full(len(a), reach), np.full(len(a), 2 * slack[i]))
             # Only triangles with a corner in front of the point's plane count (as in the near field).
             front = np.max(np.stack([(v - points[i]) @ normals[i] for v in (a, b, c)]), axis=0) > slack[i]
             t = np.where(hit & front, t, np.inf)
@@ -287,7 +287,7 @@ def test_the_segment_search_finds_every_triangle_whose_box_meets_the_segment():
     rng = np.random.default_rng(5)
     centres = rng.random((400, 3)) * 4.0
     a, b, c = (centres + rng.normal(scale=0.15, size=(400, 3)) for _ in range(3))
-    index = nearfield.VoxelIndex(a, b, c, 0.3)
+    index = spatial.VoxelIndex(a, b, c, 0.3)
     starts = rng.random((300, 3)) * 4.0
     dirs = rng.normal(size=(300, 3))
     ends = starts + 0.3 * dirs / np.linalg.norm(dirs, axis=1, keepdims=True)  # one voxel edge long

@@ -263,27 +263,10 @@ def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS
         return NearField.empty(rays, seconds=time.perf_counter() - t0)
     a, b, c = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]
     index = VoxelIndex(a, b, c, float(reach[asked].max()), sheets)
-    if len(asked) > 16 * SAMPLE:  # estimate the pairs first: a dense scene's would take too long
-        sample = asked[np.linspace(0, len(asked) - 1, SAMPLE).astype(np.int64)]
-        pp, _, _ = index.candidates(points[sample], normals[sample], reach[sample])
-        estimate = int(len(pp) * len(asked) / SAMPLE)
-        if estimate > max_pairs:
-            return NearField.empty(rays, f"about {estimate:,} candidate pairs of points and triangles, more than {max_pairs:,}",
-                                   time.perf_counter() - t0)
-    pair_p, pair_t, some = index.candidates(points[asked], normals[asked], reach[asked])
-    pair_p = asked[pair_p]
-    if sheets is not None:
-        near = ~sheets.other_side(pair_p, pair_t)
-        pair_p, pair_t = pair_p[near], pair_t[near]
-    crowded = np.zeros(s, dtype=bool)
-    crowded[asked] = some
-    crowded |= np.bincount(pair_p, minlength=s) > MAX_CANDIDATES
-    if crowded.any():
-        keep = ~crowded[pair_p]
-        pair_p, pair_t = pair_p[keep], pair_t[keep]
-    if len(pair_p) > max_pairs:
-        return NearField.empty(rays, f"{len(pair_p):,} candidate pairs of points and triangles, more than {max_pairs:,}",
-                               time.perf_counter() - t0)
+    found = _candidate_pairs(index, points, normals, reach, asked, sheets, max_pairs)
+    if isinstance(found, str):
+        return NearField.empty(rays, found, time.perf_counter() - t0)
+    pair_p, pair_t, crowded = found
     # Each point's pattern is turned by an angle hashed from its position (not its index:
     # the same scene in another object order bakes the same), decorrelating neighbours.
     # Only the points with candidates cast rays; their arrays are theirs alone (a million
@@ -310,45 +293,85 @@ def build(points, normals, reach, triangles, rays=NEAR_RAYS, max_pairs=MAX_PAIRS
     openness = np.ones(s)
     openness[cast] = 1.0 - fade.mean(axis=1)
     if hidden is not None:
-        # Hidden: covered (no probe light) and closed in or lying on another surface (under a
-        # wall standing on it, a block's underside). A covered point open to its own view (a
-        # thick wall's outer face: no probe is outside) has light of its own (the sky's, the
-        # sun's), and a ray that lands beside it takes it. So has a sheet's back side and a
-        # covered point facing one across a gap: the ceiling 1 cm over a lamp's quad, lit by
-        # its top, which it lights back (McGuire's Cornell box: the ceiling's indirect light
-        # 0.10 -> 0.40 against Cycles' 0.56). A floor under a block standing 2 cm above it
-        # faces the block's own underside: hidden, as before.
         hidden = np.asarray(hidden, dtype=bool).copy()
         if not hidden_as_given:
-            open_ = openness >= 1.0 - HIDDEN_SHARE
-            if lit_if_open is not None:
-                hidden &= ~(open_ & lit_if_open)
-            if sheets is not None:
-                # A sheet's back side, and a point facing one across a gap, are surfaces.
-                facing = sheets.back.copy()
-                facing[cast[point[sheets.back[corners].any(axis=1)]]] = True
-                hidden &= ~facing
-            ask = np.flatnonzero(hidden & open_)
-            if len(ask):
-                scale = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
-                hidden[ask] = resting(points, normals, tri, scale, ask, None if sheets is None else sheets.twins)
+            hidden = _hidden(hidden, openness, lit_if_open, sheets, cast[point], corners, points, normals, tri)
         weight = _uncover(index, weight, corners, hidden, hit_tri[point, ray], rch[point])
     if OPENNESS_RAYS:
         hit_at = at[point] + best[point, ray][:, None] * dirs[point, ray]
         weight = _gap_darkening(index, weight, corners, openness, hit_at, hit_tri[point, ray], hit_front[point, ray],
                                 rch[point], turn[point])
     weight *= (hit_front[point, ray] * fade[point, ray])[:, None] / rays  # a back face occludes and sends nothing
-    # What the probes' diffuse light loses: their radiance in the hit directions, averaged
-    # as the rays average, plus the hit share of the pattern's own quadrature error (so a
-    # point whose rays all hit keeps no probe light, and one whose rays all leave keeps all).
-    y = sh.basis(dirs[local_rows])  # (m, K, 9)
-    hit_mask = fade[local_rows]
-    share = hit_mask.mean(axis=1)
-    pattern_error = sh.diffuse_basis(normals[rows]) - y.mean(axis=1)
-    open_basis = np.einsum("mk,mkj->mj", hit_mask, y) / rays + share[:, None] * pattern_error
+    open_basis, share = _open_basis(dirs[local_rows], fade[local_rows], normals[rows])
     return NearField(rows.astype(np.int64), open_basis, hit_row.astype(np.int64).ravel(), corners, weight,
                      rays, float(reach.max()), len(pair_p), int(crowded.sum()), "", time.perf_counter() - t0, share,
                      None if hidden is None else np.flatnonzero(hidden))
+
+
+def _candidate_pairs(index, points, normals, reach, asked, sheets, max_pairs):
+    """``(pair_p, pair_t, crowded (s,) bool)``: the (point, triangle) pairs the points
+    ``asked`` test their rays against, without the crowded points' (more than
+    MAX_CANDIDATES pairs, or too many triangles around); or, where the pairs are more than
+    ``max_pairs`` (estimated first from a sample in a large scene), the reason in words."""
+    if len(asked) > 16 * SAMPLE:  # estimate the pairs first: a dense scene's would take too long
+        sample = asked[np.linspace(0, len(asked) - 1, SAMPLE).astype(np.int64)]
+        pp, _, _ = index.candidates(points[sample], normals[sample], reach[sample])
+        estimate = int(len(pp) * len(asked) / SAMPLE)
+        if estimate > max_pairs:
+            return f"about {estimate:,} candidate pairs of points and triangles, more than {max_pairs:,}"
+    pair_p, pair_t, some = index.candidates(points[asked], normals[asked], reach[asked])
+    pair_p = asked[pair_p]
+    if sheets is not None:
+        near = ~sheets.other_side(pair_p, pair_t)
+        pair_p, pair_t = pair_p[near], pair_t[near]
+    crowded = np.zeros(len(points), dtype=bool)
+    crowded[asked] = some
+    crowded |= np.bincount(pair_p, minlength=len(points)) > MAX_CANDIDATES
+    if crowded.any():
+        keep = ~crowded[pair_p]
+        pair_p, pair_t = pair_p[keep], pair_t[keep]
+    if len(pair_p) > max_pairs:
+        return f"{len(pair_p):,} candidate pairs of points and triangles, more than {max_pairs:,}"
+    return pair_p, pair_t, crowded
+
+
+def _hidden(covered, openness, lit_if_open, sheets, hit_point, corners, points, normals, tri):
+    """``(s,)`` bool: the ``covered`` points that are hidden from the near field's hits.
+
+    Hidden: covered (no probe light) and closed in or lying on another surface (under a wall
+    standing on it, a block's underside). A covered point open to its own view (a thick
+    wall's outer face: no probe is outside) has light of its own (the sky's, the sun's), and
+    a ray that lands beside it takes it. So has a sheet's back side and a covered point
+    facing one across a gap (``hit_point``, ``corners``: each hit's point and triangle
+    corners): the ceiling 1 cm over a lamp's quad, lit by its top, which it lights back
+    (McGuire's Cornell box: the ceiling's indirect light 0.10 -> 0.40 against Cycles' 0.56).
+    A floor under a block standing 2 cm above it faces the block's own underside: hidden."""
+    hidden = covered.copy()
+    open_ = openness >= 1.0 - HIDDEN_SHARE
+    if lit_if_open is not None:
+        hidden &= ~(open_ & lit_if_open)
+    if sheets is not None:
+        # A sheet's back side, and a point facing one across a gap, are surfaces.
+        facing = sheets.back.copy()
+        facing[hit_point[sheets.back[corners].any(axis=1)]] = True
+        hidden &= ~facing
+    ask = np.flatnonzero(hidden & open_)
+    if len(ask):
+        scale = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+        hidden[ask] = resting(points, normals, tri, scale, ask, None if sheets is None else sheets.twins)
+    return hidden
+
+
+def _open_basis(dirs, fade, normals):
+    """What the probes' diffuse light loses at points casting rays ``dirs (m, k, 3)`` whose
+    hits weigh ``fade (m, k)``: their radiance in the hit directions, averaged as the rays
+    average, plus the hit share of the pattern's own quadrature error (so a point whose rays
+    all hit keeps no probe light, and one whose rays all leave keeps all). ``(open_basis
+    (m, 9), share (m,))``."""
+    y = sh.basis(dirs)  # (m, K, 9)
+    share = fade.mean(axis=1)
+    pattern_error = sh.diffuse_basis(normals) - y.mean(axis=1)
+    return np.einsum("mk,mkj->mj", fade, y) / dirs.shape[1] + share[:, None] * pattern_error, share
 
 
 def resting(points, normals, triangles, scale, which, twins=None):

@@ -145,29 +145,14 @@ def solve_steps(scene, transport, direct, settings: BakeSettings | None = None, 
     cap = settings.bounces
     near = transport.near  # each bounce's light is gathered once more with its near field
     seen_before = direct
-    def one_bounce(previous, seen_before):
-        """The next bounce's light: ``(coeffs, light, factor, gathered, seconds of the gather)``."""
-        t0 = time.perf_counter()
-        coeffs = transport.gather_project(albedo * previous)
-        t1 = time.perf_counter()
-        light = scene.zero_dark_points_inplace(transport.interpolate(coeffs).astype(np.float64))
-        factor = np.ones(3)
-        if landing is not None:
-            light, factor = conserve_energy(light, albedo * previous, landing, areas)
-        gathered = light
-        if near is not None:
-            gathered = scene.zero_dark_points_inplace(near.correct(
-                light, transport.interpolate_rows(coeffs * factor.astype(np.float32), near.rows, near.open_basis), albedo * seen_before))
-            if landing is not None:
-                gathered = keep_total(gathered, light, areas, transport.covered)
-        return coeffs, light, factor, gathered, t1 - t0
 
     def working(b):
         return Progress(Stage.BOUNCE, first_step + b - 1, total, f"bounce {b}/{cap}", working=True)
 
     for b in range(1, cap + 1):
         t0 = time.perf_counter()
-        coeffs, light, factor, gathered, t_gather = yield from in_background(one_bounce, working(b), previous, seen_before)
+        coeffs, light, factor, gathered, t_gather = yield from in_background(
+            _one_bounce, working(b), scene, transport, albedo, areas, landing, previous, seen_before)
         t1 = t2 = t0 + t_gather
         bounce_coeffs = bounce_coeffs + coeffs * factor.astype(np.float32)  # as balanced
         t3 = time.perf_counter()
@@ -200,9 +185,7 @@ def solve_steps(scene, transport, direct, settings: BakeSettings | None = None, 
     def the_tail():
         tail, tail_coeffs, report = _tail(transport, albedo, coeffs, bounces, records, remaining, areas, settings)
         if tail is not None and tail_coeffs is not None and near is not None:  # a solved tail: its near field too
-            part = transport.interpolate_rows(tail_coeffs, near.rows, near.open_basis)
-            fixed = near.correct_sum(tail, part, albedo, seen_before)
-            tail = keep_total(fixed, tail, areas, transport.covered) if landing is not None else fixed
+            tail = _near_tail(transport, tail, tail_coeffs, albedo, seen_before, areas, landing is not None)
         return tail, tail_coeffs, report
 
     tail, tail_coeffs, report = yield from in_background(
@@ -217,6 +200,36 @@ def solve_steps(scene, transport, direct, settings: BakeSettings | None = None, 
             light=solution.total, new_light=tail,
         )
     return solution
+
+
+def _one_bounce(scene, transport, albedo, areas, landing, previous, seen_before):
+    """The next bounce of ``previous (s, 3)`` (the near field gathers ``seen_before``, the
+    light last gathered): ``(coeffs, light, factor, gathered, seconds of the gather)``;
+    ``landing`` None skips the energy balance."""
+    near = transport.near
+    t0 = time.perf_counter()
+    coeffs = transport.gather_project(albedo * previous)
+    t1 = time.perf_counter()
+    light = scene.zero_dark_points_inplace(transport.interpolate(coeffs).astype(np.float64))
+    factor = np.ones(3)
+    if landing is not None:
+        light, factor = conserve_energy(light, albedo * previous, landing, areas)
+    gathered = light
+    if near is not None:
+        gathered = scene.zero_dark_points_inplace(near.correct(
+            light, transport.interpolate_rows(coeffs * factor.astype(np.float32), near.rows, near.open_basis), albedo * seen_before))
+        if landing is not None:
+            gathered = keep_total(gathered, light, areas, transport.covered)
+    return coeffs, light, factor, gathered, t1 - t0
+
+
+def _near_tail(transport, tail, tail_coeffs, albedo, seen_before, areas, balanced):
+    """A solved tail with its near field summed to the end (and its total kept where the
+    bake is ``balanced``)."""
+    near = transport.near
+    part = transport.interpolate_rows(tail_coeffs, near.rows, near.open_basis)
+    fixed = near.correct_sum(tail, part, albedo, seen_before)
+    return keep_total(fixed, tail, areas, transport.covered) if balanced else fixed
 
 
 def _tail(transport, albedo, last_coeffs, bounces, records, remaining, areas, settings):

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import cubemap, nearfield, sh
-from .grid import Cover, probes_in_front, visibility_weights
 from .nearfield import NEAR_REACH
+from .visibility import Cover, probes_in_front, visibility_weights
 
 # A covered point in the open (see Transport._light_under) casts rays this many cells long,
 # and is lit through the gap where at least this share of them meets what covers it.
@@ -130,9 +130,7 @@ class Transport:
         self.sky_projection_map = None
         self.sky_map = getattr(scene, "sky_map", None)  # kept: a capture is valid for this pattern only
         if self.sky_map is not None:
-            pattern = cubemap.sample_image(np.asarray(scene.sky_map, dtype=np.float64), cubemap.equirect_uv(dirs))
-            weights = (self.sh_weights[:, :, None] * pattern[:, None, :].astype(np.float32)).reshape(len(dirs), 27)
-            self.sky_projection_map = (sky @ weights).reshape(p, 9, 3)
+            self.sky_projection_map = self._sky_pattern_projection(dirs, sky)
         back_share = (back * solid[None, :]).sum(axis=1) / (4.0 * np.pi)
         self.probe_valid = back_share <= INSIDE_BACKFACE_SHARE
         self.seen_from_behind = None
@@ -150,21 +148,10 @@ class Transport:
         # whose probes were all left out for lying inside geometry: a floor under a block.)
         whole = grid.whole()  # a probe subset's whole grid
         self.no_probe = ~np.any((weight if whole is grid else whole.trilinear(scene.points)[1]) > 0, axis=1)
+        trilinear_weight = weight
         spare = None  # (rows, weights of the probes behind them), for points the near field leaves dark
         if visibility:
-            dist = capture.dist.reshape(p, 6, n, n)
-            cover = None
-            if scene.point_object is not None:
-                cover = Cover.of(capture.tid.reshape(p, 6, n, n), triangles, scene.points if proxy is None else proxy.points,
-                                 self.triangle_object, scene.point_object)
-            trilinear_weight = weight
-            seen, behind = visibility_weights(grid, positions, dist, self.probe_valid, scene.points, scene.normals, index,
-                                              weight, cover, both=True,
-                                              sheet=None if scene.sheets() is None else scene.sheets().point_sheet)
-            alone = np.flatnonzero(~seen.any(axis=1) & behind.any(axis=1))
-            if len(alone):
-                spare = (alone, behind[alone])
-            weight = seen
+            weight, spare = self._seen_weights(scene, grid, capture, triangles, proxy, positions, index, weight)
         elif not self.probe_valid.all():
             w = weight * self.probe_valid[index]
             total = w.sum(axis=1, keepdims=True)
@@ -189,19 +176,45 @@ class Transport:
             self.near = nearfield.build(scene.points, scene.normals, reach, scene.triangles, hidden=self.covered,
                                         lit_if_open=lit_if_open, sheets=scene.sheets())
         if spare is not None:
-            # A point only probes behind its plane see (a block's underside below the lowest
-            # probes) is lit by its near field where that encloses at least half its view (the
-            # probes' light in the few open directions comes out too bright); elsewhere (a
-            # sofa's underside well above the floor, no near field) by them. Cornell box at 12
-            # cells: 7.1% (at least half), 7.9% (three quarters), 9.2% (always by them).
-            rows, w = spare
-            if self.near is not None:
-                keep = ~self.near.enclosed(len(scene.points))[rows]
-                rows, w = rows[keep], w[keep]
-            self.point_weights[rows] = (w[:, :, None] * basis[rows][:, None, :]).reshape(len(rows), COEFFS_PER_POINT)
-            self.covered[rows] = _weightless(self.point_weights[rows])
+            self._light_from_behind(spare, basis, len(scene.points))
         if self.near is not None and visibility and self.covered.any():
             self._light_under(scene, grid, index, trilinear_weight, basis, positions)
+
+    def _sky_pattern_projection(self, dirs, sky):
+        """``(p, 9, 3)``: the SH of the scene's sky pattern (an environment image) as each
+        probe sees it through the texels ``sky (p, texels)`` that see the sky."""
+        pattern = cubemap.sample_image(np.asarray(self.sky_map, dtype=np.float64), cubemap.equirect_uv(dirs))
+        weights = (self.sh_weights[:, :, None] * pattern[:, None, :].astype(np.float32)).reshape(len(dirs), 27)
+        return (sky @ weights).reshape(len(sky), 9, 3)
+
+    def _seen_weights(self, scene, grid, capture, triangles, proxy, positions, index, weight):
+        """The probe weights ``(s, 8)`` of each point's probes that see it (the visibility
+        test, :func:`~cubegi_engine.visibility.visibility_weights`), and ``spare``: the points no
+        probe in front of them sees but some behind their plane do, with those probes'
+        weights (``(rows, weights)``; None where there are none)."""
+        p, n = self.probe_count, capture.size
+        cover = None
+        if scene.point_object is not None:
+            cover = Cover.of(capture.tid.reshape(p, 6, n, n), triangles, scene.points if proxy is None else proxy.points,
+                             self.triangle_object, scene.point_object)
+        seen, behind = visibility_weights(grid, positions, capture.dist.reshape(p, 6, n, n), self.probe_valid, scene.points,
+                                          scene.normals, index, weight, cover, both=True,
+                                          sheet=None if scene.sheets() is None else scene.sheets().point_sheet)
+        alone = np.flatnonzero(~seen.any(axis=1) & behind.any(axis=1))
+        return seen, ((alone, behind[alone]) if len(alone) else None)
+
+    def _light_from_behind(self, spare, basis, count):
+        """A point only probes behind its plane see (a block's underside below the lowest
+        probes) is lit by its near field where that encloses at least half its view (the
+        probes' light in the few open directions comes out too bright); elsewhere (a sofa's
+        underside well above the floor, no near field) by them. Cornell box at 12 cells: 7.1%
+        (at least half), 7.9% (three quarters), 9.2% (always by them)."""
+        rows, w = spare
+        if self.near is not None:
+            keep = ~self.near.enclosed(count)[rows]
+            rows, w = rows[keep], w[keep]
+        self.point_weights[rows] = (w[:, :, None] * basis[rows][:, None, :]).reshape(len(rows), COEFFS_PER_POINT)
+        self.covered[rows] = _weightless(self.point_weights[rows])
 
     def _light_under(self, scene, grid, index, weight, basis, positions):
         """Covered points in the open (the floor under a sofa: every probe's view of it is

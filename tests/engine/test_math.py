@@ -4,7 +4,7 @@
 import numpy as np
 import pytest
 
-from cubegi.cubegi_engine import cubemap, grid, lights, sh
+from cubegi.cubegi_engine import cubemap, grid, lights, sh, visibility
 
 N = 32
 DIRS = cubemap.texel_directions(N).reshape(-1, 3)
@@ -144,13 +144,13 @@ def test_probes_behind_a_points_plane_light_it_only_where_no_probe_in_front_can(
     index, weight = g.trilinear(pts)
     dist = np.full((8, 6, 4, 4), np.inf)
     valid = np.ones(8, dtype=bool)
-    w = grid.visibility_weights(g, pos, dist, valid, pts, nrm, index, weight)
+    w = visibility.visibility_weights(g, pos, dist, valid, pts, nrm, index, weight)
     above = pos[index][..., 2] > 1.0
     right = pos[index][..., 0] > 1.0
     np.testing.assert_allclose(w[0], np.where(above[0], 0.25, 0.0))
     assert not w[1].any()  # all eight stand more than a tenth of a cell below its plane
     np.testing.assert_allclose(w[2], np.where(right[2], 0.25, 0.0))
-    strict, kept = grid.visibility_weights(g, pos, dist, valid, pts, nrm, index, weight, both=True)
+    strict, kept = visibility.visibility_weights(g, pos, dist, valid, pts, nrm, index, weight, both=True)
     np.testing.assert_array_equal(strict, w)
     np.testing.assert_allclose(kept[1], weight[1])
     np.testing.assert_allclose(kept[[0, 2]], w[[0, 2]])
@@ -304,7 +304,7 @@ def test_the_cover_ring_search_finds_the_crossed_triangle_up_to_two_edges_away()
     4 (two edges away) it is found; from triangle 2 (four away) it is not; nor across
     an object border."""
     from cubegi.cubegi_engine.geometry import edge_neighbours, triangle_planes
-    from cubegi.cubegi_engine.grid import Cover, _ring_search
+    from cubegi.cubegi_engine.visibility import Cover, _ring_search
 
     xs = np.arange(7.0)
     vertices = np.concatenate([np.stack([xs, np.zeros(7), np.zeros(7)], 1), np.stack([xs, np.ones(7), np.zeros(7)], 1)])
@@ -323,7 +323,7 @@ def test_the_cover_ring_search_finds_the_crossed_triangle_up_to_two_edges_away()
 
 
 def test_sorted_unique_and_membership():
-    from cubegi.cubegi_engine.grid import _in_sorted, _sorted_unique
+    from cubegi.cubegi_engine.visibility import _in_sorted, _sorted_unique
 
     keys = np.array([9, 3, 3, 7, 9, 1], dtype=np.int64)
     assert _sorted_unique(keys).tolist() == [1, 3, 7, 9]

@@ -1,0 +1,241 @@
+"""Which probes light a point: the trilinear weights of a grid (:mod:`.grid`) with the
+probes that cannot see the point, or stand behind it, left out (:func:`visibility_weights`),
+and the test of a triangle of another object between a probe and a point (:class:`Cover`).
+
+Pure numpy; must not import bpy.
+"""
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from . import cubemap
+from .geometry import POINT_CHUNK, chunks, cut_planes, edge_neighbours, triangle_planes
+
+__all__ = ["visibility_weights", "probes_in_front", "Cover", "BEHIND"]
+
+
+# How far behind a point's tangent plane (in cells) a probe may stand and still light it.
+BEHIND = 0.1
+
+
+def probes_in_front(probe_pos, probe_valid, points, normals, index, weight):
+    """``(s, 8)``: the weights ``weight`` of each point's valid probes in front of its
+    tangent plane, whether they see it or not, normalised (zeros where there is none)."""
+    height = np.einsum("skc,sc->sk", probe_pos[index] - points[:, None, :], normals)
+    w = weight * probe_valid[index] * (height > 0)
+    return w / np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
+
+
+def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals, index, weight, cover=None, both=False,
+                       sheet=None):
+    """Trilinear weights with probes that cannot see a point, or are invalid, left out.
+
+    A probe is kept for a point if the point, lifted off its surface along the normal by a
+    tenth of the smallest cell edge, is no farther from the probe than the first surface the
+    probe's cube map records in that direction (the depth test of a shadow map), and the
+    probe stands no more than BEHIND cells behind the point's tangent plane. This stops
+    light leaking through walls thinner than a cell, and round convex edges (a probe just
+    above a block's sunlit top would light the block's sides with it). If every probe of a
+    point is left out, the point keeps its plain trilinear weights over the valid probes in
+    front of its surface; with none, it gets no probe light (a block's underside below the
+    lowest probes: the near field lights it). With ``both``, also the weights where such a
+    point keeps the probes behind its plane that see it: ``(weights, kept behind)``.
+
+    probe_pos: ``(p, 3)``; probe_dist: ``(p, 6, n, n)`` distance to the first surface (inf
+    where the probe sees sky); probe_valid: ``(p,)`` bool; points, normals: ``(s, 3)``;
+    index, weight: ``(s, 8)`` from :meth:`ProbeGrid.trilinear`. Returns new weights ``(s, 8)``.
+
+    ``cover`` (a :class:`Cover` of the triangles the probes drew) adds a
+    test the depth map's tolerance is too coarse for: a triangle of another object (or of
+    the same object, facing away from the point: the far side of a thin wall) that the
+    probe's texel sees towards the point, whose plane the exact ray from the probe crosses
+    in front of the point, inside that triangle, covers the point (a rug over a floor, a
+    thin wall between rooms). A point that every probe misses and some other object covers
+    gets no probe light, instead of falling back to its plain weights. ``sheet``: ``(s,)``
+    bool, points of two-sided sheets, which only probes in front of their plane light.
+    """
+    if len(points) > POINT_CHUNK:
+        parts = [visibility_weights(grid, probe_pos, probe_dist, probe_valid, points[sl], normals[sl], index[sl], weight[sl],
+                                    None if cover is None else cover.rows(sl), both, None if sheet is None else sheet[sl])
+                 for sl in chunks(len(points))]
+        if both:
+            return tuple(np.concatenate(p) for p in zip(*parts))
+        return np.concatenate(parts)
+    n = probe_dist.shape[-1]
+    cell = grid.point_cell_edge(points)[:, None]  # (s, 1)
+    visible, face, row, col = _depth_test(probe_pos, probe_dist, points, normals, index, cell)
+    eyes = probe_pos[index]
+    # How far each probe stands in front of the point's tangent plane.
+    height = np.einsum("skc,sc->sk", eyes - points[:, None, :], normals)
+    if sheet is not None:
+        # A point of a two-sided sheet: a probe behind its plane is on the sheet's other side,
+        # whose own twin point it lights (the depth test cannot tell the two apart).
+        visible &= ~sheet[:, None] | (height > 0)
+    valid = probe_valid[index]
+    covered = np.zeros_like(visible)
+    if cover is not None:
+        # The pairs that light the point are asked first; a point that none of them lights
+        # after that is dark if any other probe's ray to it is covered too (see ``dark``).
+        ask = visible & valid & (weight > 0)
+        covered = _covered(cover, eyes, points, normals, index, face, row, col, n, cell, ask)
+        unlit = np.flatnonzero((weight * (ask & ~covered)).sum(axis=1) <= 1e-9)
+        if len(unlit):
+            covered[unlit] |= _covered(cover.rows(unlit), eyes[unlit], points[unlit], normals[unlit], index[unlit],
+                                      face[unlit], row[unlit], col[unlit], n, cell[unlit], ~ask[unlit])
+        visible &= ~covered
+    # A probe more than BEHIND cells behind the point's tangent plane sees its hemisphere from
+    # the far side: at a convex edge nothing hides it.
+    seen_by = weight * (visible & valid)
+    w = seen_by * (height >= -BEHIND * cell)
+    total = w.sum(axis=1, keepdims=True)
+    # A point no probe sees takes the valid probes in front of its surface (a vertex in a
+    # corner too tight for the grid); none behind it (the outer face of a wall, whose probes
+    # are all inside the room: their light would leak out).
+    fallback = probes_in_front(probe_pos, probe_valid, points, normals, index, weight)
+    dark = (seen_by.sum(axis=1) <= 1e-9) & covered.any(axis=1)  # no probe, on either side, sees it
+
+    def settled(fallback):
+        out = np.where(total > 1e-9, w, fallback)
+        out = out / np.maximum(out.sum(axis=1, keepdims=True), 1e-300)  # a point with no probe at all keeps zeros
+        out[dark] = 0.0
+        return out
+
+    if not both:
+        return settled(fallback)
+    return settled(fallback), settled(np.where(fallback.sum(axis=1, keepdims=True) > 1e-9, fallback, seen_by))
+
+
+def _depth_test(probe_pos, probe_dist, points, normals, index, cell):
+    """The shadow-map test of :func:`visibility_weights`: ``(visible (s, 8) bool, face, row,
+    col (s, 8))``, whether each point lifted off its surface by a tenth of its cell edge
+    ``cell (s, 1)`` is no farther from its probe than the first surface that probe's texel
+    towards it records, and that texel."""
+    n = probe_dist.shape[-1]
+    q = points[:, None, :] + 0.1 * cell[..., None] * normals[:, None, :]  # (s, 1, 3)
+    v = q - probe_pos[index]  # (s, 8, 3)
+    dist = np.linalg.norm(v, axis=-1)
+    face, row, col, _, _ = cubemap.direction_to_texel(np.where(dist[..., None] > 0, v, 1.0), n)
+    seen = probe_dist[index, face, row, col]
+    # Tolerance: two texels' worth of angle at that distance plus a hundredth of a cell.
+    tol = dist * (4.0 / n) + 0.01 * cell
+    return dist <= seen + tol, face, row, col
+
+
+# How many edges away from a seen triangle the cover test looks for the one the ray crosses,
+# and how many (point, probe) pairs it searches at a time.
+COVER_RINGS, RING_CHUNK = 2, 65536
+
+
+@dataclass(frozen=True)
+class Cover:
+    """What the cover test of :func:`visibility_weights` asks: the triangle each probe
+    texel saw ``probe_tid (p, 6, n, n)`` (-1: none), each triangle's object ``(t,)``, its
+    :func:`~.geometry.triangle_planes` ``(t, 4, 3)`` and :func:`~.geometry.edge_neighbours`
+    ``(t, 3)``, and each point's object ``(s,)``."""
+
+    probe_tid: np.ndarray
+    triangle_object: np.ndarray
+    planes: np.ndarray
+    neighbours: np.ndarray
+    point_object: np.ndarray
+
+    @classmethod
+    def of(cls, probe_tid, triangles, vertices, triangle_object, point_object):
+        return cls(probe_tid, triangle_object, triangle_planes(triangles, vertices), edge_neighbours(triangles), point_object)
+
+    def rows(self, sl):
+        """The same cover for the points ``sl``."""
+        return replace(self, point_object=self.point_object[sl])
+
+
+def _blocks(cover, tid, point_object, normals):
+    """Whether triangles ``tid`` may cover points of ``point_object`` facing ``normals``:
+    another object's, or the far side of a thin part of the same one (facing away)."""
+    safe = np.maximum(tid, 0)
+    facing_away = np.einsum("...c,...c->...", cover.planes[safe, 1], normals) < -0.5
+    return (cover.triangle_object[safe] != point_object) | facing_away
+
+
+def _covered(cover, eyes, points, normals, index, face, row, col, n, cell, ask):
+    """``(s, 8)``: another object's triangle lies between each probe and point (see above),
+    for the pairs ``ask (s, 8)`` (False elsewhere).
+
+    The texel towards the point and its 8 neighbours are asked which triangles they see;
+    the exact ray from the probe to the point is cut with each one's plane, and it covers
+    the point if the cut lies inside that triangle or one across its edges, in front of the
+    point. (At a grazing angle the texels around the ray may all see neighbours of the
+    triangle it really crosses, near a rug's edge; a cut near but outside the other object
+    must not count, or the floor around a rug would go dark.)
+    """
+    q = points[:, None, :] + 1e-3 * cell[..., None] * normals[:, None, :]
+    ray = q - eyes
+    d = np.linalg.norm(ray, axis=-1)
+    u = ray / np.maximum(d, 1e-300)[..., None]
+    depth = d - 1e-4 * cell  # a cut this far along the ray lies in front of the point
+    covered = np.zeros(index.shape, dtype=bool)
+    # Per pair and texel: a seen candidate of another object the ray's plane cut lies ahead of
+    # but outside of.
+    missed = np.full(index.shape + (9,), -1, dtype=np.int32)
+    for j, (dr, dc) in enumerate((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)):
+        tid = cover.probe_tid[index, face, np.clip(row + dr, 0, n - 1), np.clip(col + dc, 0, n - 1)]
+        candidate = ask & (tid >= 0) & ~covered
+        rows = np.nonzero(candidate)[0]
+        candidate[candidate] = _blocks(cover, tid[candidate], cover.point_object[rows], normals[rows])
+        pick = np.nonzero(candidate)
+        if not len(pick[0]):
+            continue
+        t, inside = cut_planes(eyes[pick], u[pick], tid[pick], cover.planes)
+        ahead = (t > 0) & (t < depth[pick])
+        covered[pick] = inside & ahead
+        # Another object's triangles only (a rug over a floor): a thin part's far side is seen
+        # whole by the texels around the ray.
+        miss = ahead & ~inside & (cover.triangle_object[tid[pick]] != cover.point_object[pick[0]])
+        missed[pick[0][miss], pick[1][miss], j] = tid[pick][miss]
+    # Where no seen triangle holds the cut: the same objects' triangles up to COVER_RINGS edges
+    # around the seen ones, each tried once per pair.
+    need = np.nonzero(~covered & (missed >= 0).any(axis=2))
+    for start in range(0, len(need[0]) if COVER_RINGS else 0, RING_CHUNK):  # bounded temporaries
+        pairs = (need[0][start : start + RING_CHUNK], need[1][start : start + RING_CHUNK])
+        found = _ring_search(cover, missed[pairs], eyes[pairs], u[pairs], depth[pairs])
+        covered[pairs[0][found], pairs[1][found]] = True
+    return covered
+
+
+def _ring_search(cover, seen, eye, u, depth):
+    """``(m,)``: whether each ray ``eye + t u`` (0 < t < depth) crosses a triangle up to
+    COVER_RINGS edges from its ``seen (m, k)`` ones (-1: none) and of the same object.
+    The (ray, triangle) pairs are kept flat, as keys ``ray * t + triangle``."""
+    count = np.int64(len(cover.planes))
+    rows, cols = np.nonzero(seen >= 0)
+    tried = _sorted_unique(rows * count + seen[rows, cols])
+    frontier = tried
+    found = np.zeros(len(seen), dtype=bool)
+    for _ in range(COVER_RINGS):
+        ray, parent = np.divmod(frontier, count)
+        ring = cover.neighbours[parent]  # (f, 3)
+        keep = (ring >= 0) & (cover.triangle_object[np.maximum(ring, 0)] == cover.triangle_object[parent][:, None])
+        keep &= ~found[ray][:, None]
+        keys = _sorted_unique(ray[:, None].repeat(3, axis=1)[keep] * count + ring[keep])
+        keys = keys[~_in_sorted(keys, tried)]
+        if not len(keys):
+            break
+        ray, tid = np.divmod(keys, count)
+        t, inside = cut_planes(eye[ray], u[ray], tid, cover.planes)
+        found[ray[inside & (t > 0) & (t < depth[ray])]] = True
+        tried = _sorted_unique(np.concatenate([tried, keys]))
+        frontier = keys
+    return found
+
+
+def _in_sorted(keys, sorted_keys):
+    """Whether each of ``keys`` is in the sorted array ``sorted_keys``."""
+    at = np.minimum(np.searchsorted(sorted_keys, keys), max(len(sorted_keys) - 1, 0))
+    return sorted_keys[at] == keys if len(sorted_keys) else np.zeros(len(keys), dtype=bool)
+
+
+def _sorted_unique(keys):
+    """``np.unique`` of an int array by sorting (numpy's hashed unique is many times slower
+    on millions of keys)."""
+    keys = np.sort(keys, kind="stable")  # timsort: the keys come in sorted runs
+    return keys[np.concatenate([[True], keys[1:] != keys[:-1]])] if len(keys) else keys

@@ -117,11 +117,10 @@ def bake_steps(context, settings=None, resolution=None, lit=None, reference_samp
         raise
 
 
-def _bake_steps(context, settings, resolution, lit, reference_samples, preview, only):
-    t0 = time.perf_counter()
-    total = 3 + settings.bounces
-    collected = yield from scene_data.collect_steps(context, Progress(Stage.CAPTURE, 0, total, "reading the scene", working=True),
-                                                    only=only)
+def _checked_grid(context, collected, settings, resolution, lit, reference_samples, only):
+    """What a bake of ``collected`` needs before the capture, checked: ``(light groups,
+    grid, where the grid comes from)``. Refuses (BakeError) a bake with no mesh to write,
+    or one whose attribute names clash with the user's."""
     arrays = collected.arrays
     if not collected.targets and not collected.moving:
         if only is not None:
@@ -144,6 +143,16 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
         collected.notes.append(
             f"{100 * outside:.1f}% of the shading points lie outside every probe grid; they get the light of the nearest grid's nearest probes"
         )
+    return groups, grid, grid_source
+
+
+def _bake_steps(context, settings, resolution, lit, reference_samples, preview, only):
+    t0 = time.perf_counter()
+    total = 3 + settings.bounces
+    collected = yield from scene_data.collect_steps(context, Progress(Stage.CAPTURE, 0, total, "reading the scene", working=True),
+                                                    only=only)
+    arrays = collected.arrays
+    groups, grid, grid_source = _checked_grid(context, collected, settings, resolution, lit, reference_samples, only)
     t_collect = time.perf_counter() - t0
     yield Progress(Stage.CAPTURE, 0, total, f"read {len(collected.targets)} meshes", working=True)  # Blender's turn
 

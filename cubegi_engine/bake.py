@@ -164,7 +164,6 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
     if not used.all() or (placement is not None and placement.moved):
         grid = ProbeSubset(grid, used, None if placement is None else placement.displacement)
 
-    budget = settings.capture_triangles
     reused = capture is not None and capture.valid_for(scene, grid, settings)
     patched = None
     if not reused and capture is not None:
@@ -177,28 +176,7 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
         yield Progress(Stage.CAPTURE, 0, total, f"re-captured {redrawn} of {grid.count} probes (the ones a moved object concerns)")
         timings["capture"], timings["tables"] = capture.capture_seconds, capture.tables_seconds
     else:
-        check_memory(grid.count, settings.cube_size, len(scene.points))
-        t = time.perf_counter()
-        proxy = yield from in_background(simplify, working(Stage.CAPTURE, 0)("simplifying the scene for the probes"), scene,
-                                         budget)
-        shown = (scene.points, scene.triangles, scene.triangle_object()) if proxy is None else (
-            proxy.points, proxy.triangles, proxy.triangle_object)
-        small = small_objects(shown[0], shown[1], shown[2], grid.positions(), settings.cube_size)
-        if small.any() and small[shown[2]].all():  # nothing would be left to draw
-            small[:] = False
-        if proxy is None and not small.any():
-            drawer = renderer
-        else:
-            sheet = scene.sheet_triangles()
-            if sheet is not None and proxy is not None:  # per object: the proxy keeps each object's
-                sheet = np.isin(proxy.triangle_object, np.unique(scene.triangle_object()[sheet]))
-            drawer = renderer.with_geometry(shown[0], shown[1], None if not small.any() else np.flatnonzero(~small[shown[2]]),
-                                            sheet)
-        timings["simplify"] = time.perf_counter() - t
-        drawn = f" ({len(proxy.triangles):,} of {len(scene.triangles):,} triangles)" if proxy is not None else ""
-        yield Progress(Stage.CAPTURE, 0, total, f"capturing {grid.count} probes at {settings.cube_size}x{settings.cube_size}{drawn}")
-        capture = yield from ProbeCapture.take_steps(scene, grid, drawer, settings, proxy, step=working(Stage.CAPTURE, 0))
-        capture.small_objects = tuple(int(k) for k in np.flatnonzero(small))
+        capture = yield from _new_capture(scene, grid, renderer, settings, working, timings, total)
         timings["capture"], timings["tables"] = capture.capture_seconds, capture.tables_seconds
     transport = capture.transport
     timings["near_field"] = transport.near.seconds if transport.near is not None and not reused else 0.0  # part of "tables"
@@ -231,6 +209,35 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
 # An object is left out of the capture where from every probe it spans less than this many
 # texels (it still receives light, and lights others through the direct light's shadows).
 SMALL_OBJECT_TEXELS = 1.0
+
+
+def _new_capture(scene, grid, renderer, settings, working, timings, total):
+    """A new capture of ``scene`` on ``grid`` (a generator of Progress, returning the
+    ProbeCapture): the scene simplified to the capture's triangle budget, objects under a
+    texel from every probe left out of the drawing, the probes drawn and the tables built."""
+    check_memory(grid.count, settings.cube_size, len(scene.points))
+    t = time.perf_counter()
+    proxy = yield from in_background(simplify, working(Stage.CAPTURE, 0)("simplifying the scene for the probes"), scene,
+                                     settings.capture_triangles)
+    shown = (scene.points, scene.triangles, scene.triangle_object()) if proxy is None else (
+        proxy.points, proxy.triangles, proxy.triangle_object)
+    small = small_objects(shown[0], shown[1], shown[2], grid.positions(), settings.cube_size)
+    if small.any() and small[shown[2]].all():  # nothing would be left to draw
+        small[:] = False
+    if proxy is None and not small.any():
+        drawer = renderer
+    else:
+        sheet = scene.sheet_triangles()
+        if sheet is not None and proxy is not None:  # per object: the proxy keeps each object's
+            sheet = np.isin(proxy.triangle_object, np.unique(scene.triangle_object()[sheet]))
+        drawer = renderer.with_geometry(shown[0], shown[1], None if not small.any() else np.flatnonzero(~small[shown[2]]),
+                                        sheet)
+    timings["simplify"] = time.perf_counter() - t
+    drawn = f" ({len(proxy.triangles):,} of {len(scene.triangles):,} triangles)" if proxy is not None else ""
+    yield Progress(Stage.CAPTURE, 0, total, f"capturing {grid.count} probes at {settings.cube_size}x{settings.cube_size}{drawn}")
+    capture = yield from ProbeCapture.take_steps(scene, grid, drawer, settings, proxy, step=working(Stage.CAPTURE, 0))
+    capture.small_objects = tuple(int(k) for k in np.flatnonzero(small))
+    return capture
 
 
 def small_objects(points, triangles, triangle_object, probes, cube_size) -> np.ndarray:

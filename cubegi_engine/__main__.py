@@ -13,7 +13,7 @@ if __name__ == "__main__":
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     # This package was imported only to run this file: every CubeGI module loads once, as
     # ``cubegi.*`` (tools/launch.py).
-    sys.modules.pop(__spec__.parent, None)
+    sys.modules.pop(__package__ or "cubegi_engine", None)
     try:
         from tools.cli import main
     except KeyboardInterrupt:  # Ctrl-C while CubeGI loads

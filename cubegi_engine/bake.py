@@ -12,9 +12,10 @@ yields a :class:`~cubegi_engine.records.Progress` after every stage (so a modal 
 can show each bounce as it lands) and returns a :class:`BakeResult` holding all four.
 """
 
+import dataclasses
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -68,10 +69,10 @@ class BakeResult:
     direct_parts: DirectLight
     solution: LightSolution
     field: ProbeField
-    timings: dict = field(default_factory=dict)
+    timings: dict = dataclasses.field(default_factory=dict)
     capture_reused: bool = False
     probes_recaptured: int | None = None  # a patched capture: how many probes were drawn again
-    shadows: dict = field(default_factory=dict)  # light name -> Shadow, when kept (moving objects)
+    shadows: dict = dataclasses.field(default_factory=dict)  # light name -> Shadow, when kept (moving objects)
     placement: Placement | None = None  # probes moved out of geometry or left out before the capture
 
     @property
@@ -178,6 +179,7 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
     else:
         capture = yield from _new_capture(scene, grid, renderer, settings, working, timings, total)
         timings["capture"], timings["tables"] = capture.capture_seconds, capture.tables_seconds
+    assert capture is not None  # reused, patched or new
     transport = capture.transport
     timings["near_field"] = transport.near.seconds if transport.near is not None and not reused else 0.0  # part of "tables"
 
@@ -186,7 +188,7 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
     landing = (yield from in_background(transport.landing_share, working(Stage.DIRECT, 1)("the share of each point's view that is "
                                                                                        "surface"))) if settings.conserve_energy else None
     t_landing = time.perf_counter() - t
-    shadows = {} if keep_shadows else None
+    shadows: dict | None = {} if keep_shadows else None
     parts = yield from direct_light_steps(scene, renderer, settings, transport, landing, shadows, step=working(Stage.DIRECT, 1))
     direct = parts.total(scene)
     timings["direct_lights"], timings["direct_probes"] = parts.light_seconds, parts.probe_seconds + t_landing

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import cubemap
+from .grid import Grid
 from .records import Progress, Stage
 from .scene import GeometryFingerprint, same_sky_map
 from .transport import CubeCapture, Transport, capture_cubes, clip_planes
@@ -25,7 +26,7 @@ class ProbeCapture:
     distance, back face) and the transport tables built from them (``transport``), for the
     geometry whose fingerprint is ``fingerprint``."""
 
-    grid: object  # ProbeGrid or GridSet
+    grid: Grid  # a ProbeGrid, GridSet or ProbeSubset
     cube_size: int
     visibility: bool
     fingerprint: GeometryFingerprint

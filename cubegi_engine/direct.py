@@ -102,10 +102,10 @@ class Shadow:
     vertices: np.ndarray
     scale: float
     cubes: object = None
-    eyes: np.ndarray = None
-    ortho: tuple = None
-    turns: np.ndarray = None  # (k, 3, 3) each eye's cube rotation, where there are several
-    sides: tuple = None  # SceneArrays.sides() of the occluders (two-sided sheets), if any
+    eyes: np.ndarray | None = None
+    ortho: tuple | None = None
+    turns: np.ndarray | None = None  # (k, 3, 3) each eye's cube rotation, where there are several
+    sides: tuple | None = None  # SceneArrays.sides() of the occluders (two-sided sheets), if any
 
     @property
     def nbytes(self):

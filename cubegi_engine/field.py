@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import sh
-from .grid import ProbeSubset
+from .grid import Grid, ProbeSubset
 
 __all__ = ["ProbeField"]
 
@@ -28,7 +28,7 @@ class ProbeField:
     see; valid: ``(p,)`` bool (False for a probe inside geometry, left out of every
     interpolation); source_coeffs: ``(p, 9, 3)`` the part that is the sky and emitters."""
 
-    grid: object
+    grid: Grid
     coeffs: np.ndarray
     valid: np.ndarray
     source_coeffs: np.ndarray | None = None
@@ -124,7 +124,7 @@ class ProbeField:
         """This field on its whole grid: a field of a probe subset (a bake that left out the
         probes no point uses) with the left-out probes as invalid and dark."""
         grid = self.grid
-        if grid.whole() is grid:
+        if not isinstance(grid, ProbeSubset):  # every other grid is its own whole
             return self
         source = None if self.source_coeffs is None else grid.expand(self.source_coeffs)
         whole = grid.whole()

@@ -21,10 +21,34 @@ Three kinds of grid share one protocol, so callers never ask which kind they hol
 """
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
-__all__ = ["ProbeGrid", "GridSet", "ProbeSubset", "fit_bounds", "probes_used"]
+__all__ = ["Grid", "ProbeGrid", "GridSet", "ProbeSubset", "fit_bounds", "probes_used"]
+
+
+class Grid(Protocol):
+    """The protocol every kind of grid implements (see the module docstring)."""
+
+    @property
+    def count(self) -> int: ...
+
+    def positions(self) -> np.ndarray: ...
+
+    def trilinear(self, points) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def point_cell_edge(self, points) -> np.ndarray: ...
+
+    def parts(self) -> list: ...
+
+    def whole(self) -> "Grid": ...
+
+    def kept(self) -> np.ndarray: ...
+
+    def displacements(self) -> np.ndarray: ...
+
+    def uniform_cell(self) -> np.ndarray | None: ...
 
 
 class _WholeGrid:

@@ -51,11 +51,11 @@ class Light:
     radius: float = 0.0
     spot_size: float = np.pi
     spot_blend: float = 0.0
-    polygon: np.ndarray = None
+    polygon: np.ndarray | None = None
     area: float = 0.0
     casts_shadow: bool = True
     name: str = ""
-    samples: np.ndarray = field(default=None)
+    samples: np.ndarray | None = field(default=None)
     key: str = ""
     shadow_size: int = 0
     group: str = ""

@@ -116,8 +116,8 @@ class NearField:
     crowded: int = 0
     skipped: str = ""
     seconds: float = 0.0
-    share: np.ndarray = None
-    hidden: np.ndarray = None
+    share: np.ndarray | None = None
+    hidden: np.ndarray | None = None
 
     def enclosed(self, count, at_least=0.5):
         """``(count,)`` bool: points whose near surroundings cover at least ``at_least`` of

@@ -81,4 +81,4 @@ class TailReport:
 
     @classmethod
     def from_dict(cls, d: dict) -> "TailReport":
-        return cls(**{k: d.get(k) for k in cls.__dataclass_fields__ if k in d})
+        return cls(**{k: d[k] for k in cls.__dataclass_fields__ if k in d})

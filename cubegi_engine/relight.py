@@ -214,10 +214,10 @@ class Source:
     own: np.ndarray
     weight: np.ndarray
     light: object = None
-    bounces: np.ndarray = None
-    tail: np.ndarray = None
-    indirect: np.ndarray = None
-    near: np.ndarray = None  # per bounce, what the near field adds on its support points
+    bounces: np.ndarray | None = None
+    tail: np.ndarray | None = None
+    indirect: np.ndarray | None = None
+    near: np.ndarray | None = None  # per bounce, what the near field adds on its support points
 
 
 class SceneLight:
@@ -234,7 +234,7 @@ class SceneLight:
         self.scene, self.transport, self.light_direct, self.op = scene, transport, light_direct, op
         self.emitter_light, self.sky_light = emitter_light, sky_light
         self.count, self.add_tail = int(count), bool(add_tail)
-        self.sources = {}
+        self.sources: dict[str, Source] = {}
         self.factors = np.ones((self.count, 3))
         self.near_factors = None  # (steps, 3): the near field's scale per bounce (and tail)
         self.solve_seconds = 0.0

@@ -11,7 +11,7 @@ from :data:`OPTIONS`; :meth:`BakeSettings.validate` checks every value.
 
 import math
 from dataclasses import dataclass, field, fields
-from typing import ClassVar
+from typing import ClassVar, get_args
 
 from .errors import BakeError
 
@@ -163,7 +163,8 @@ class BakeSettings:
         """Raise a :class:`BakeError` naming the first setting out of range; else self."""
         for o in OPTIONS:
             value = getattr(self, o.name)
-            if o.kind is int and value is not None and o.minimum is not None and not o.minimum <= int(value) <= o.maximum:
+            if (o.kind is int and value is not None and o.minimum is not None and o.maximum is not None
+                    and not o.minimum <= int(value) <= o.maximum):
                 raise BakeError(f"{o.label.lower()} must be between {o.minimum} and {o.maximum}, got {value}", o.name)
         if self.probe_spacing is not None and not (math.isfinite(float(self.probe_spacing)) and float(self.probe_spacing) > 0):
             raise BakeError(f"probe spacing must be a distance above 0, got {self.probe_spacing}", "probe_spacing")
@@ -199,7 +200,7 @@ def _options() -> tuple[Option, ...]:
         if "option" not in f.metadata:
             continue
         meta = dict(f.metadata["option"])
-        kind = type(f.default) if f.default is not None else next(t for t in f.type.__args__ if t is not type(None))
+        kind = type(f.default) if f.default is not None else next(t for t in get_args(f.type) if t is not type(None))
         if meta["flag"] is None:
             word = f.name.replace("_", "-")
             meta["flag"] = f"--no-{word}" if kind is bool and f.default else f"--{word}"

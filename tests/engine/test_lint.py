@@ -1,5 +1,5 @@
 """The source tree is clean under ruff with the settings in pyproject.toml (pyflakes,
-pycodestyle, import order)."""
+pycodestyle, import order), and the engine under mypy."""
 
 import os
 import subprocess
@@ -13,6 +13,13 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 def test_ruff_finds_nothing():
     pytest.importorskip("ruff", reason="ruff is installed by scripts/setup.sh (requirements-dev.txt)")
     r = subprocess.run([sys.executable, "-m", "ruff", "check", "--no-cache", ROOT], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_mypy_finds_nothing_in_the_engine():
+    pytest.importorskip("mypy", reason="mypy is installed by scripts/setup.sh (requirements-dev.txt)")
+    r = subprocess.run([sys.executable, "-m", "mypy", "--config-file", os.path.join(ROOT, "pyproject.toml")], cwd=ROOT,
+                       capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr
 
 

@@ -65,10 +65,8 @@ def main():
         t = time.perf_counter()
         result = run(animation.bake_animation_steps(bpy.context, settings, range(1, args.frames + 1), folder))
         t_anim = time.perf_counter() - t
-        paths = {}
-        for f in result["frames"]:
-            paths[f["path"]] = paths.get(f["path"], 0) + 1
-        later = [f["seconds"] for f in result["frames"][1:]]
+        paths = result.paths()
+        later = [f.seconds for f in result.frames[1:]]
         variants[name] = (t_anim, t_anim / args.frames, float(np.median(later)), paths)
 
     full = []

@@ -20,7 +20,7 @@ import bpy
 import numpy as np
 
 from ..cubegi_engine.errors import BakeError, Interrupted
-from ..cubegi_engine.records import Progress, Stage
+from ..cubegi_engine.records import AnimationResult, FrameRecord, Progress, Stage
 from . import attributes, files, interrupts, live, pipeline, session
 
 FRAME_FILE = "frame_{:04d}.npz"
@@ -74,7 +74,7 @@ _baking = set()
 
 def bake_animation_steps(context, settings, frames, folder, resolution=None, lit=None, only=None):
     """Bake frames ``frames`` (an iterable of ints) into ``folder``; a generator of Progress
-    (one per frame), returning ``{"frames": [...], ...}`` (see the module docstring). The
+    (one per frame), returning an :class:`~cubegi_engine.records.AnimationResult`. The
     scene's cache link is the caller's to set: a bake refused or failed leaves it as it was."""
     scene = context.scene
     frames = [int(f) for f in frames]
@@ -102,8 +102,7 @@ def _bake_frames(context, settings, frames, folder, resolution, lit, only):
             if not records and os.path.exists(os.path.join(folder, KEY_FILE)):
                 os.remove(os.path.join(folder, KEY_FILE))  # its frames are about to change
             direct, indirect = _mean(arrays)
-            record = {"frame": frame, "seconds": time.perf_counter() - t, "path": path, **detail,
-                      "mean_direct": direct, "mean_indirect": indirect}
+            record = FrameRecord(frame, time.perf_counter() - t, path, direct, indirect, detail)
             try:
                 files.write_all([(frame_path(folder, frame), _npz(arrays))])
             except KeyboardInterrupt as exc:
@@ -114,10 +113,10 @@ def _bake_frames(context, settings, frames, folder, resolution, lit, only):
     except KeyboardInterrupt as exc:
         if not records:
             raise
-        span = f"frame {records[0]['frame']}" if len(records) == 1 else f"frames {records[0]['frame']}-{records[-1]['frame']}"
+        span = f"frame {records[0].frame}" if len(records) == 1 else f"frames {records[0].frame}-{records[-1].frame}"
         raise Interrupted.keeping(exc, f"the light of {span} is baked and kept in {folder} (each frame whole)") from None
     yield Progress(Stage.TAIL, len(frames), len(frames), f"baked {len(frames)} frames")
-    return {"frames": records, "seconds": time.perf_counter() - t_all, "cache": folder}
+    return AnimationResult(tuple(records), time.perf_counter() - t_all, folder)
 
 
 def _animated_materials():

@@ -348,15 +348,12 @@ def cmd_bake_animation(args):
     scene.cubegi.animation_cache = "//" + os.path.basename(folder)  # beside the output
     jobs = [(dst, save_blend(compressed))]
     if report_path:
-        text = json.dumps({"input": src, "output": dst, **result}, indent=2, allow_nan=False)
+        text = json.dumps({"input": src, "output": dst, **result.to_dict()}, indent=2, allow_nan=False)
         jobs.append((report_path, files.text(text)))
     files.write_all(jobs)
-    paths = {}
-    for rec in result["frames"]:
-        paths[rec["path"]] = paths.get(rec["path"], 0) + 1
-    per = result["seconds"] / len(result["frames"])
-    print(f"cubegi: baked {len(result['frames'])} frames in {result['seconds']:.2f} s ({per * 1000:.0f} ms a frame; "
-          + ", ".join(f"{n} {p}" for p, n in paths.items()) + f") into {folder}", flush=True)
+    per = result.seconds / len(result.frames)
+    print(f"cubegi: baked {len(result.frames)} frames in {result.seconds:.2f} s ({per * 1000:.0f} ms a frame; "
+          + ", ".join(f"{n} {p}" for p, n in result.paths().items()) + f") into {folder}", flush=True)
 
 
 def _bake_animation_on_cluster(args, src, dst, report_path):

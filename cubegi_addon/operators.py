@@ -249,8 +249,8 @@ class CUBEGI_OT_bake_animation(_ModalJob, bpy.types.Operator):
 
     def _finish(self, context, job):
         context.scene.cubegi.animation_cache = "//" + os.path.basename(job.folder)
-        frames = job.report["frames"]
-        self.report({"INFO"}, f"CubeGI: baked {len(frames)} frames in {job.report['seconds']:.2f} s into {job.folder}")
+        result = job.report
+        self.report({"INFO"}, f"CubeGI: baked {len(result.frames)} frames in {result.seconds:.2f} s into {job.folder}")
         return {"FINISHED"}
 
 

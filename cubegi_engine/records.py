@@ -4,7 +4,7 @@ Pure Python and numpy; must not import bpy. These are the engine's own types; JS
 only at the edges (:meth:`cubegi_engine.report.BakeReport.to_json`).
 """
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from enum import Enum
 
 import numpy as np
@@ -82,3 +82,42 @@ class TailReport:
     @classmethod
     def from_dict(cls, d: dict) -> "TailReport":
         return cls(**{k: d[k] for k in cls.__dataclass_fields__ if k in d})
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    """One frame of an animation bake: ``path``, how its light was brought up to date
+    ("full", "recapture", or an update's route: "lights", "materials", ...), its time and
+    its area-weighted mean light; ``detail``: what that path reports (the probes, whether
+    the capture was reused, what changed)."""
+
+    frame: int
+    seconds: float
+    path: str
+    mean_direct: list
+    mean_indirect: list
+    detail: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"frame": self.frame, "seconds": self.seconds, "path": self.path, **self.detail,
+                "mean_direct": self.mean_direct, "mean_indirect": self.mean_indirect}
+
+
+@dataclass(frozen=True)
+class AnimationResult:
+    """An animation bake: its frames in order, its time and its cache folder."""
+
+    frames: tuple[FrameRecord, ...]
+    seconds: float
+    cache: str
+
+    def paths(self) -> dict[str, int]:
+        """How many frames took each path, in the order first met."""
+        count: dict[str, int] = {}
+        for f in self.frames:
+            count[f.path] = count.get(f.path, 0) + 1
+        return count
+
+    def to_dict(self) -> dict:
+        """The report's form (JSON)."""
+        return {"frames": [f.to_dict() for f in self.frames], "seconds": self.seconds, "cache": self.cache}

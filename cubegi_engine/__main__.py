@@ -19,4 +19,11 @@ if __name__ == "__main__":
     except KeyboardInterrupt:  # Ctrl-C while CubeGI loads
         print("cubegi: interrupted; nothing was written", file=sys.stderr)
         sys.exit(128 + signal.SIGINT)
+    except ModuleNotFoundError as exc:
+        if exc.name != "tools":
+            raise
+        # An installed extension (this file ships with the engine; tools/ does not).
+        print("cubegi: error: python -m cubegi_engine runs from CubeGI's source tree; in Blender, run "
+              "blender -c cubegi ...", file=sys.stderr)
+        sys.exit(2)
     sys.exit(main())

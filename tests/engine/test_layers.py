@@ -91,3 +91,16 @@ def test_the_import_graph_has_no_circle():
 
     for m in graph:
         visit(m, [])
+
+
+def test_the_engine_run_as_a_module_outside_the_source_tree_says_where_it_runs(tmp_path):
+    """``cubegi_engine/__main__.py`` ships with the engine; ``tools/`` does not. Run from an
+    installed copy, it refuses with one line (status 2) instead of a traceback."""
+    import shutil
+
+    shutil.copytree(os.path.join(ROOT, "cubegi_engine"), tmp_path / "cubegi_engine", ignore=shutil.ignore_patterns("__pycache__"))
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    r = subprocess.run([sys.executable, "-m", "cubegi_engine", "bake", "in.blend", "-o", "out.blend"], cwd=tmp_path, env=env,
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "runs from CubeGI's source tree" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert sorted(os.listdir(tmp_path)) == ["cubegi_engine"]  # nothing written

@@ -113,7 +113,7 @@ class BakeSettings:
     capture_triangles: int | None = option(
         100_000, "Capture Triangles", "The probes draw a simplified copy of the scene with at most about this many "
         "triangles (0: the full scene). Direct light, shadows and the baked vertices always use every triangle",
-        none_as_zero=True, soft_maximum=1_000_000, metavar="N", capture=True)
+        none_as_zero=True, minimum=0, soft_maximum=1_000_000, metavar="N", capture=True)
     # Gather each point's near field (surfaces within a quarter of a cell) by rays, as a
     # final gather of every bounce (:mod:`cubegi_engine.nearfield`).
     near_field: bool = option(True, "Near Field", "Gather each vertex's near surroundings (surfaces within a quarter of "

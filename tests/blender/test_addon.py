@@ -586,6 +586,8 @@ def test_every_bake_option_is_a_property_a_panel_entry_a_flag_a_forwarded_word_a
             assert getattr(bpy.context.scene.cubegi, o.name) == o.stored(o.default) or o.name in ("cube_size", "bounces"), o.name
             if o.minimum is not None:
                 assert prop.hard_min == pytest.approx(o.minimum), o.name
+            if not o.switch:  # no setting takes a negative value: the panel cannot offer one
+                assert prop.hard_min >= 0, o.name
             if o.maximum is not None:
                 assert prop.hard_max == pytest.approx(o.maximum), o.name
         else:

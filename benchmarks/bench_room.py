@@ -57,8 +57,8 @@ def main():
     for key in ("collect", "gpu_setup", "capture", "tables", "direct_lights", "direct_probes", "bounces", "tail", "write", "total"):
         print(f"  {key:14s} {tm[key] * 1000:8.1f} ms")
     for b in best.bounces:
-        print(f"  bounce {b.bounce}: {b.seconds * 1000:6.2f} ms = gather {b.gather_seconds * 1000:.2f} + "
-              f"project {b.project_seconds * 1000:.2f} + interpolate {b.interpolate_seconds * 1000:.2f}")
+        print(f"  bounce {b.bounce}: {b.seconds * 1000:6.2f} ms = gather and project {b.gather_seconds * 1000:.2f} + "
+              f"interpolate {b.interpolate_seconds * 1000:.2f}")
 
     # A light edit: the next bake reuses the kept capture (same process, same scene).
     rebakes = []

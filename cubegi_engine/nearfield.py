@@ -19,7 +19,8 @@ barycentric weights of each hit triangle's corners), the open part a per-point c
 the SH basis the probes are evaluated with. It is a final gather: the probes keep seeing
 the bounces as interpolated (so the kept probe field, and relighting it, stay in probe
 space), and every bounce's light at the points is gathered once more from the bounce
-before, near field included (:meth:`NearField.correct`, :meth:`NearField.correct_sum`).
+before, near field included (:meth:`NearField.delta` per bounce, :meth:`NearField.settle` for
+the tail; :mod:`cubegi_engine.series`).
 
 What it costs, and what it leaves out: a point's candidates are the triangles within reach
 with a corner in front of its tangent plane (its own flat surface never is one), so a
@@ -186,13 +187,12 @@ class NearField:
         return self._gather(radiance, local=False)
 
     def correct(self, light, probe_part, radiance):
-        """``light (s, 3)``, the probes' light, with the rows' near field: less ``probe_part
-        (m, 3)`` (the probes' light in the hit directions: ``Transport.interpolate_rows`` of
-        ``open_basis``), plus the hits' light from ``radiance (s, 3)`` (what the surfaces
-        send). A new float64 array."""
+        """``light (s, 3)``, the probes' light, with the rows' near field (:meth:`delta`, from
+        what the surfaces send, ``radiance (s, 3)``), clamped at zero: a new float64 array."""
         out = np.array(light, dtype=np.float64, copy=True)
         if self.count:
-            out[self.rows] = np.maximum(out[self.rows] - probe_part + self.gather(radiance), 0.0)
+            sup = self.support
+            out[sup] = np.maximum(out[sup] + self.delta(out[sup], probe_part, np.asarray(radiance)[sup]), 0.0)
         return out
 
     @property
@@ -205,35 +205,52 @@ class NearField:
             self.__dict__["_support"] = cached
         return cached
 
+    def _support_rows(self):
+        """The rows' places on :attr:`support`."""
+        return np.searchsorted(self.support, self.rows)
+
     def delta(self, base, probe_part, radiance):
         """What the near field adds to light ``base (u, c)`` on :attr:`support` (the probes'
-        light there), gathering from ``radiance (u, c)`` there: ``(u, c)``, zero off the
-        rows; linear, unclamped (relighting sums it over sources; ``c``: 3 channels per
-        source, side by side)."""
-        rows = np.searchsorted(self.support, self.rows)  # the rows' places on the support
+        light there): less ``probe_part (m, c)`` (the probes' light in the hit directions:
+        ``Transport.interpolate_rows`` of ``open_basis``), plus the hits' light from
+        ``radiance (u, c)`` there (what the surfaces send). ``(u, c)``, zero off the rows;
+        linear, unclamped (relighting sums it over sources, ``c``: 3 channels per source,
+        side by side)."""
         out = np.zeros(np.shape(base))
         if self.count:
-            out[rows] = self._gather(radiance, local=True) - probe_part
+            out[self._support_rows()] = self._gather(radiance, local=True) - probe_part
         return out
 
-    def correct_sum(self, light, probe_part, albedo, before):
-        """The near field of a sum of bounces ``light (s, 3)`` (the probes' light of bounces
-        N+1, N+2, ...; ``probe_part`` as in :meth:`correct`), each gathering from the one
-        before: ``L' = light - probe_part + G albedo (before + L')``, with ``before`` bounce
-        N's light (corrected). Jacobi steps until settled (``G albedo`` takes at most the
-        albedo of the light it gathers: the steps shrink like it;
+    def settle(self, base, probe_part, albedo, before, clamp=True):
+        """The near field of a sum of bounces on :attr:`support` (all ``(u, c)``): ``base``,
+        the probes' light of bounces N+1, N+2, ... (``probe_part`` as in :meth:`delta`), each
+        gathering from the one before, ``L' = base - probe_part + G albedo (before + L')``
+        with ``before`` bounce N's light; clamped at zero on the rows where ``clamp``. What
+        it adds to ``base``, ``(u, c)``. Jacobi steps until settled (``G albedo`` takes at
+        most the albedo of the light it gathers: the steps shrink like it;
         :func:`~cubegi_engine.convergence.fixed_point`)."""
-        out = np.array(light, dtype=np.float64, copy=True)
+        light = np.array(base, dtype=np.float64, copy=True)
         if not self.count:
-            return out
-        base = out[self.rows] - probe_part
+            return np.zeros_like(light)
+        rows = self._support_rows()
+        start = light[rows] - probe_part
         albedo = np.asarray(albedo, dtype=np.float64)
 
         def step(rows_light):
-            out[self.rows] = rows_light
-            return np.maximum(base + self.gather(albedo * (before + out)), 0.0)
+            light[rows] = rows_light
+            new = start + self._gather(albedo * (before + light), local=True)
+            return np.maximum(new, 0.0) if clamp else new
 
-        out[self.rows], _ = convergence.fixed_point(step, out[self.rows])
+        light[rows], _ = convergence.fixed_point(step, light[rows])
+        return light - base
+
+    def correct_sum(self, light, probe_part, albedo, before):
+        """:meth:`settle` over every point ``(s, 3)``, clamped: ``light`` with its near field
+        summed to the end (a new float64 array)."""
+        out = np.array(light, dtype=np.float64, copy=True)
+        if self.count:
+            sup = self.support
+            out[sup] += self.settle(out[sup], probe_part, np.asarray(albedo)[sup], np.asarray(before)[sup])
         return out
 
 

@@ -4,7 +4,7 @@ Pure Python and numpy; must not import bpy. These are the engine's own types; JS
 only at the edges (:meth:`cubegi_engine.report.BakeReport.to_json`).
 """
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from enum import Enum
 
 import numpy as np
@@ -41,19 +41,24 @@ class Progress:
 class BounceRecord:
     bounce: int
     seconds: float
-    gather_seconds: float
-    project_seconds: float
+    gather_seconds: float  # gathering and projecting the light the probes see
     interpolate_seconds: float
     mean_light: list  # (3,) area-weighted mean light of this bounce
     mean: float
     ratio: list  # (3,) per channel, of the bounce before
     ratio_mean: float
     estimated_remaining: float  # estimated share of the indirect light still missing after it
-    energy_factor: list  # (3,) see solve.conserve_energy
+    energy_factor: list  # (3,) see series.conserve_energy
     attribute: str = ""
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "BounceRecord":
+        """A record from :meth:`to_dict` (keys of other versions' reports left out)."""
+        names = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in d.items() if k in names})
 
 
 @dataclass

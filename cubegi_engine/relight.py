@@ -30,12 +30,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .convergence import fixed_point, gmres
 from .errors import BakeError
 from .lights import light_keys
-from .solve import energy_factor
+from .series import bounce_series, landed_power, near_factor, tail_sum
 
-__all__ = ["BounceOperator", "Source", "SceneLight", "from_bake", "MAX_OPERATOR_ELEMENTS", "SKY", "EMISSION"]
+__all__ = ["MatrixOperator", "Source", "SceneLight", "from_bake", "MAX_OPERATOR_ELEMENTS", "SKY", "EMISSION"]
 
 SKY, EMISSION = "sky", "emission"
 
@@ -68,8 +67,9 @@ def _dense_interpolation(index, weights, p):
     return np.bincount(flat, values, minlength=m * 9 * p).reshape(m, 9 * p).astype(np.float32)
 
 
-class BounceOperator:
-    """The bounce operator of one capture as matrices (see the module docstring).
+class MatrixOperator:
+    """The bounce operator of one capture as matrices (see the module docstring): a
+    :class:`~cubegi_engine.series.BounceOperator` in coefficients ``(9p, 3)``, linear.
 
     ``landing``: ``(s, 3)`` share of each point's view that is surface (None: no energy
     balance); ``areas``: ``(s,)``.
@@ -119,27 +119,38 @@ class BounceOperator:
         """Diffuse light ``(s, 3)`` at the points from coefficients ``(9p, 3)``."""
         return (self.I @ np.asarray(coeffs, dtype=np.float32)).astype(np.float64)
 
-    def apply(self, coeffs, factor=None):
+    def apply(self, coeffs, light=None, factor=None):
         """``M (factor * coeffs)`` per channel: the next bounce's unbalanced coefficients."""
         x = coeffs if factor is None else coeffs * factor
         if self.M is not None:
             return np.stack([self.M[c] @ x[:, c] for c in range(3)], axis=1)
         return self.project(self.albedo * self.light(x))
 
+    # --- the series' operator (cubegi_engine.series.BounceOperator) ---------------------------
+    def first(self, direct):
+        return self.project(self.albedo * direct)
+
+    def bounce_light(self, coeffs):
+        return None  # the dense operator keeps to coefficients
+
+    def total(self, coeffs, light):
+        return self.u @ coeffs
+
+    def landed(self, coeffs, light):
+        if light is not None:
+            return landed_power(self.albedo * np.asarray(light), self.landing, self.areas)
+        return np.einsum("cq,qc->c", self.v, coeffs)
+
+    def linear(self, coeffs, factor):
+        return self.apply(coeffs, factor=factor)
+
     def factors(self, direct, count):
         """The balance's factors ``(count, 3)`` of the bounces of ``direct (s, 3)``, as the
         one-shot bake computes them (ones without a balance)."""
-        g = np.ones((count, 3))
-        if self.landing is None or count == 0:
-            return g
-        c = self.project(self.albedo * direct)
-        target = (self.areas[:, None] * self.albedo * np.asarray(direct) * self.landing).sum(axis=0)
-        for k in range(count):
-            g[k] = energy_factor(target, self.u @ c)
-            b = g[k] * c
-            target = np.einsum("cq,qc->c", self.v, b)
-            c = self.apply(b)
-        return g
+        if count == 0:
+            return np.ones((0, 3))
+        series = bounce_series(self, direct, balanced=self.landing is not None)
+        return np.stack([next(series).factor for _ in range(count)])
 
     def inverse(self, factor):
         """A solver of ``(1 - factor M) x = c`` per channel (``c``, ``x``: ``(9p, 3)``), or
@@ -175,25 +186,16 @@ class BounceOperator:
 
     def bounces(self, c1, g, inverse=None, tail=True, tol=1e-5):
         """Balanced coefficients of bounces 1..N ``(N, 9p, 3)`` and of the tail after them
-        ``(9p, 3)`` (zeros without ``tail``) from bounce 1's unbalanced ``c1``. ``inverse``:
-        from :meth:`inverse` (None: GMRES to ``tol``)."""
+        ``(9p, 3)`` (zeros without ``tail``) from bounce 1's unbalanced ``c1``, with the
+        factors ``g (N, 3)`` given. ``inverse``: from :meth:`inverse` (None: GMRES to
+        ``tol``)."""
         out = np.empty((len(g),) + c1.shape)
-        c = c1
-        for k in range(len(g)):
-            out[k] = g[k] * c
-            c = self.apply(out[k])
+        last = None
+        for last in bounce_series(self, factors=g, first=c1):
+            out[last.number - 1] = last.balanced
         rest = np.zeros_like(c1)
-        if tail and len(g):
-            f = g[-1]
-            if inverse is not None:
-                rest = inverse(c) * f
-            elif np.any(c):
-                def step(x):
-                    y = x.reshape(c.shape)
-                    return (y - self.apply(y, f)).ravel()
-
-                total, _, _ = gmres(step, c.ravel(), tol=tol)
-                rest = total.reshape(c.shape) * f
+        if tail and last is not None:
+            rest = tail_sum(self, last.coeffs, last.factor, tol, inverse).balanced
         return out, rest
 
 
@@ -223,13 +225,13 @@ class Source:
 class SceneLight:
     """The light of a scene on a kept capture, per source; see the module docstring.
 
-    ``scene``: the SceneArrays the capture was taken of; ``op``: its BounceOperator;
+    ``scene``: the SceneArrays the capture was taken of; ``op``: its MatrixOperator;
     ``light_direct(light) -> (s, 3)``: one Light's direct light with shadows (the renderer
     lives with the caller); ``count``: bounces kept apart (the rest is the tail, added if
     ``add_tail``).
     """
 
-    def __init__(self, scene, transport, light_direct, op: BounceOperator, count, add_tail=True, emitter_light=None,
+    def __init__(self, scene, transport, light_direct, op: MatrixOperator, count, add_tail=True, emitter_light=None,
                  sky_light=None):
         self.scene, self.transport, self.light_direct, self.op = scene, transport, light_direct, op
         self.emitter_light, self.sky_light = emitter_light, sky_light
@@ -329,7 +331,7 @@ class SceneLight:
         scene's, like the balance's). Worked on the near field's support points only, every
         source at once (their channels side by side); ``src.near``: per bounce, what it adds
         there (scaled)."""
-        rows_i, parts_m = self._near_matrices(near)
+        rows_i, parts_m, seen_total = self._near_matrices(near)
         sup = near.support
         sources = list(self.sources.values())
         n, count = len(sources), len(self.factors)
@@ -355,12 +357,11 @@ class SceneLight:
             if k < count:
                 d = near.delta(base, part, albedo * prev)
             else:  # the tail: the sum of the bounces after the last, each from the one before
-                settled, _ = fixed_point(lambda x: base + near.delta(base, part, albedo * (prev + x)), base)
-                d = settled - base
-            if self.op.landing is not None:
-                probe = ((self.op.u @ c).reshape(n, 3) * weights).sum(axis=0)
+                d = near.settle(base, part, albedo, prev, clamp=False)
+            if self.op.landing is not None:  # as solve.keep_total: over the points a probe sees
+                probe = ((seen_total @ c).reshape(n, 3) * weights).sum(axis=0)
                 added = ((balanced @ d).reshape(n, 3) * weights).sum(axis=0)
-                scale[k] = energy_factor(probe, probe + added)
+                scale[k] = near_factor(probe, added)
             f = np.where(unseen[:, None], 1.0, np.tile(scale[k], n)[None, :])
             deltas.append(f * d)  # what the near field adds on the support, scaled
             prev = f * (base + d)
@@ -376,8 +377,9 @@ class SceneLight:
             self.scene.zero_dark_points_inplace(src.indirect)
 
     def _near_matrices(self, near):
-        """``(I on the support (u, 9p), the probes' light in the hit directions (m, 9p))``,
-        float32, made once per near field."""
+        """``(I on the support (u, 9p), the probes' light in the hit directions (m, 9p), the
+        area-weighted total of a coefficient vector's light over the points a probe sees
+        (9p,))``, made once per near field."""
         cached = getattr(self, "_near_cache", None)
         if cached is not None and cached[0] is near:
             return cached[1]
@@ -386,8 +388,9 @@ class SceneLight:
         w = t.probe_weights(near.rows)  # (m, 8)
         parts_m = _dense_interpolation(t.index[near.rows], (w[:, :, None] * near.open_basis[:, None, :]).reshape(near.count, -1),
                                        t.probe_count)
-        self._near_cache = (near, (rows_i, parts_m))
-        return rows_i, parts_m
+        seen = self.op.areas * ~np.asarray(t.covered, dtype=bool)
+        self._near_cache = (near, (rows_i, parts_m, seen @ self.op.I))
+        return self._near_cache[1]
 
     # --- the scene's light now ---------------------------------------------------------------
     def _sum(self, term):
@@ -433,7 +436,7 @@ def from_bake(result, scene, light_direct, add_tail=True, conserve_energy=True, 
     transport = result.capture.transport
     albedo = np.where(scene.dark[:, None], 0.0, scene.albedo) if scene.dark is not None else scene.albedo
     landing = transport.landing_share() if conserve_energy else None
-    op = BounceOperator(transport, albedo, landing, scene.point_areas())
+    op = MatrixOperator(transport, albedo, landing, scene.point_areas())
     state = SceneLight(scene, transport, light_direct, op, len(result.solution.bounces), add_tail, emitter_light, sky_light)
     parts = result.direct_parts.parts
     for key, light in zip(light_keys(scene.lights), scene.lights):

@@ -101,7 +101,7 @@ class BakeReport:
             lights=scene["lights"], sky=scene["sky"], meshes_baked=scene["meshes_baked"], notes=scene["notes"],
             direct_seconds=direct["seconds"], direct_mean_light=direct["mean_light"],
             emitter_energy_factor=direct.get("emitter_energy_factor", [1.0, 1.0, 1.0]),
-            bounces=[BounceRecord(**b) for b in d["bounces"]], indirect_mean_light=d["indirect"]["mean_light"],
+            bounces=[BounceRecord.from_dict(b) for b in d["bounces"]], indirect_mean_light=d["indirect"]["mean_light"],
             tail=TailReport.from_dict(d["tail"]), timings=timings, attributes=d.get("attributes", []),
             warnings=d.get("warnings", []), reference=d.get("reference"), capture_reused=d.get("capture_reused", False),
             probes_recaptured=d.get("probes_recaptured"), left_out=d.get("left_out", []),

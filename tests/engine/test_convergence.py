@@ -78,7 +78,7 @@ def test_compare_adds_direct_and_indirect_for_the_total():
 
 
 def test_energy_conservation_makes_received_power_equal_landed_power():
-    from cubegi.cubegi_engine.solve import conserve_energy
+    from cubegi.cubegi_engine.series import conserve_energy
 
     rng = np.random.default_rng(3)
     areas = rng.random(50) + 0.1

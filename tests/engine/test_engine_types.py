@@ -86,7 +86,7 @@ def test_settings_name_what_is_out_of_range(kw, setting):
 
 
 def _report(**kw):
-    rec = BounceRecord(1, 0.01, 0.005, 0.003, 0.002, [0.1, 0.2, 0.3], 0.2, [0.5, 0.5, 0.5], 0.5, 0.25, [1.0, 1.0, 1.0], "CubeGI_bounce_1")
+    rec = BounceRecord(1, 0.01, 0.005, 0.002, [0.1, 0.2, 0.3], 0.2, [0.5, 0.5, 0.5], 0.5, 0.25, [1.0, 1.0, 1.0], "CubeGI_bounce_1")
     fields = dict(
         settings=BakeSettings().as_dict(lit="NONE"), grid={"probes": 8, "resolution": [2, 2, 2]}, points=10, triangles=12,
         lights=1, sky=[0.0, 0.0, 0.0], meshes_baked=["Room"], notes=["a note"], direct_seconds=0.1,
@@ -158,11 +158,11 @@ def test_the_field_gives_several_parts_in_one_pass_as_it_gives_each():
         np.testing.assert_allclose(parts[0] + parts[1], parts[2], rtol=1e-4, atol=1e-5)
 
 
-def _operator(p=4, s=30, seed=0):
-    """A BounceOperator of a small random capture (p probes, s points)."""
+def _operator(p=4, s=30, seed=0, landing=None):
+    """A MatrixOperator of a small random capture (p probes, s points)."""
     from types import SimpleNamespace
 
-    from cubegi.cubegi_engine.relight import BounceOperator
+    from cubegi.cubegi_engine.relight import MatrixOperator
     from cubegi.cubegi_engine.transport import _gather_matrix
 
     rng = np.random.default_rng(seed)
@@ -177,7 +177,43 @@ def _operator(p=4, s=30, seed=0):
         proxy=None,
     )
     transport.gather_project_matrix = lambda: _gather_matrix(transport, s)
-    return BounceOperator(transport, np.full((s, 3), 0.7))
+    return MatrixOperator(transport, np.full((s, 3), 0.7), landing, rng.uniform(0.5, 1.5, s))
+
+
+def test_the_bounce_series_balances_every_bounce_and_its_tail_sums_the_rest():
+    """One series for the bake and relighting (cubegi_engine.series): each balanced bounce
+    brings the power the bounce before sent that lands, with the factors it reports; given
+    those factors the series makes the same bounces again; the tail is the sum of every
+    later bounce at the last factor, by GMRES and by the kept inverse alike."""
+    from cubegi.cubegi_engine.series import bounce_series, landed_power, tail_sum
+
+    s = 30
+    landing = np.random.default_rng(2).uniform(0.6, 0.9, (s, 3))
+    op = _operator(s=s, landing=landing)
+    radius = max(np.max(np.abs(np.linalg.eigvals(op.M[ch]))) for ch in range(3))
+    op.M = op.M * (0.6 / radius)
+    direct = np.random.default_rng(3).uniform(0.0, 1.0, (s, 3))
+    series = bounce_series(op, direct)
+    bounces = [next(series) for _ in range(4)]
+    sent = landed_power(op.albedo * direct, landing, op.areas)
+    for bounce in bounces:
+        assert np.all(bounce.factor != 1.0) and np.all((bounce.factor > 0.5) & (bounce.factor < 2.0))
+        np.testing.assert_allclose(op.u @ bounce.balanced, sent, rtol=1e-9)
+        sent = np.einsum("cq,qc->c", op.v, bounce.balanced)
+    factors = np.stack([b.factor for b in bounces])
+    again = list(bounce_series(op, factors=factors, first=bounces[0].coeffs))
+    for a, b in zip(again, bounces):
+        np.testing.assert_allclose(a.balanced, b.balanced, rtol=1e-12)
+    np.testing.assert_allclose(op.factors(direct, 4), factors, rtol=1e-12)
+
+    last, g = bounces[-1], bounces[-1].factor
+    later = bounce_series(op, factors=np.tile(g, (200, 1)), first=op.apply(last.balanced))
+    summed = sum(b.balanced for b in later)
+    by_gmres = tail_sum(op, last.coeffs, g, tol=1e-12)
+    assert by_gmres.iterations > 0 and by_gmres.residual <= 1e-12
+    np.testing.assert_allclose(by_gmres.balanced, summed, rtol=1e-8, atol=1e-12)
+    by_inverse = tail_sum(op, last.coeffs, g, inverse=op.inverse(g))
+    np.testing.assert_allclose(by_inverse.balanced, summed, rtol=1e-8, atol=1e-12)
 
 
 def test_the_tail_solve_keeps_its_inverse_and_refines_it_for_a_nearby_factor():

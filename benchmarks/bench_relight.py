@@ -63,7 +63,7 @@ def main():
         return run
 
     t_instant, u = best(power(False), args.repeat)
-    assert u.path == "weights"
+    assert u.route == "weights"
     engine = sum(v for k, v in u.seconds.items() if k != "write")
     t_settled, u = best(power(True), args.repeat)
     ob = bpy.data.objects["Lamp A"]
@@ -73,7 +73,7 @@ def main():
         return live.update(bpy.context)
 
     t_move, u_move = best(move, args.repeat)
-    assert u_move.path == "lights"
+    assert u_move.route == "lights"
     carpet = bpy.data.materials["Carpet"].node_tree.nodes["Principled BSDF"].inputs["Base Color"]
 
     def recolour():
@@ -114,8 +114,8 @@ def dynamic_object(bpy, settings, repeat):
         return live.update(bpy.context)
 
     t_move, u = best(move, repeat)
-    assert u.path == "dynamic"
-    field = session.kept(bpy.context.scene).result.field
+    assert u.route == "dynamic"
+    field = session.kept(bpy.context.scene).live.field
     rng = np.random.default_rng(0)
     lo, hi = field.grid.positions().min(axis=0), field.grid.positions().max(axis=0)
     pts = lo + rng.random((10_000, 3)) * (hi - lo)

@@ -118,7 +118,7 @@ def run_scene(scene_name, config, cache_dir, log=print):
     # A first bake compiles the shaders; it is not timed.
     bpy.ops.cubegi.bake(bounces=1, cube_size=8, grid=(2, 2, 2))
     kept = session.kept(bpy.context.scene)
-    scored = scene_data.scored_areas(kept.targets, kept.arrays)  # black vertices left out: Cycles gives them no light
+    scored = scene_data.scored_areas(kept.bake.targets, kept.bake.arrays)  # black vertices left out: Cycles gives them no light
     areas = np.concatenate([scored[ob.name] for ob in objects])
     for cells, cube, (bounces, tail) in itertools.product(config["cells_along_longest"], config["cube_sizes"], config["bounces"]):
         res = fit_bounds(lo, hi, spacing=float(np.max(hi - lo)) / cells, max_probes=1 << 14)
@@ -132,7 +132,7 @@ def run_scene(scene_name, config, cache_dir, log=print):
     # and the one with its probes inside geometry left in place.
     # Where the scene has a sky, also the default with the sky per vertex (an option).
     variants = [("before", {"near_field": False}), ("probes in place", {"move_probes": False}), ("after", {})]
-    if np.any(kept.arrays.sky > 0):
+    if np.any(kept.bake.arrays.sky > 0):
         variants.append(("sky per vertex", {"sky_per_vertex": True}))
     for which, kw in variants:
         records.append(_cubegi_run(scene_name, objects, ref, areas, {"default": which}, log, repeat=config.get("default_repeats", 1), **kw))

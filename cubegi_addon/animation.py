@@ -9,8 +9,8 @@ float32, shape ``(vertices, 3)``, in vertex order, the values the attributes
 
 Per frame, after ``scene.frame_set``: the first frame is a full bake; later frames update on
 the kept capture (:func:`cubegi_addon.live.update`: lights, the world, materials, dynamic
-objects), and a frame whose static geometry changed is baked in full again ("full"; the
-capture is redrawn).
+objects; :mod:`cubegi_addon.updates` decides the route), and a frame whose static geometry
+changed is baked in full again ("full"; the capture is redrawn).
 """
 
 import os
@@ -20,7 +20,7 @@ import bpy
 import numpy as np
 
 from ..cubegi_engine.errors import BakeError, Interrupted
-from ..cubegi_engine.records import AnimationResult, FrameRecord, Progress, Stage
+from ..cubegi_engine.records import AnimationResult, FrameRecord, Progress, Route, Stage
 from . import attributes, files, interrupts, live, pipeline, session
 
 FRAME_FILE = "frame_{:04d}.npz"
@@ -97,12 +97,12 @@ def _bake_frames(context, settings, frames, folder, resolution, lit, only):
             yield Progress(Stage.BOUNCE, k, len(frames), f"frame {frame} ({k + 1}/{len(frames)})")
             t = time.perf_counter()
             scene.frame_set(frame)
-            path, detail = _frame(context, settings, resolution, lit, only, first=k == 0)
+            route, detail = _frame(context, settings, resolution, lit, only, first=k == 0)
             arrays = frame_arrays(scene)
             if not records and os.path.exists(os.path.join(folder, KEY_FILE)):
                 os.remove(os.path.join(folder, KEY_FILE))  # its frames are about to change
             direct, indirect = _mean(arrays)
-            record = FrameRecord(frame, time.perf_counter() - t, path, direct, indirect, detail)
+            record = FrameRecord(frame, time.perf_counter() - t, route, direct, indirect, detail)
             try:
                 files.write_all([(frame_path(folder, frame), _npz(arrays))])
             except KeyboardInterrupt as exc:
@@ -130,42 +130,19 @@ def _animated_materials():
     return False
 
 
-def _static_changed(context, kept):
-    """True if the static geometry differs from the kept bake's: another set of objects
-    renders (one keyframed into or out of renders), an object moved (its world matrix), or
-    one that can deform (modifiers, shape keys, animated mesh data) has other vertices now
-    (then the scene is read again and fingerprinted)."""
-    from . import scene_data
-
-    if scene_data.static_object_names(context) != set(kept.arrays.object_names):
-        return True
-    deforming = False
-    for name in kept.arrays.object_names:
-        ob = bpy.data.objects.get(name)
-        if ob is None or (name in kept.placements and kept.placements[name] != session.placement(ob)):
-            return True
-        data = ob.data
-        deforming |= bool(len(ob.modifiers)) or getattr(data, "shape_keys", None) is not None or (
-            getattr(data, "animation_data", None) is not None)
-    if not deforming:
-        return False
-    return bool(scene_data.collect(context).arrays.fingerprint().changed(kept.arrays.fingerprint()))
-
-
 def _frame(context, settings, resolution, lit, only, first):
-    """Bring the attributes to the current frame; ``(path, details)``."""
-    kept = session.kept(context.scene)
-    if not first and kept is not None and not _static_changed(context, kept):
-        try:
+    """Bring the attributes to the current frame; ``(route, details)``."""
+    if not first and session.kept(context.scene) is not None:
+        try:  # the update's plan refuses a frame whose static geometry changed (updates.geometry_changes)
             report = live.update(context, materials=_animated_materials(), bounce_layers=False)
-            return report.path, {"changed": report.changed}
-        except BakeError:  # the static geometry changed: a full bake
+            return report.route, {"changed": report.changed}
+        except BakeError:  # then a full bake
             pass
     report = pipeline.bake(context, settings, resolution, lit=lit, only=only)
     details = {"probes": report.grid["probes"], "capture_reused": report.capture_reused}
     if report.probes_recaptured is not None:
-        return "recapture", dict(details, probes_recaptured=report.probes_recaptured)
-    return "full", details
+        return Route.RECAPTURE, dict(details, probes_recaptured=report.probes_recaptured)
+    return Route.FULL, details
 
 
 def _npz(arrays):
@@ -213,10 +190,16 @@ def detach_cache(scene):
 @bpy.app.handlers.persistent
 @interrupts.blender_callback
 def on_frame_change(scene, depsgraph=None):
-    """With a baked animation cache on the scene, show each frame's light (scrubbing,
-    playback, ``blender -b -a`` renders)."""
+    """The one frame handler: with Live on, the frame's lights are applied
+    (:func:`.live.live_frame`); else, with a baked animation cache on the scene, each frame's
+    light is shown from it (scrubbing, playback, ``blender -b -a`` renders)."""
     settings = getattr(scene, "cubegi", None)
-    if settings is None or not settings.animation_cache or settings.live or scene.session_uid in _baking:
+    if settings is None or scene.session_uid in _baking:
+        return
+    if settings.live:
+        live.live_frame(scene)
+        return
+    if not settings.animation_cache:
         return
     problem = apply_frame(scene, bpy.path.abspath(settings.animation_cache), scene.frame_current)
     if problem and settings.last_update != problem:

@@ -109,6 +109,32 @@ def bake_names(bounces, lit=False, reference=False, groups=()):
     return names
 
 
+def light_layers(direct, indirect, bounces=(), albedo=None, lit=None):
+    """The light layers of points (every value ``(s, 3)``): name -> values. ``CubeGI_direct``,
+    ``CubeGI``, ``CubeGI_total``, ``CubeGI_bounce_k`` for each of ``bounces``, and with
+    ``lit`` ("ALL" or "INDIRECT") ``CubeGI_lit``: ``albedo`` times all light, or the indirect
+    light alone (for engines that light directly themselves). The one place that knows which
+    light each layer holds."""
+    layers = {DIRECT: direct}
+    layers.update((bounce_name(k), b) for k, b in enumerate(bounces, start=1))
+    layers[INDIRECT] = indirect
+    layers[TOTAL] = direct + indirect
+    if lit:
+        layers[LIT] = albedo * (indirect if lit == "INDIRECT" else direct + indirect)
+    return layers
+
+
+def write_targets(targets, meshes, layers):
+    """Write point ``layers`` (name -> ``(s, 3)``) to each target's mesh, in place (a mesh
+    None, gone or changed since the bake, is skipped)."""
+    for target, mesh in zip(targets, meshes):
+        if mesh is None:
+            continue
+        for name, values in layers.items():
+            put(mesh, name, vertex_values(target, values))
+        mesh.update()
+
+
 def vertex_values(target, point_values):
     """Per-vertex ``(v, 3)`` mean over each vertex's corners of per-point values ``(s, 3)``
     (zero for a vertex with no corner)."""

@@ -10,19 +10,17 @@ def moving_layers(obj, target, field, lights, shadows, settings, lit):
     """The attribute layers of one dynamic object lit from ``field`` (see
     :func:`cubegi_engine.moving.light_moving`)."""
     direct, indirect = light_moving(obj, lights, shadows, field, GpuRenderer(obj.points, obj.triangles), settings)
-    layers = {attributes.DIRECT: direct, attributes.INDIRECT: indirect, attributes.TOTAL: direct + indirect}
-    if lit:
-        layers[attributes.LIT] = obj.albedo * (indirect if lit == "INDIRECT" else direct + indirect)
+    layers = attributes.light_layers(direct, indirect, albedo=obj.albedo, lit=lit)
     return {name: attributes.vertex_values(target, values) for name, values in layers.items()}
 
 
-def write_moving(context, kept):
-    """Light and write every dynamic object from the kept probe field."""
-    moving = kept.moving or []
-    for (obj, target), mesh in zip(moving, session.target_meshes([t for _, t in moving])):
+def write_moving(kept):
+    """Light and write every dynamic object from the probe field now."""
+    bake, live = kept.bake, kept.live
+    for (obj, target), mesh in zip(live.moving, session.target_meshes([t for _, t in live.moving])):
         if mesh is None:
             continue
-        for name, values in moving_layers(obj, target, kept.result.field, kept.arrays.lights, kept.result.shadows,
-                                          kept.settings, kept.lit).items():
+        for name, values in moving_layers(obj, target, live.field, live.lights, bake.result.shadows, bake.settings,
+                                          bake.lit).items():
             attributes.put(mesh, name, values)
         mesh.update()

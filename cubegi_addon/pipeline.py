@@ -45,7 +45,7 @@ class Preview:
 
     def start(self, targets):
         self.targets = targets
-        self.meshes = [bpy.data.meshes[t.mesh_name] for t in targets]
+        self.meshes = session.target_meshes(targets)
         self.saved = [attributes.snapshot(m) for m in self.meshes]
 
     def update(self, step):
@@ -162,7 +162,7 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
     t_setup = time.perf_counter() - t
     yield Progress(Stage.CAPTURE, 0, total, "the scene is on the GPU", working=True)
     earlier = session.kept(context.scene)
-    steps = engine_bake_steps(arrays, grid, renderer, settings, capture=earlier.result.capture if earlier else None,
+    steps = engine_bake_steps(arrays, grid, renderer, settings, capture=earlier.bake.result.capture if earlier else None,
                               keep_shadows=bool(collected.moving), whole_field=bool(collected.moving))
     if preview is not None:
         preview.start(collected.targets)
@@ -208,12 +208,12 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
         grid_objects.store_probe_light(objects, result.field.whole())
         probe_view.forget_drawing()
     context.scene.cubegi.bake_id = uuid.uuid4().hex
-    session.keep(context.scene, session.Kept(
-        arrays, collected.targets, result, settings, lit, light=state, renderer=renderer if state is not None else None,
-        groups=groups, placements=session.placements(arrays.object_names), moving=collected.moving,
-        resolution=resolution, bake_id=context.scene.cubegi.bake_id, only=None if only is None else frozenset(only),
+    snapshot = session.BakeSnapshot(
+        arrays, collected.targets, result, settings, lit, placements=session.placements(arrays.object_names),
         shapes=scene_data.static_shapes(context.view_layer, context.evaluated_depsgraph_get()),
-    ))
+        bake_id=context.scene.cubegi.bake_id, resolution=resolution, only=None if only is None else frozenset(only))
+    session.keep(context.scene, session.Kept(snapshot, session.LiveState.of(
+        snapshot, collected.moving, groups, light=state, renderer=renderer if state is not None else None)))
     t_write = t_layers + time.perf_counter() - t
 
     timings = dict(result.timings)
@@ -292,16 +292,8 @@ def _note_capture(collected, result, grid):
 
 def _layers(target, result, arrays, lit):
     """One target's attribute layers: name -> ``(v, 3)``."""
-    indirect = result.indirect
-    layers = {attributes.DIRECT: attributes.vertex_values(target, result.direct)}
-    for k, b in enumerate(result.bounces, start=1):
-        layers[attributes.bounce_name(k)] = attributes.vertex_values(target, b)
-    layers[attributes.INDIRECT] = attributes.vertex_values(target, indirect)
-    layers[attributes.TOTAL] = attributes.vertex_values(target, result.direct + indirect)
-    if lit:
-        light = indirect if lit == "INDIRECT" else result.direct + indirect
-        layers[attributes.LIT] = attributes.vertex_values(target, arrays.albedo * light)
-    return layers
+    layers = attributes.light_layers(result.direct, result.indirect, result.bounces, arrays.albedo, lit)
+    return {name: attributes.vertex_values(target, values) for name, values in layers.items()}
 
 
 def _report(settings, lit, grid, grid_source, collected, result, timings, reference_report, names):

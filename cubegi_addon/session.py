@@ -1,5 +1,6 @@
-"""What outlives a bake inside Blender: per scene, the last bake's snapshot, capture, light
-and probe field (:class:`Kept`), so that the next bake of an unchanged geometry reuses the
+"""What outlives a bake inside Blender: per scene, the last bake as it was made
+(:class:`BakeSnapshot`: its arrays, capture, light and probe field) and its light as updates
+left it (:class:`LiveState`), together a :class:`Kept`, so that the next bake of an unchanged geometry reuses the
 capture, and later updates (light edits, moving objects) start from them.
 
 Kept in this module's memory only (never in the file): keyed by the scene's
@@ -12,12 +13,14 @@ dropped first; a bake larger than the budget alone is not kept.
 """
 
 import atexit
-import os
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import bpy
+import numpy as np
 
+from ..cubegi_engine.bake import physical_memory
 from . import interrupts
 
 MAX_KEPT_SCENES = 4
@@ -26,46 +29,82 @@ KEPT_SHARE = 0.125
 MAX_KEPT_BYTES = 2 << 30
 
 
+@dataclass(frozen=True)
+class BakeSnapshot:
+    """What a bake made, as it made it (no update changes it): ``arrays`` (the SceneArrays),
+    ``targets`` (MeshTargets), ``result`` (the engine's BakeResult: capture, direct light per
+    source, solution, field), ``settings`` and ``lit`` (how it was baked), ``placements``
+    (object name -> world matrix, :func:`placements`), ``shapes`` (session_uid -> (name,
+    digest) of the static geometry: ``scene_data.static_shapes``), ``bake_id`` (the scene's
+    ``cubegi.bake_id`` it wrote), ``resolution`` (the grid resolution asked for, None: the
+    scene's), ``only`` (the session_uid of the objects it wrote light into, if it was asked
+    for some: Bake Selected)."""
+
+    arrays: Any
+    targets: list
+    result: Any
+    settings: Any
+    lit: str | None = None
+    placements: dict = field(default_factory=dict)
+    shapes: dict = field(default_factory=dict)
+    bake_id: str = ""
+    resolution: tuple | None = None
+    only: frozenset | None = None
+
+
+@dataclass
+class LiveState:
+    """The light now, as updates left it (:mod:`.live`), on a :class:`BakeSnapshot`:
+    ``lights``, ``sky``, ``albedo``, ``emission`` (what the light was last made with),
+    ``field`` (the probe field now), ``moving`` (``[(SceneArrays, MeshTarget)]`` of the
+    dynamic objects as last lit), ``groups`` (the view layer's LightGroups, or None: no group
+    layers); made on first use: ``light`` (the engine's SceneLight, per source) and
+    ``renderer`` (for shadow maps). ``unsettled``: an instant update left the balance and
+    the bounce layers behind."""
+
+    lights: list
+    sky: np.ndarray
+    albedo: np.ndarray
+    emission: np.ndarray
+    field: Any
+    moving: list = field(default_factory=list)
+    groups: Any = None
+    light: Any = None
+    renderer: Any = None
+    unsettled: bool = False
+
+    @classmethod
+    def of(cls, snapshot: BakeSnapshot, moving=(), groups=None, light=None, renderer=None) -> "LiveState":
+        """The live state of a bake just made: its lights, sky, materials and field."""
+        arrays = snapshot.arrays
+        return cls(list(arrays.lights), np.asarray(arrays.sky, dtype=np.float64), arrays.albedo, arrays.emission,
+                   snapshot.result.field, list(moving), groups, light, renderer)
+
+
 @dataclass
 class Kept:
-    """A bake's parts: ``arrays`` (the SceneArrays snapshot), ``targets`` (MeshTargets),
-    ``result`` (the engine's BakeResult: capture, direct light per source, solution, field),
-    ``settings`` and ``lit`` (how it was baked); made on first use by :mod:`.live`:
-    ``light`` (the engine's SceneLight, per source) and ``renderer`` (for shadow maps)."""
+    """A scene's last bake (``bake``, frozen) and its light now (``live``)."""
 
-    arrays: object
-    targets: list
-    result: object
-    settings: object = None
-    lit: object = None
-    light: object = None
-    renderer: object = None
-    unsettled: bool = False  # an instant update left the balance and bounce layers behind
-    placements: dict = None  # object name -> world matrix at the bake (see live.placements)
-    shapes: dict = None  # session_uid -> (name, digest): the static geometry at the bake (scene_data.static_shapes)
-    bake_id: str = ""  # the scene's cubegi.bake_id this bake wrote
-    moving: list = None  # [(SceneArrays, MeshTarget)] of the dynamic objects as last lit
-    resolution: tuple = None  # the grid resolution the bake was asked for (None: the scene's)
-    only: frozenset = None  # the session_uid of the objects the bake wrote light into, if it was asked for some (Bake Selected)
-    groups: object = None  # the view layer's LightGroups at the bake (light_groups.read), or None: no group layers
+    bake: BakeSnapshot
+    live: LiveState
 
     @property
     def nbytes(self):
-        field = self.result.field
-        arrays = (self.arrays.points, self.arrays.normals, self.arrays.albedo, self.arrays.emission, self.arrays.triangles)
-        light = [self.result.solution.direct, *self.result.solution.bounces, *self.result.direct_parts.parts.values()]
-        extra = self.light.op.nbytes if self.light is not None else 0
-        return self.result.capture.nbytes + field.nbytes + extra + sum(a.nbytes for a in (*arrays, *light))
+        bake, field = self.bake, self.bake.result.field
+        a = bake.arrays
+        arrays = (a.points, a.normals, a.albedo, a.emission, a.triangles)
+        light = [bake.result.solution.direct, *bake.result.solution.bounces, *bake.result.direct_parts.parts.values()]
+        extra = self.live.light.op.nbytes if self.live.light is not None else 0
+        if self.live.field is not field:
+            extra += self.live.field.coeffs.nbytes
+        return bake.result.capture.nbytes + field.nbytes + extra + sum(x.nbytes for x in (*arrays, *light))
 
 
 _kept = OrderedDict()
 
 
 def budget():
-    try:
-        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        total = 8 << 30
+    total = physical_memory() or 8 << 30
     return int(min(MAX_KEPT_BYTES, KEPT_SHARE * total))
 
 
@@ -135,10 +174,10 @@ def after_undo():
     out = []
     for uid, kept in list(_kept.items()):
         scene = scenes.get(uid)
-        if scene is None or scene.cubegi.bake_id != kept.bake_id or None in target_meshes(kept.targets):
+        if scene is None or scene.cubegi.bake_id != kept.bake.bake_id or None in target_meshes(kept.bake.targets):
             _kept.pop(uid)
             continue
-        kept.unsettled = True
+        kept.live.unsettled = True
         out.append((scene, kept))
     return out
 

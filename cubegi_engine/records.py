@@ -5,11 +5,11 @@ only at the edges (:meth:`cubegi_engine.report.BakeReport.to_json`).
 """
 
 from dataclasses import asdict, dataclass, field, fields
-from enum import Enum
+from enum import Enum, StrEnum
 
 import numpy as np
 
-__all__ = ["Stage", "Progress", "BounceRecord", "TailReport"]
+__all__ = ["Stage", "Progress", "Route", "BounceRecord", "TailReport", "FrameRecord", "AnimationResult"]
 
 
 class Stage(str, Enum):
@@ -35,6 +35,23 @@ class Progress:
     new_light: np.ndarray | None = None
     bounce: int | None = None
     working: bool = False
+
+
+class Route(StrEnum):
+    """How an update, or an animation's frame, brought the light up to date (cheapest
+    first): nothing changed; a weighted sum of the kept sources (power, colour); a light
+    drawn again; the materials' colours or emission; the energy balance and the bounce
+    layers an instant update left behind; dynamic objects alone lit again; a bake that
+    re-captured the probes moved geometry concerns; a full bake."""
+
+    NONE = "none"
+    WEIGHTS = "weights"
+    LIGHTS = "lights"
+    MATERIALS = "materials"
+    SETTLE = "settle"
+    DYNAMIC = "dynamic"
+    RECAPTURE = "recapture"
+    FULL = "full"
 
 
 @dataclass
@@ -91,20 +108,20 @@ class TailReport:
 
 @dataclass(frozen=True)
 class FrameRecord:
-    """One frame of an animation bake: ``path``, how its light was brought up to date
+    """One frame of an animation bake: ``route``, how its light was brought up to date
     ("full", "recapture", or an update's route: "lights", "materials", ...), its time and
-    its area-weighted mean light; ``detail``: what that path reports (the probes, whether
+    its area-weighted mean light; ``detail``: what that route reports (the probes, whether
     the capture was reused, what changed)."""
 
     frame: int
     seconds: float
-    path: str
+    route: "Route"
     mean_direct: list
     mean_indirect: list
     detail: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
-        return {"frame": self.frame, "seconds": self.seconds, "path": self.path, **self.detail,
+        return {"frame": self.frame, "seconds": self.seconds, "path": str(self.route), **self.detail,
                 "mean_direct": self.mean_direct, "mean_indirect": self.mean_indirect}
 
 
@@ -120,7 +137,7 @@ class AnimationResult:
         """How many frames took each path, in the order first met."""
         count: dict[str, int] = {}
         for f in self.frames:
-            count[f.path] = count.get(f.path, 0) + 1
+            count[str(f.route)] = count.get(str(f.route), 0) + 1
         return count
 
     def to_dict(self) -> dict:

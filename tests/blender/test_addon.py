@@ -42,9 +42,10 @@ def test_unregister_leaves_nothing_behind_and_register_restores_everything(cubeg
     classes = [c for m in (addon.prefs, addon.props, addon.operators, addon.panel) for c in m.classes]
     assert len(classes) == 16 and all(c.is_registered for c in classes)
     handlers = [(addon.session.HANDLER_LISTS, addon.session._forget_all),
-                (("depsgraph_update_post",), addon.live._persistent_update), (("frame_change_post",), addon.live._persistent_frame),
+                (("depsgraph_update_post",), addon.live._persistent_update),
                 (("undo_post", "redo_post"), addon.live._persistent_undo),
                 (("frame_change_post",), addon.animation.on_frame_change)]
+    assert bpy.app.handlers.frame_change_post[:].count(addon.animation.on_frame_change) == 1  # the one frame handler
     menu = bpy.types.VIEW3D_MT_add
     assert addon.probe_view._handle is not None
     cubegi.unregister()

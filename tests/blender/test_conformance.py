@@ -277,7 +277,7 @@ def test_an_unnamed_color_attribute_node_reads_the_render_attribute_and_baking_t
     assert bpy.ops.cubegi.bake(**FAST) == {"FINISHED"}
     first = {o.name: read(o.data, "CubeGI_total") for o in obs}
     kept = cubegi.cubegi_addon.session.kept(bpy.context.scene)
-    floor_albedo = kept.arrays.albedo[kept.arrays.point_object == kept.arrays.object_names.index("Floor")]
+    floor_albedo = kept.bake.arrays.albedo[kept.bake.arrays.point_object == kept.bake.arrays.object_names.index("Floor")]
     np.testing.assert_allclose(floor_albedo, np.tile((0.8, 0.1, 0.1), (len(floor_albedo), 1)), atol=1e-6)
     cubegi.cubegi_addon.session.forget()
     assert bpy.ops.cubegi.bake(**FAST) == {"FINISHED"}
@@ -611,7 +611,7 @@ def test_materials_and_the_world_are_read_as_cycles_reads_them(empty_scene, cube
     assert not [n for n in _notes() if "not understood" in n or "does not read" in n], _notes()
     if feature.startswith("Image texture on a UV map"):  # red and blue halves, not the first map's one colour
         kept = cubegi.cubegi_addon.session.kept(bpy.context.scene)
-        albedo = kept.arrays.albedo[kept.arrays.point_object == kept.arrays.object_names.index("Floor")]
+        albedo = kept.bake.arrays.albedo[kept.bake.arrays.point_object == kept.bake.arrays.object_names.index("Floor")]
         assert albedo[:, 0].max() > 0.7 and albedo[:, 0].min() < 0.2 and albedo[:, 2].max() > 0.7, albedo
 
 

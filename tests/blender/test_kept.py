@@ -59,7 +59,7 @@ def test_a_geometry_edit_or_new_settings_take_a_new_capture(cornell):
     bpy.data.objects["Tall"].location.x += 0.1
     assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"} and not _report()["capture_reused"]
     kept = cornell.cubegi_addon.session.kept(bpy.context.scene)
-    old = kept.result.capture
+    old = kept.bake.result.capture
     # The moved object is what changed, and some probes see it.
     arrays = cornell.cubegi_addon.scene_data.collect(bpy.context).arrays
     assert arrays.fingerprint().changed(old.fingerprint) == set()
@@ -91,10 +91,10 @@ def test_the_probe_field_lights_the_scenes_points_as_the_bake_does(cornell):
     their sum differs slightly where a probe rings."""
     assert bpy.ops.cubegi.bake(grid=(3, 3, 3), cube_size=16, bounces=4, visibility=False, near_field=False) == {"FINISHED"}
     kept = cornell.cubegi_addon.session.kept(bpy.context.scene)
-    field, result = kept.result.field, kept.result
-    at_points = field.light_at(kept.arrays.points, kept.arrays.normals)
+    field, result = kept.bake.result.field, kept.bake.result
+    at_points = field.light_at(kept.bake.arrays.points, kept.bake.arrays.normals)
     indirect = result.indirect
-    areas = kept.arrays.point_areas()
+    areas = kept.bake.arrays.point_areas()
     mean = float((indirect * areas[:, None]).sum() / areas.sum())
     rel_rmse = np.sqrt(((at_points - indirect) ** 2 * areas[:, None]).sum() / areas.sum() / 3) / mean
     assert rel_rmse < 0.02, rel_rmse  # measured 0.3%

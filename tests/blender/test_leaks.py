@@ -86,7 +86,7 @@ def test_the_floor_under_a_rug_gets_no_probe_light(empty_scene, cubegi):
     demo.build_room()
     cubegi.cubegi_addon.pipeline.bake(bpy.context, BakeSettings(cube_size=16, bounces=2))
     kept = session.kept(bpy.context.scene)
-    arr, transport = kept.arrays, kept.result.capture.transport
+    arr, transport = kept.bake.arrays, kept.bake.result.capture.transport
     pts, nrm = arr.points, arr.normals
     floor = (arr.point_object == arr.object_names.index("Room")) & (pts[:, 2] < 1e-3) & (nrm[:, 2] > 0.9)
     under = floor & (np.abs(pts[:, 0]) < 1.45) & (pts[:, 1] > -2.95) & (pts[:, 1] < 1.95)  # the carpet: 3 x 5 m

@@ -97,7 +97,7 @@ def test_probes_inside_the_blocks_move_out_before_the_capture(empty_scene, cubeg
     summary = cubegi.cubegi_engine.report.BakeReport.from_json(bpy.context.scene.cubegi.last_report).summary_lines()
     assert any(f"probes: {moved} found inside geometry were moved out" in line for line in summary)
     assert any(line.startswith(f"probes: {inside} sit") and "inside geometry" in line for line in report["left_out"])
-    grid = cubegi.cubegi_addon.session.kept(bpy.context.scene).result.capture.grid
+    grid = cubegi.cubegi_addon.session.kept(bpy.context.scene).bake.result.capture.grid
     offsets = grid.displacements()[np.any(grid.displacements() != 0, axis=1)]
     pos = grid.positions()[np.any(grid.displacements() != 0, axis=1)]
     assert len(pos) == moved and (np.abs(offsets) <= 0.45 * 0.25 + 1e-9).all()
@@ -128,7 +128,7 @@ def test_an_object_smaller_than_a_texel_from_every_probe_is_not_drawn_by_the_pro
     (line,) = [x for x in report["left_out"] if x.startswith("capture geometry: 1 object smaller than a texel")]
     assert "Speck" in line
     kept = cubegi.cubegi_addon.session.kept(bpy.context.scene)
-    arrays, capture = kept.arrays, kept.result.capture
+    arrays, capture = kept.bake.arrays, kept.bake.result.capture
     speck = [name for name, _ in capture.fingerprint.objects].index("Speck")
     assert capture.small_objects == (speck,)
     speck_triangles = np.flatnonzero(arrays.point_object[arrays.triangles[:, 0]] == speck)
@@ -140,7 +140,7 @@ def test_an_object_smaller_than_a_texel_from_every_probe_is_not_drawn_by_the_pro
     assert bpy.ops.cubegi.bake(cells=8, **SETTINGS) == {"FINISHED"}
     report = json.loads(bpy.context.scene.cubegi.last_report)
     assert not any(x.startswith("capture geometry: 1 object smaller") for x in report["left_out"])
-    capture = cubegi.cubegi_addon.session.kept(bpy.context.scene).result.capture
+    capture = cubegi.cubegi_addon.session.kept(bpy.context.scene).bake.result.capture
     assert capture.small_objects == () and np.isin(capture.cubes.tid, speck_triangles).any()
 
 

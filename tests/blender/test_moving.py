@@ -41,18 +41,18 @@ def test_a_dynamic_object_is_not_captured_and_moves_without_a_bake(red_room):
     live = red_room.cubegi_addon.live
     assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
     kept = red_room.cubegi_addon.session.kept(bpy.context.scene)
-    assert "Suzanne" not in kept.arrays.object_names and [t.object_name for _, t in kept.moving] == ["Suzanne"]
+    assert "Suzanne" not in kept.bake.arrays.object_names and [t.object_name for _, t in kept.live.moving] == ["Suzanne"]
     floor = red_room.cubegi_addon.attributes.read(bpy.data.objects["Floor"].data, "CubeGI_total")
-    capture = kept.result.capture
+    capture = kept.bake.result.capture
     at_wall = _mean("Suzanne", "CubeGI_total")
     bpy.data.objects["Suzanne"].location = CORNER
     report = live.update(bpy.context)
-    assert report.path == "dynamic" and report.changed == ["Suzanne moved"]
-    assert kept.result.capture is capture  # no capture
+    assert report.route == "dynamic" and report.changed == ["Suzanne moved"]
+    assert kept.bake.result.capture is capture  # no capture
     assert not np.allclose(_mean("Suzanne", "CubeGI_total"), at_wall)
     # The static scene is untouched: a dynamic object casts no light or shadow on it.
     np.testing.assert_array_equal(red_room.cubegi_addon.attributes.read(bpy.data.objects["Floor"].data, "CubeGI_total"), floor)
-    assert live.update(bpy.context).path == "none"
+    assert live.update(bpy.context).route == "none"
     # Turning Dynamic off changes what is captured: the kept bake is dropped, Update refuses.
     bpy.data.objects["Suzanne"].cubegi.dynamic = False
     assert red_room.cubegi_addon.session.kept(bpy.context.scene) is None

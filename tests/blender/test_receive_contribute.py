@@ -89,7 +89,7 @@ def test_bake_selected_receive_off_and_only_write_just_their_objects(room, tmp_p
     _bake(selected_only=True)
     _same(_light(room), kept_older_except({"Room", "Crate"}))
     kept = room.cubegi_addon.session.kept(bpy.context.scene)
-    assert sorted(t.object_name for t in kept.targets) == ["Crate", "Room"]
+    assert sorted(t.object_name for t in kept.bake.targets) == ["Crate", "Room"]
     # An update writes the same objects only.
     lamp.energy = 100.0
     assert bpy.ops.cubegi.update_light() == {"FINISHED"}
@@ -101,7 +101,7 @@ def test_bake_selected_receive_off_and_only_write_just_their_objects(room, tmp_p
     # are held by session_uid.
     bpy.data.objects["Crate"].name = "Crate renamed"
     lamp.energy = 100.0  # light is linear in power: the objects baked get half the light
-    room.cubegi_addon.pipeline.bake(bpy.context, kept.settings, kept.resolution, only=kept.only)
+    room.cubegi_addon.pipeline.bake(bpy.context, kept.bake.settings, kept.bake.resolution, only=kept.bake.only)
     now = _light(room, ("Room", "Block", "Crate renamed"))
     np.testing.assert_allclose(now["Crate renamed", "CubeGI_total"], 0.5 * full["Crate", "CubeGI_total"], rtol=1e-4, atol=1e-6)
     assert np.array_equal(now["Block", "CubeGI_total"], older["Block", "CubeGI_total"])
@@ -158,7 +158,7 @@ def test_contribute_off_is_invisible_to_the_rest_and_lit_as_a_dynamic_object(roo
     off = _light(room)
     _same({k: v for k, v in off.items() if k[0] != "Block"}, without_block)
     kept = room.cubegi_addon.session.kept(bpy.context.scene)
-    assert "Block" not in kept.arrays.object_names and [t.object_name for _, t in kept.moving] == ["Block"]
+    assert "Block" not in kept.bake.arrays.object_names and [t.object_name for _, t in kept.live.moving] == ["Block"]
     assert not np.allclose(off["Room", "CubeGI_total"], with_block["Room", "CubeGI_total"])  # its shadow is gone
     lit = off["Block", "CubeGI_direct"]
     assert np.isfinite(lit).all() and lit.max() > 0

@@ -47,9 +47,9 @@ def _assert_same(updated, full, tol=SOLVE_TOL):
 
 def _update(cubegi, **kw):
     live = cubegi.cubegi_addon.live
-    before = cubegi.cubegi_addon.session.kept(bpy.context.scene).result.capture
+    before = cubegi.cubegi_addon.session.kept(bpy.context.scene).bake.result.capture
     report = live.update(bpy.context, **kw)
-    assert cubegi.cubegi_addon.session.kept(bpy.context.scene).result.capture is before  # no capture
+    assert cubegi.cubegi_addon.session.kept(bpy.context.scene).bake.result.capture is before  # no capture
     return report
 
 
@@ -57,7 +57,7 @@ def test_an_update_with_nothing_changed_keeps_the_bake(room):
     assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
     baked = _light()
     report = _update(room)
-    assert report.path == "none" and report.changed == []
+    assert report.route == "none" and report.changed == []
     _assert_same(_light(), baked, tol=0.0)
 
 
@@ -69,16 +69,41 @@ def test_power_and_colour_edits_are_a_weighted_sum_then_the_bake_of_the_edited_s
     lamp.energy *= 2.5
     lamp.color = (1.0, 0.5, 0.25)
     instant = _update(room, settle=False)
-    assert instant.path == "weights" and "solve" not in instant.seconds
+    assert instant.route == "weights" and "solve" not in instant.seconds
     # Instant: the lamp's direct light is exactly rescaled; the others' untouched.
-    lit = room.cubegi_addon.session.kept(bpy.context.scene).light
+    lit = room.cubegi_addon.session.kept(bpy.context.scene).live.light
     point = next(s for s in lit.sources.values() if s.light is not None and s.light.name == "point")
     np.testing.assert_allclose(point.weight, 120.0 * 2.5 * np.array([1.0, 0.5, 0.25]))
     assert not np.allclose(_light()[("Room", "CubeGI_direct")], baked[("Room", "CubeGI_direct")])
     settled = _update(room)
-    assert settled.path == "settle"
+    assert settled.route == "settle"
     updated = _light()
     _assert_same(updated, _full_bake(room))
+
+
+def test_updates_leave_the_bake_snapshot_as_the_bake_made_it(room):
+    """The kept bake is a frozen snapshot; updates change the live state beside it: the
+    lights, the materials and the probe field as they are now."""
+    import dataclasses
+
+    assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
+    kept = room.cubegi_addon.session.kept(bpy.context.scene)
+    bake = kept.bake
+    colours = [np.array(light.colour) for light in bake.arrays.lights]
+    coeffs, albedo = bake.result.field.coeffs.copy(), bake.arrays.albedo.copy()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        bake.lit = "ALL"
+    bpy.data.lights["point"].energy *= 2.0
+    bpy.data.materials["Red"].node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (0.1, 0.7, 0.1, 1.0)
+    report = _update(room, materials=True)
+    assert report.route == "materials" and kept is room.cubegi_addon.session.kept(bpy.context.scene)
+    assert kept.bake is bake
+    assert all(np.array_equal(np.array(light.colour), c) for light, c in zip(bake.arrays.lights, colours))
+    np.testing.assert_array_equal(bake.result.field.coeffs, coeffs)
+    np.testing.assert_array_equal(bake.arrays.albedo, albedo)
+    point = next(light for light in kept.live.lights if light.name == "point")
+    np.testing.assert_allclose(point.colour, 2.0 * next(c for light, c in zip(bake.arrays.lights, colours) if light.name == "point"))
+    assert not np.array_equal(kept.live.albedo, albedo) and not np.array_equal(kept.live.field.coeffs, coeffs)
 
 
 @pytest.mark.parametrize("edit", ["move", "turn", "add", "remove", "shadow off"])
@@ -95,7 +120,7 @@ def test_light_edits_redraw_only_that_light_and_equal_a_full_bake(room, edit):
     else:
         bpy.data.lights["point"].use_shadow = False
     report = _update(room)
-    assert report.path == "lights" or (edit == "remove" and report.path == "weights"), report
+    assert report.route == "lights" or (edit == "remove" and report.route == "weights"), report
     updated = _light()
     _assert_same(updated, _full_bake(room))
 
@@ -115,7 +140,7 @@ def test_world_colour_and_material_edits_equal_a_full_bake(empty_scene, cubegi):
     wall.inputs["Emission Color"].default_value = (1.0, 0.9, 0.8, 1.0)
     wall.inputs["Emission Strength"].default_value = 0.5
     report = cubegi.cubegi_addon.live.update(bpy.context, materials=True)
-    assert {"material colours", "material emission"} <= set(report.changed) and report.path == "materials"
+    assert {"material colours", "material emission"} <= set(report.changed) and report.route == "materials"
     read = cubegi.cubegi_addon.attributes.read
     names = [ob.name for ob in bpy.context.scene.objects if ob.type == "MESH"]
     updated = {(n, a): read(bpy.data.objects[n].data, a) for n in names for a in LAYERS}
@@ -231,11 +256,11 @@ def test_live_applies_edits_on_depsgraph_updates_and_frames(room):
     # timers, so the test runs what the timer would).
     bpy.data.lights["point"].energy *= 3.0
     bpy.context.evaluated_depsgraph_get()
-    assert live._pending["scene"] == scene and live._pending["instant"] and live._pending["settle"]
+    assert live.pending.scene == scene and live.pending.instant and live.pending.settle
     assert live.run_pending() == live.SETTLE_SECONDS  # the instant pass, then a settled one
     assert scene.cubegi.last_update.startswith("updated (weights)")
     assert live.run_pending() is None and scene.cubegi.last_update.startswith("updated (")
-    assert live._pending["scene"] is None
+    assert live.pending.scene is None
     updated = _light()
     scene.cubegi.live = False
     _assert_same(updated, _full_bake(room))
@@ -244,7 +269,7 @@ def test_live_applies_edits_on_depsgraph_updates_and_frames(room):
     before = _light()
     bpy.data.objects["Block"].location.z += 0.2
     bpy.context.evaluated_depsgraph_get()
-    assert live._pending["rebake"] and live._pending["scene"] == scene
+    assert live.pending.rebake and live.pending.scene == scene
     _assert_same(_light(), before, tol=0.0)
     assert live.run_pending() is None and scene.cubegi.last_update.startswith("baked again in")
     rebaked = _light()
@@ -299,13 +324,13 @@ def test_instanced_lamps_are_as_many_lights_in_every_update(instanced_lamps, edi
     scene (before, the four became one key and updates kept one lamp's light)."""
     assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
     kept = instanced_lamps.cubegi_addon.session.kept(bpy.context.scene)
-    assert len(kept.arrays.lights) == 4 and len({light.key for light in kept.arrays.lights}) == 4
+    assert len(kept.bake.arrays.lights) == 4 and len({light.key for light in kept.bake.arrays.lights}) == 4
     if edit == "power":
         bpy.data.lights["Lamp"].energy = 90.0
     else:
         bpy.data.objects["Lamps.2"].location = (-0.4, 1.6, 1.9)
     report = _update(instanced_lamps)
-    assert report.path == ("weights" if edit == "power" else "lights"), report
+    assert report.route == ("weights" if edit == "power" else "lights"), report
     updated = _light()
     _assert_same(updated, _full_bake(instanced_lamps))
 
@@ -324,7 +349,7 @@ def test_live_bakes_again_after_an_edit_mode_change_or_a_deletion_once_in_object
     scene.cubegi.live = True
     live.stop()
     bpy.context.evaluated_depsgraph_get()
-    assert live._pending["scene"] is None  # the bake's own writes are no edit
+    assert live.pending.scene is None  # the bake's own writes are no edit
     # Edit Mode: nothing while the mesh is being edited; a bake once it is back in Object Mode.
     ob = bpy.data.objects["Block"]
     bpy.context.view_layer.objects.active = ob
@@ -334,10 +359,10 @@ def test_live_bakes_again_after_an_edit_mode_change_or_a_deletion_once_in_object
         v.co.z += 0.3
     bmesh.update_edit_mesh(ob.data)
     bpy.context.evaluated_depsgraph_get()
-    assert not live._pending["rebake"]
+    assert not live.pending.rebake
     bpy.ops.object.mode_set(mode="OBJECT")
     bpy.context.evaluated_depsgraph_get()
-    assert live._pending["rebake"]
+    assert live.pending.rebake
     _settle(live)
     assert scene.cubegi.last_update.startswith("baked again in"), scene.cubegi.last_update
     edited = _light()
@@ -348,7 +373,7 @@ def test_live_bakes_again_after_an_edit_mode_change_or_a_deletion_once_in_object
     read = room.cubegi_addon.attributes.read
     bpy.data.objects.remove(bpy.data.objects["Block"])
     bpy.context.evaluated_depsgraph_get()
-    assert live._pending["rebake"]
+    assert live.pending.rebake
     _settle(live)
     assert scene.cubegi.last_update.startswith("baked again in"), scene.cubegi.last_update
     after = {a: read(bpy.data.objects["Room"].data, a) for a in LAYERS}
@@ -376,7 +401,7 @@ def test_undo_and_redo_keep_live_working_and_an_undone_bake_is_not_updated(room)
         step()
         scene = bpy.context.scene
         assert session.kept(scene) is not None and scene.cubegi.live
-        assert live._pending["scene"] == scene
+        assert live.pending.scene == scene
         _settle(live)
         seen.append(((bpy.data.lights["point"].energy, bpy.data.lights["spot"].energy), _light()))
     assert [powers for powers, _ in seen] == [(360.0, 200.0), (360.0, 50.0)]

@@ -200,7 +200,7 @@ def test_two_grid_objects_whose_probes_all_stay_store_no_probe_offsets(empty_sce
     grid_objects.new_probe_grid(col, (-2, -1, 0), (0, 1, 2), (2, 2, 2), name="Left")
     grid_objects.new_probe_grid(col, (0, -1, 0), (2, 1, 2), (2, 2, 2), name="Right")
     assert bpy.ops.cubegi.bake(bounces=1, move_probes=False) == {"FINISHED"}
-    field = cubegi.cubegi_addon.session.kept(bpy.context.scene).result.field.whole()
+    field = cubegi.cubegi_addon.session.kept(bpy.context.scene).bake.result.field.whole()
     assert len(field.grid.parts()) == 2 and not np.any(field.grid.displacements())
     for ob in grid_objects.probe_grid_objects(bpy.context.scene):
         assert grid_objects.OFFSET_KEY not in ob, ob.name

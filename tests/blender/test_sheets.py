@@ -46,8 +46,8 @@ def test_a_card_lit_from_behind_passes_its_light_on_as_cycles_does(empty_scene, 
     floor, card = _card_scene()
     assert bpy.ops.cubegi.bake() == {"FINISHED"}
     kept = cubegi.cubegi_addon.session.kept(bpy.context.scene)
-    back = kept.arrays.back
-    assert back is not None and back.sum() == len(kept.arrays.points) // 2  # both meshes are open: twins for all
+    back = kept.bake.arrays.back
+    assert back is not None and back.sum() == len(kept.bake.arrays.points) // 2  # both meshes are open: twins for all
     assert len(cubegi.cubegi_addon.attributes.read(card.data, cubegi.cubegi_addon.attributes.INDIRECT)) == len(card.data.vertices)
     got = _means(cubegi, [floor, card], {"Floor": lambda co: (co[:, 0] < -0.1) & (co[:, 0] > -1.2) & (np.abs(co[:, 1]) < 0.9),
                                          "Card": lambda co: np.ones(len(co), dtype=bool)})
@@ -66,4 +66,4 @@ def test_a_closed_mesh_keeps_one_side(empty_scene, cubegi):
     scenes.add_light("POINT", (0.1, 0.2, 0.3), 50.0)
     assert bpy.ops.cubegi.bake(bounces=1, grid=(3, 3, 3), cube_size=8) == {"FINISHED"}
     kept = cubegi.cubegi_addon.session.kept(bpy.context.scene)
-    assert kept.arrays.back is None
+    assert kept.bake.arrays.back is None

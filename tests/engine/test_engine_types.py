@@ -11,7 +11,7 @@ from cubegi.cubegi_engine import sh
 from cubegi.cubegi_engine.errors import BakeError
 from cubegi.cubegi_engine.field import ProbeField
 from cubegi.cubegi_engine.grid import ProbeGrid
-from cubegi.cubegi_engine.records import AnimationResult, BounceRecord, FrameRecord, TailReport
+from cubegi.cubegi_engine.records import AnimationResult, BounceRecord, FrameRecord, Route, TailReport
 from cubegi.cubegi_engine.report import BakeReport
 from cubegi.cubegi_engine.scene import SceneArrays
 from cubegi.cubegi_engine.settings import MAX_BOUNCES, BakeSettings
@@ -258,9 +258,9 @@ def test_quality_presets_and_their_checks():
 
 
 def test_an_animation_result_counts_its_paths_and_reads_as_the_report_writes_it():
-    frames = (FrameRecord(1, 0.5, "full", [0.1] * 3, [0.2] * 3, {"probes": 42, "capture_reused": False}),
-              FrameRecord(2, 0.01, "lights", [0.1] * 3, [0.2] * 3, {"changed": ["Lamp"]}),
-              FrameRecord(3, 0.02, "lights", [0.3] * 3, [0.1] * 3, {"changed": ["Lamp"]}))
+    frames = (FrameRecord(1, 0.5, Route.FULL, [0.1] * 3, [0.2] * 3, {"probes": 42, "capture_reused": False}),
+              FrameRecord(2, 0.01, Route.LIGHTS, [0.1] * 3, [0.2] * 3, {"changed": ["Lamp"]}),
+              FrameRecord(3, 0.02, Route.LIGHTS, [0.3] * 3, [0.1] * 3, {"changed": ["Lamp"]}))
     result = AnimationResult(frames, 0.53, "/tmp/cache")
     assert result.paths() == {"full": 1, "lights": 2} and list(result.paths()) == ["full", "lights"]
     d = json.loads(json.dumps(result.to_dict(), allow_nan=False))

@@ -36,6 +36,18 @@ def cache_folder(blend_path):
     return root + ".cubegi"
 
 
+def cache_link(folder):
+    """What ``Scene.cubegi.animation_cache`` holds for ``folder``: its path beside the .blend,
+    relative (``//OUT.cubegi``), so that the file and its cache move together."""
+    return "//" + os.path.basename(os.path.normpath(folder))
+
+
+def check_cache_folder(folder, advice):
+    """Refuse (BakeError, with ``advice``) a cache folder that is a file."""
+    if os.path.exists(folder) and not os.path.isdir(folder):
+        raise BakeError(f"the cache folder {folder!r} is a file; {advice}")
+
+
 def frame_path(folder, frame):
     return os.path.join(folder, FRAME_FILE.format(int(frame)))
 

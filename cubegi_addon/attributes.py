@@ -17,6 +17,7 @@ refused before it starts, naming the mesh and the clash (:func:`check_clashes`).
 """
 
 import re
+from enum import StrEnum
 
 import numpy as np
 
@@ -33,6 +34,37 @@ TYPE, DOMAIN = "FLOAT_COLOR", "POINT"
 _OWN = re.compile(r"^CubeGI(_direct|_total|_lit|_bounce_\d+|_group_.+)?$")
 GROUP_PREFIX = "CubeGI_group_"
 _REF = re.compile(r"^CubeGI_ref_(direct|indirect)$")
+
+
+class LitMode(StrEnum):
+    """Whether a bake writes ``CubeGI_lit``, and of what light: none; albedo times all light
+    (the complete lighting, for export); albedo times the indirect light (for engines that
+    light directly themselves). False for NONE."""
+
+    NONE = "NONE"
+    ALL = "ALL"
+    INDIRECT = "INDIRECT"
+
+    def __bool__(self):
+        return self is not LitMode.NONE
+
+    @classmethod
+    def of(cls, value) -> "LitMode":
+        """The mode of ``value``: a LitMode, its name in any case, or None (none); else BakeError."""
+        if value is None or isinstance(value, cls):
+            return cls.NONE if value is None else value
+        try:
+            return cls(str(value).upper())
+        except ValueError:
+            raise BakeError(f"lit colour must be one of ALL, INDIRECT or none, got {value!r}") from None
+
+
+# The Lit Color setting's items (the panel, the bake operator): (mode, label, help).
+LIT_ITEMS = (
+    (LitMode.NONE.value, "None", "Write no lit colour"),
+    (LitMode.ALL.value, "Direct + Indirect", "CubeGI_lit = albedo x (direct + indirect light): the complete lighting, for export"),
+    (LitMode.INDIRECT.value, "Indirect Only", "CubeGI_lit = albedo x indirect light: for engines that light directly themselves"),
+)
 
 
 def bounce_name(k):
@@ -109,18 +141,17 @@ def bake_names(bounces, lit=False, reference=False, groups=()):
     return names
 
 
-def light_layers(direct, indirect, bounces=(), albedo=None, lit=None):
+def light_layers(direct, indirect, bounces=(), albedo=None, lit=LitMode.NONE):
     """The light layers of points (every value ``(s, 3)``): name -> values. ``CubeGI_direct``,
     ``CubeGI``, ``CubeGI_total``, ``CubeGI_bounce_k`` for each of ``bounces``, and with
-    ``lit`` ("ALL" or "INDIRECT") ``CubeGI_lit``: ``albedo`` times all light, or the indirect
-    light alone (for engines that light directly themselves). The one place that knows which
-    light each layer holds."""
+    ``lit`` (a :class:`LitMode`) ``CubeGI_lit``: ``albedo`` times all light, or the indirect
+    light alone. The one place that knows which light each layer holds."""
     layers = {DIRECT: direct}
     layers.update((bounce_name(k), b) for k, b in enumerate(bounces, start=1))
     layers[INDIRECT] = indirect
     layers[TOTAL] = direct + indirect
     if lit:
-        layers[LIT] = albedo * (indirect if lit == "INDIRECT" else direct + indirect)
+        layers[LIT] = albedo * (indirect if LitMode.of(lit) == LitMode.INDIRECT else direct + indirect)
     return layers
 
 

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from ..cubegi_engine.errors import BakeError, Interrupted
 from ..cubegi_engine.settings import OPTIONS, QUALITY, BakeSettings
 from . import files, interrupts
+from .attributes import LitMode
 
 # Set to 1 to see the traceback of a failure that is CubeGI's own defect.
 DEBUG_ENV = "CUBEGI_DEBUG"
@@ -75,7 +76,7 @@ def bake_options(p, demo=False):
     if not demo:
         p.add_argument("--report", help="write the bake report (JSON) here")
         p.add_argument(
-            "--lit", nargs="?", const="all", choices=("all", "indirect"),
+            "--lit", nargs="?", const="all", choices=[m.lower() for m in LitMode if m],
             help="also write CubeGI_lit: albedo x all light (all, the default) or x indirect light only",
         )
         p.add_argument(
@@ -186,10 +187,7 @@ def _file_settings(bpy, args):
 
 def _file_lit(bpy, args):
     """The lit colour to write: ``--lit``'s, else the file's Lit Color setting (None: none)."""
-    if getattr(args, "lit", None):
-        return args.lit.upper()
-    lit = bpy.context.scene.cubegi.lit
-    return None if lit == "NONE" else lit
+    return LitMode.of(getattr(args, "lit", None) or bpy.context.scene.cubegi.lit)
 
 
 def _check_input(path):
@@ -225,14 +223,6 @@ def save_blend(compress):
         result = bpy.ops.wm.save_as_mainfile(filepath=tmp, copy=True, check_existing=False, compress=compress)
         if result != {"FINISHED"}:
             raise RuntimeError("Blender did not save the file")
-
-    return write
-
-
-def save_json(report):
-    def write(tmp):
-        with open(tmp, "w") as fh:
-            fh.write(report.to_json())
 
     return write
 
@@ -302,7 +292,7 @@ def cmd_bake(args):
     report.input, report.output = src, dst
     jobs = [(dst, save_blend(compressed))]
     if report_path:
-        jobs.append((report_path, save_json(report)))
+        jobs.append((report_path, files.text(report.to_json())))
     if gltf_path:
         from . import export
 
@@ -319,11 +309,10 @@ def print_summary(report):
 def cmd_bake_animation(args):
     settings = checked_settings(args)
     src, compressed, dst, report_path = _check_io(args)
-    from .animation import cache_folder
+    from .animation import cache_folder, cache_link, check_cache_folder
 
     folder = os.path.abspath(args.cache_dir) if args.cache_dir else cache_folder(dst)
-    if os.path.exists(folder) and not os.path.isdir(folder):
-        raise BakeError(f"the cache folder {folder!r} is a file; move it or give another output")
+    check_cache_folder(folder, "move it or give another output")
     if args.frames and args.frames[1] < args.frames[0]:
         raise BakeError(f"--frames: the last frame comes before the first ({args.frames[0]} {args.frames[1]})")
     if args.workers is not None or args.scheduler:
@@ -345,7 +334,7 @@ def cmd_bake_animation(args):
         raise Interrupted.keeping(exc, kept and f"{kept}; {dst} was not written; a run again bakes every frame") from None
     scene.cubegi.animation_cache = folder
     scene.frame_set(first)  # the saved file shows the first frame's light
-    scene.cubegi.animation_cache = "//" + os.path.basename(folder)  # beside the output
+    scene.cubegi.animation_cache = cache_link(folder)  # beside the output
     jobs = [(dst, save_blend(compressed))]
     if report_path:
         text = json.dumps({"input": src, "output": dst, **result.to_dict()}, indent=2, allow_nan=False)

@@ -1,7 +1,6 @@
 """Operators: bake (``cubegi.bake``), clear (``cubegi.clear``), add a probe grid."""
 
 import json
-import os
 
 import bpy
 from bpy.props import BoolProperty, EnumProperty, IntProperty, IntVectorProperty, StringProperty
@@ -52,7 +51,7 @@ class BakeJob(StepJob):
 
     def __init__(self, context, settings, resolution=None, lit="NONE", reference_samples=None, progressive=True, only=None):
         super().__init__(pipeline.bake_steps(
-            context, settings, resolution, lit=None if lit == "NONE" else lit, reference_samples=reference_samples,
+            context, settings, resolution, lit=lit, reference_samples=reference_samples,
             progressive=progressive, only=only,
         ))
 
@@ -234,23 +233,21 @@ class CUBEGI_OT_bake_animation(_ModalJob, bpy.types.Operator):
     def _job(self, context, progressive):
         scene = context.scene
         folder = animation.cache_folder(bpy.data.filepath)
-        if os.path.exists(folder) and not os.path.isdir(folder):
-            raise BakeError(f"the cache folder {folder!r} is a file; move it away")
+        animation.check_cache_folder(folder, "move it away")
         settings = _settings_from(self, scene).validate()
-        lit = None if scene.cubegi.lit == "NONE" else scene.cubegi.lit
+        lit = attributes.LitMode.of(scene.cubegi.lit)
         frames = range(scene.frame_start, scene.frame_end + 1)
-        job = StepJob(animation.bake_animation_steps(context, settings, frames, folder, None, lit))
-        job.folder = folder
-        return job
+        self._folder = folder
+        return StepJob(animation.bake_animation_steps(context, settings, frames, folder, None, lit))
 
     def cancel(self, context):
         super().cancel(context)
-        context.scene.cubegi.animation_cache = "//" + os.path.basename(self._bake.folder)
+        context.scene.cubegi.animation_cache = animation.cache_link(self._folder)
 
     def _finish(self, context, job):
-        context.scene.cubegi.animation_cache = "//" + os.path.basename(job.folder)
         result = job.report
-        self.report({"INFO"}, f"CubeGI: baked {len(result.frames)} frames in {result.seconds:.2f} s into {job.folder}")
+        context.scene.cubegi.animation_cache = animation.cache_link(result.cache)
+        self.report({"INFO"}, f"CubeGI: baked {len(result.frames)} frames in {result.seconds:.2f} s into {result.cache}")
         return {"FINISHED"}
 
 

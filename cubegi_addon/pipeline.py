@@ -28,7 +28,6 @@ from .gpu_capture import GpuRenderer
 
 # An object seen from behind over more than this share of what the probes see of it is noted.
 SEEN_FROM_BEHIND_NOTE = 0.1
-LIT_CHOICES = (None, "ALL", "INDIRECT")
 
 
 class Preview:
@@ -98,16 +97,15 @@ def bake_steps(context, settings=None, resolution=None, lit=None, reference_samp
     ``only``: the ``session_uid`` of the objects to write light into (Bake Selected, ``--only``);
     every other object lights and shadows them as before and keeps the light it has.
 
-    ``lit``: None, "ALL" (``CubeGI_lit`` = albedo x all light) or "INDIRECT" (albedo x
-    indirect light). With ``reference_samples``, Cycles also bakes the same light into
+    ``lit``: a :class:`~.attributes.LitMode` or its name (None: none): ``CubeGI_lit`` = albedo
+    x all light, or x the indirect light. With ``reference_samples``, Cycles also bakes the same light into
     ``CubeGI_ref_direct`` and ``CubeGI_ref_indirect`` and the report gives CubeGI's error
     against it. With ``progressive``, the light so far is written to the meshes after every
     step (see :class:`Preview`); closing the generator early (a cancel) or a failure puts
     every mesh back as it was.
     """
     settings = (settings or BakeSettings()).validate()
-    if lit not in LIT_CHOICES:
-        raise BakeError(f"lit colour must be one of ALL, INDIRECT or none, got {lit!r}")
+    lit = attributes.LitMode.of(lit)
     preview = Preview() if progressive else None
     try:
         return (yield from _bake_steps(context, settings, resolution, lit, reference_samples, preview, only))
@@ -302,7 +300,7 @@ def _report(settings, lit, grid, grid_source, collected, result, timings, refere
     for rec in solution.records:
         rec.attribute = attributes.bounce_name(rec.bounce)
     return BakeReport(
-        settings=settings.as_dict(lit=lit or "NONE"),
+        settings=settings.as_dict(lit=str(lit)),
         grid={**grid_objects.grid_report(grid), "probes_inside_geometry": int((~result.probe_valid).sum()),
               "probes_captured": int(result.capture.grid.count), "source": grid_source,
               **_placement(result.placement)},

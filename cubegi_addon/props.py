@@ -6,13 +6,9 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, IntVectorProperty, PointerProperty, StringProperty
 
 from ..cubegi_engine.settings import MAX_BOUNCES, OPTIONS, QUALITY, BakeSettings
-from . import display, live, session
+from . import attributes, display, live, session
 
-LIT_ITEMS = (
-    ("NONE", "None", "Write no lit colour"),
-    ("ALL", "Direct + Indirect", "CubeGI_lit = albedo x (direct + indirect light): the complete lighting, for export"),
-    ("INDIRECT", "Indirect Only", "CubeGI_lit = albedo x indirect light: for engines that light directly themselves"),
-)
+LIT_ITEMS = attributes.LIT_ITEMS
 
 
 QUALITY_ITEMS = (

@@ -22,6 +22,7 @@ import numpy as np
 
 from ..cubegi_engine.bake import physical_memory
 from . import interrupts
+from .attributes import LitMode
 
 MAX_KEPT_SCENES = 4
 # At most this share of the machine's memory, and never more than MAX_KEPT_BYTES.
@@ -44,7 +45,7 @@ class BakeSnapshot:
     targets: list
     result: Any
     settings: Any
-    lit: str | None = None
+    lit: LitMode = LitMode.NONE
     placements: dict = field(default_factory=dict)
     shapes: dict = field(default_factory=dict)
     bake_id: str = ""

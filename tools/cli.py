@@ -40,7 +40,7 @@ def cmd_demo(args):
     demo.build_room()
     report = pipeline.bake(bpy.context, settings, tuple(args.grid) if args.grid else None, lit="ALL",
                            reference_samples=args.reference_samples if args.reference else None, progress=cli.print_progress)
-    files.write_all([(blend, cli.save_blend(False)), (report_path, cli.save_json(report))])
+    files.write_all([(blend, cli.save_blend(False)), (report_path, files.text(report.to_json()))])
     cli.print_summary(report)
     print(f"cubegi: wrote {blend} and {report_path}")
     if not args.no_render:

@@ -22,6 +22,9 @@ from ..cubegi_engine.settings import OPTIONS, QUALITY, BakeSettings
 from . import files, interrupts
 from .attributes import LitMode
 
+# How a refusal or failure starts on stderr (the one line a cluster's task reads back).
+ERROR_PREFIX = "cubegi: error: "
+
 # Set to 1 to see the traceback of a failure that is CubeGI's own defect.
 DEBUG_ENV = "CUBEGI_DEBUG"
 # Compressed .blend files start with a gzip (older Blender) or zstd (4.x, 5.x) header.
@@ -143,8 +146,9 @@ def cmd_batch(args):
     for line in cluster.summary_lines(summary):
         print(f"cubegi: {line}", flush=True)
     print(f"cubegi: wrote {os.path.join(out_dir, 'batch.json')}", flush=True)
-    if any(r["status"] == "failed" for r in summary["files"]):
-        raise BakeError(f"{sum(r['status'] == 'failed' for r in summary['files'])} of {len(summary['files'])} files failed; the rest are baked")
+    failed = summary.count(cluster.BatchStatus.FAILED)
+    if failed:
+        raise BakeError(f"{failed} of {len(summary.files)} files failed; the rest are baked")
 
 
 def _given(args):
@@ -356,14 +360,14 @@ def _bake_animation_on_cluster(args, src, dst, report_path):
     result = cluster.bake_animation(src, dst, args.frames[0], args.frames[1], words, workers=args.workers,
                                     scheduler=args.scheduler, log=lambda m: print(f"cubegi: {m}", flush=True))
     if report_path:
-        text = json.dumps({"input": src, "output": dst, **result}, indent=2, allow_nan=False)
+        text = json.dumps({"input": src, "output": dst, **result.to_dict()}, indent=2, allow_nan=False)
         files.write_all([(report_path, files.text(text))])
-    if result["up_to_date"]:
-        print(f"cubegi: {result['cache']} is up to date: the input, the options and CubeGI are what its frames were "
+    if result.up_to_date:
+        print(f"cubegi: {result.cache} is up to date: the input, the options and CubeGI are what its frames were "
               "baked from; nothing baked", flush=True)
         return
-    print(f"cubegi: baked {len(result['frames'])} frames in {len(result['chunks'])} chunks in {result['seconds']:.2f} s "
-          f"into {result['cache']}", flush=True)
+    print(f"cubegi: baked {len(result.frames)} frames in {len(result.chunks)} chunks in {result.seconds:.2f} s "
+          f"into {result.cache}", flush=True)
 
 
 def _written_before():
@@ -397,7 +401,7 @@ def main(argv=None, prog="python -m cubegi_engine", more=None):
         with interrupts.interruptible():
             commands[args.command](args)
     except BakeError as exc:
-        print(f"cubegi: error: {exc}", file=sys.stderr)
+        print(f"{ERROR_PREFIX}{exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
         signum = getattr(exc, "signum", signal.SIGINT)
@@ -405,14 +409,14 @@ def main(argv=None, prog="python -m cubegi_engine", more=None):
         print(f"cubegi: {how}; {getattr(exc, 'kept', None) or _written_before()}", file=sys.stderr)
         return 128 + signum
     except MemoryError:  # the scene is larger than this machine's memory: the user's situation, not a defect
-        print("cubegi: error: out of memory: the scene is too large for this machine at these settings; bake with fewer "
+        print(f"{ERROR_PREFIX}out of memory: the scene is too large for this machine at these settings; bake with fewer "
               "probes (--quality draft, --cells), a smaller --capture-triangles, or on a machine with more memory; "
               "nothing was written", file=sys.stderr)
         return 2
     except Exception as exc:  # a defect: one line, the traceback on request
         if os.environ.get(DEBUG_ENV):
             raise
-        print(f"cubegi: error: the bake failed ({type(exc).__name__}: {exc}); nothing was written. "
+        print(f"{ERROR_PREFIX}the bake failed ({type(exc).__name__}: {exc}); nothing was written. "
               f"Set {DEBUG_ENV}=1 for the traceback and please report it", file=sys.stderr)
         return 3
     return 0

@@ -27,10 +27,15 @@ import sys
 import tempfile
 import threading
 import time
+from dataclasses import asdict, dataclass
+from enum import StrEnum
 
 from ..cubegi_engine import __version__
 from ..cubegi_engine.errors import BakeError, Interrupted
+from ..cubegi_engine.records import FrameRecord
+from ..cubegi_engine.report import BakeReport
 from . import files
+from .cli import ERROR_PREFIX
 
 # The source tree every worker runs ``python -m cubegi_engine`` from.
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -56,6 +61,80 @@ STOP_SECONDS = 10
 # Seconds to wait for a scheduler to answer before the batch is refused.
 SCHEDULER_TIMEOUT = 10
 SUMMARY = "batch.json"
+
+
+class BatchStatus(StrEnum):
+    """What became of one bake of a batch (or one chunk of an animation)."""
+
+    DONE = "done"
+    SKIPPED = "skipped"  # done before, with the same input, options and version
+    FAILED = "failed"
+    INTERRUPTED = "interrupted"
+
+
+@dataclass(frozen=True)
+class BatchRecord:
+    """One file of a batch: its ``status``, and where it was baked (``seconds``: its bake's
+    own time, from its report), its output and report, probes and estimated missing light;
+    ``error``: why it failed."""
+
+    file: str
+    status: BatchStatus
+    seconds: float | None = None
+    output: str | None = None
+    report: str | None = None
+    probes: int | None = None
+    estimated_remaining_error: float | None = None
+    error: str | None = None
+
+    def to_dict(self) -> dict:
+        return {**asdict(self), "status": str(self.status)}
+
+
+@dataclass(frozen=True)
+class BatchSummary:
+    """A batch: its files in the order given, its time, and where it ran."""
+
+    files: tuple[BatchRecord, ...]
+    seconds: float
+    workers: int | None
+    scheduler: str | None
+
+    def count(self, status: BatchStatus) -> int:
+        return sum(r.status == status for r in self.files)
+
+    def to_dict(self) -> dict:
+        return {"files": [r.to_dict() for r in self.files], "seconds": self.seconds, "workers": self.workers,
+                "scheduler": self.scheduler}
+
+
+@dataclass(frozen=True)
+class ChunkRecord:
+    """One chunk of an animation baked on a cluster: frames ``first..last``, its status and
+    error, and its frames' records."""
+
+    first: int
+    last: int
+    status: BatchStatus
+    error: str | None = None
+    frames: tuple[FrameRecord, ...] = ()
+
+
+@dataclass(frozen=True)
+class ClusterAnimation:
+    """An animation baked on a cluster: every frame's record in order, the chunks baked, the
+    time, the cache folder, and whether it was up to date (nothing baked)."""
+
+    frames: tuple[FrameRecord, ...]
+    chunks: tuple[ChunkRecord, ...]
+    seconds: float
+    cache: str
+    up_to_date: bool
+
+    def to_dict(self) -> dict:
+        return {"frames": [f.to_dict() for f in self.frames],
+                "chunks": [{"first": c.first, "last": c.last, "status": str(c.status)} for c in self.chunks],
+                "seconds": self.seconds, "cache": self.cache, "up_to_date": self.up_to_date}
 
 
 def _client(workers=None, scheduler=None):
@@ -119,22 +198,21 @@ def _submit(client, args, timeout=BAKE_TIMEOUT):
 
 
 def _outcome(future):
-    """``(status, error)`` of a finished task: its process's exit ("done", "interrupted",
-    "failed"), or the task's failure."""
+    """``(BatchStatus, error)`` of a finished task: its process's exit, or the task's failure."""
     if future.status != "finished":
         exc = future.exception()
         if isinstance(exc, subprocess.TimeoutExpired):
-            return "failed", f"stopped after {exc.timeout} s"
-        return "failed", f"its worker failed {RETRIES + 1} times ({type(exc).__name__}: {exc})"
+            return BatchStatus.FAILED, f"stopped after {exc.timeout} s"
+        return BatchStatus.FAILED, f"its worker failed {RETRIES + 1} times ({type(exc).__name__}: {exc})"
     r = future.result()
     if r.returncode == 0:
-        return "done", None
+        return BatchStatus.DONE, None
     if r.returncode in STOPPED:
-        return "interrupted", None
-    errors = [ln for ln in r.stderr.splitlines() if ln.startswith("cubegi: error:")]
+        return BatchStatus.INTERRUPTED, None
+    errors = [ln for ln in r.stderr.splitlines() if ln.startswith(ERROR_PREFIX)]
     if errors:
-        return "failed", errors[-1].removeprefix("cubegi: error: ")
-    return "failed", f"the bake's process ended with status {r.returncode} (a crash; the other bakes went on)"
+        return BatchStatus.FAILED, errors[-1].removeprefix(ERROR_PREFIX)
+    return BatchStatus.FAILED, f"the bake's process ended with status {r.returncode} (a crash; the other bakes went on)"
 
 
 def _wait(client, futures, log, finished):
@@ -189,18 +267,14 @@ def _paths(src, out_dir):
 
 
 def _record(src, out_dir, status, error=None):
-    """A file's line of the summary; ``seconds`` is its bake's own time (from its report)."""
-    out, report = _paths(src, out_dir)
-    ok = status in ("done", "skipped")
-    rec = {"file": src, "status": status, "seconds": None, "output": out if ok else None, "report": report if ok else None,
-           "probes": None, "estimated_remaining_error": None, "error": error}
-    if ok:
-        with open(report) as fh:
-            data = json.load(fh)
-        rec["seconds"] = round(data["total_seconds"], 3)
-        rec["probes"] = data["grid"]["probes"]
-        rec["estimated_remaining_error"] = data["estimated_remaining_error"]
-    return rec
+    """A file's :class:`BatchRecord` (read from its report where it was baked)."""
+    if status not in (BatchStatus.DONE, BatchStatus.SKIPPED):
+        return BatchRecord(src, status, error=error)
+    out, path = _paths(src, out_dir)
+    with open(path) as fh:
+        report = BakeReport.from_json(fh.read())
+    return BatchRecord(src, status, round(report.total_seconds, 3), out, path, report.grid["probes"],
+                       report.estimated_remaining_error, error)
 
 
 def job_key(src, options):
@@ -237,7 +311,7 @@ def _stamp(report, key):
 
 def batch(inputs, out_dir, options, workers=None, scheduler=None, log=print, refused=None):
     """Bake every file of ``inputs`` into ``out_dir`` (``name.blend``, ``name.json``); returns
-    the summary and writes it to ``out_dir/batch.json``. ``refused``: {input: why} of inputs
+    the :class:`BatchSummary` and writes it to ``out_dir/batch.json``. ``refused``: {input: why} of inputs
     that cannot be baked (reported as failed, as is an input whose report would be the
     summary); the others are baked."""
     os.makedirs(out_dir, exist_ok=True)
@@ -252,11 +326,11 @@ def batch(inputs, out_dir, options, workers=None, scheduler=None, log=print, ref
     t0 = time.perf_counter()
     records, todo = {}, []
     for src, why in refused.items():
-        records[src] = _record(src, out_dir, "failed", why)
+        records[src] = _record(src, out_dir, BatchStatus.FAILED, why)
     keys = {src: job_key(src, options) for src in map(os.path.realpath, inputs) if src not in refused}
     for src in keys:
         if _done_before(src, out_dir, keys[src]):
-            records[src] = _record(src, out_dir, "skipped")
+            records[src] = _record(src, out_dir, BatchStatus.SKIPPED)
         else:
             todo.append(src)
     stopped = None
@@ -271,7 +345,7 @@ def batch(inputs, out_dir, options, workers=None, scheduler=None, log=print, ref
             def finished(k, future):
                 src = todo[k]
                 status, error = _outcome(future)
-                if status == "done":
+                if status == BatchStatus.DONE:
                     _stamp(_paths(src, out_dir)[1], keys[src])  # as each finishes: an interrupted batch resumes
                 records[src] = _record(src, out_dir, status, error)
                 log(f"batch: {os.path.basename(src)} {status} ({sum(s in records for s in todo)}/{len(todo)})")
@@ -280,29 +354,29 @@ def batch(inputs, out_dir, options, workers=None, scheduler=None, log=print, ref
         finally:
             stopped = _close(client, cluster) or stopped
         for src in todo:
-            records.setdefault(src, _record(src, out_dir, "interrupted"))
-    summary = {"files": [records[os.path.realpath(f)] for f in inputs], "seconds": round(time.perf_counter() - t0, 3),
-               "workers": None if scheduler else int(workers or 2), "scheduler": scheduler}
-    text = json.dumps(summary, indent=2, allow_nan=False)
+            records.setdefault(src, _record(src, out_dir, BatchStatus.INTERRUPTED))
+    summary = BatchSummary(tuple(records[os.path.realpath(f)] for f in inputs), round(time.perf_counter() - t0, 3),
+                           None if scheduler else int(workers or 2), scheduler)
+    text = json.dumps(summary.to_dict(), indent=2, allow_nan=False)
     files.write_all([(os.path.join(out_dir, SUMMARY), files.text(text))])
     if stopped is not None:
-        done = [os.path.basename(src) for src in todo if records[src]["status"] == "done"]
+        done = [os.path.basename(src) for src in todo if records[src].status == BatchStatus.DONE]
         raise Interrupted.keeping(stopped, f"{len(done)} of {len(todo)} files are baked into {out_dir}"
                                   + (f" ({', '.join(done)}; each whole, with its report; a run again skips them)" if done else "")
                                   + f"; {SUMMARY} lists the rest as interrupted")
     return summary
 
 
-def summary_lines(summary):
+def summary_lines(summary: BatchSummary):
     """The batch's table: file, status, seconds, probes, estimated missing light."""
     rows = [("file", "status", "seconds", "probes", "missing")]
-    for rec in summary["files"]:
-        err = rec["estimated_remaining_error"]
-        rows.append((os.path.basename(rec["file"]), rec["status"], f"{rec['seconds']:.2f}" if rec["seconds"] is not None else "-",
-                     str(rec["probes"] or "-"), f"{100 * err:.2g}%" if err is not None else "-"))
+    for rec in summary.files:
+        err = rec.estimated_remaining_error
+        rows.append((os.path.basename(rec.file), str(rec.status), f"{rec.seconds:.2f}" if rec.seconds is not None else "-",
+                     str(rec.probes or "-"), f"{100 * err:.2g}%" if err is not None else "-"))
     width = [max(len(r[k]) for r in rows) for k in range(5)]
     lines = ["  ".join(c.ljust(w) for c, w in zip(r, width)).rstrip() for r in rows]
-    lines += [f"{os.path.basename(r['file'])}: {r['error']}" for r in summary["files"] if r["error"]]
+    lines += [f"{os.path.basename(r.file)}: {r.error}" for r in summary.files if r.error]
     return lines
 
 
@@ -318,7 +392,7 @@ def chunks(first, last, workers):
 def bake_animation(src, out, first, last, options, workers=None, scheduler=None, log=print):
     """Bake frames ``first..last`` of ``src`` in chunks on Dask: the cache ``OUT.cubegi/``
     and ``OUT.blend`` as one machine writes them (the first chunk writes the .blend). Returns
-    ``{"frames": [...], "chunks": [...], "seconds": ..., "up_to_date": bool}``. A chunk whose
+    a :class:`ClusterAnimation`. A chunk whose
     frames are all in the cache already (a second run) is not baked again, while the cache's
     key (:data:`.animation.KEY_FILE`: the input's content, the options, the version) is this
     run's; with another key every frame is baked again."""
@@ -355,11 +429,11 @@ def bake_animation(src, out, first, last, options, workers=None, scheduler=None,
 
                 def chunk_finished(k, future):
                     status, error = _outcome(future)
-                    frames = []
-                    if status == "done":
+                    frames: tuple[FrameRecord, ...] = ()
+                    if status == BatchStatus.DONE:
                         with open(reports[k]) as fh:
-                            frames = json.load(fh)["frames"]
-                    finished[k] = {"first": todo[k][0], "last": todo[k][1], "status": status, "error": error, "frames": frames}
+                            frames = tuple(FrameRecord.from_dict(f) for f in json.load(fh)["frames"])
+                    finished[k] = ChunkRecord(todo[k][0], todo[k][1], status, error, frames)
 
                 stopped = _wait(client, futures, lambda m: log(f"bake-animation: {m}"), chunk_finished)
                 results = [finished[k] for k in sorted(finished)]
@@ -368,15 +442,14 @@ def bake_animation(src, out, first, last, options, workers=None, scheduler=None,
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     if stopped is not None:
-        wrote = "was written" if any(r["first"] == first and r["status"] == "done" for r in results) else "was not written"
+        wrote = "was written" if any(r.first == first and r.status == BatchStatus.DONE for r in results) else "was not written"
         raise Interrupted.keeping(stopped, f"the frames baked so far are kept in {cache} (each frame whole); {out} {wrote}; "
                                            "a run again bakes every frame")
-    failed = [r for r in results if r["status"] != "done"]
+    failed = [r for r in results if r.status != BatchStatus.DONE]
     if failed:
-        raise BakeError(f"frames {failed[0]['first']}-{failed[0]['last']} failed: {failed[0]['error'] or failed[0]['status']}")
+        raise BakeError(f"frames {failed[0].first}-{failed[0].last} failed: {failed[0].error or failed[0].status}")
     if todo or not same:
         text = json.dumps(key, indent=2)
         files.write_all([(key_path, files.text(text))])
-    frames = sorted((f for r in results for f in r["frames"]), key=lambda f: f["frame"])
-    return {"frames": frames, "chunks": [{k: r[k] for k in ("first", "last", "status")} for r in results],
-            "seconds": round(time.perf_counter() - t0, 3), "cache": cache, "up_to_date": not todo}
+    frames = tuple(sorted((f for r in results for f in r.frames), key=lambda f: f.frame))
+    return ClusterAnimation(frames, tuple(results), round(time.perf_counter() - t0, 3), cache, not todo)

@@ -124,6 +124,13 @@ class FrameRecord:
         return {"frame": self.frame, "seconds": self.seconds, "path": str(self.route), **self.detail,
                 "mean_direct": self.mean_direct, "mean_indirect": self.mean_indirect}
 
+    @classmethod
+    def from_dict(cls, d: dict) -> "FrameRecord":
+        """A record from :meth:`to_dict` (what the route reported is its detail again)."""
+        known = ("frame", "seconds", "path", "mean_direct", "mean_indirect")
+        return cls(int(d["frame"]), float(d["seconds"]), Route(d["path"]), list(d["mean_direct"]), list(d["mean_indirect"]),
+                   {k: v for k, v in d.items() if k not in known})
+
 
 @dataclass(frozen=True)
 class AnimationResult:

@@ -131,7 +131,7 @@ def test_a_killed_workers_bake_is_retried_and_gives_the_same_light(three_files, 
     summary = cluster_mod.batch([str(p) for p in paths], str(tmp_path / "out"), options, workers=2, log=lambda m: None)
     killer.join()
     assert killed, "no worker was busy to kill"
-    assert [f["status"] for f in summary["files"]] == ["done", "done", "done"]
+    assert [f.status for f in summary.files] == ["done", "done", "done"]
     for k, path in enumerate(paths):
         alone = tmp_path / f"alone{k}.blend"
         assert _cli("bake", path, "-o", alone, *options).returncode == 0

@@ -266,3 +266,4 @@ def test_an_animation_result_counts_its_paths_and_reads_as_the_report_writes_it(
     d = json.loads(json.dumps(result.to_dict(), allow_nan=False))
     assert [f["path"] for f in d["frames"]] == ["full", "lights", "lights"] and d["cache"] == "/tmp/cache"
     assert d["frames"][0]["probes"] == 42 and d["frames"][1]["changed"] == ["Lamp"] and d["frames"][2]["mean_direct"] == [0.3] * 3
+    assert tuple(FrameRecord.from_dict(f) for f in d["frames"]) == frames  # as a cluster's chunks read them back

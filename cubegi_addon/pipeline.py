@@ -18,7 +18,7 @@ from ..cubegi_engine import emitters, metrics, relight
 from ..cubegi_engine.bake import bake_steps as engine_bake_steps
 from ..cubegi_engine.bake import run
 from ..cubegi_engine.errors import BakeError
-from ..cubegi_engine.records import Progress, Stage
+from ..cubegi_engine.records import LeftOut, LeftOutKind, Progress, Stage, plural
 from ..cubegi_engine.report import BakeReport
 from ..cubegi_engine.settings import BakeSettings
 from ..cubegi_engine.solve import area_weighted_mean
@@ -338,46 +338,44 @@ def _placement(placement):
 
 
 def _left_out_of_capture(capture, grid, placement=None):
+    """What the capture left out: probes, the near field of vertices, geometry (LeftOut)."""
     out = []
     captured = capture.grid.count
     inside = placement.left_out if placement is not None else 0
     unused = grid.count - captured - inside
     if unused > 0:
-        out.append(
-            f"probes: {unused} of {grid.count} light no vertex (none lies within a cell of them) and were "
+        out.append(LeftOut(LeftOutKind.PROBES, (
+            f"{unused} of {grid.count} light no vertex (none lies within a cell of them) and were "
             f"not captured ({100 * unused / grid.count:.0f}% of the capture saved; a scene with a dynamic object "
-            "captures them all)"
-        )
+            "captures them all)"), unused))
     if inside:
-        out.append(f"probes: {inside} {'sit' if inside > 1 else 'sits'} inside geometry with no way out within "
-                   f"{'their cells' if inside > 1 else 'its cell'} and {'were' if inside > 1 else 'was'} not captured")
-
+        out.append(LeftOut(LeftOutKind.PROBES, (
+            f"{inside} {plural(inside, 'sits', 'sit')} inside geometry with no way out within "
+            f"{plural(inside, 'its cell', 'their cells')} and {plural(inside, 'was', 'were')} not captured"), inside))
     near = capture.transport.near
     if near is not None and near.skipped:
-        out.append(f"near field: every vertex ({near.skipped}); the probes light their surroundings as seen from a cell away")
+        out.append(LeftOut(LeftOutKind.NEAR_FIELD, f"every vertex ({near.skipped}); the probes light their surroundings as "
+                                                   "seen from a cell away", len(capture.transport.index)))
     elif near is not None and near.crowded:
-        out.append(
-            f"near field: {near.crowded:,} vertices in dense, folded geometry (hundreds of triangles within {near.reach:.3g}); "
-            "the probes light their surroundings"
-        )
+        out.append(LeftOut(LeftOutKind.NEAR_FIELD, (
+            f"{near.crowded:,} vertices in dense, folded geometry (hundreds of triangles within {near.reach:.3g}); "
+            "the probes light their surroundings"), near.crowded))
     if capture.small_objects:
         names = [name for name, _ in capture.fingerprint.objects]
-        listed = ", ".join(names[k] for k in capture.small_objects[:5] if k < len(names))
-        more = f" and {len(capture.small_objects) - 5} more" if len(capture.small_objects) > 5 else ""
+        small = tuple(names[k] for k in capture.small_objects if k < len(names))
+        more = f" and {len(small) - 5} more" if len(small) > 5 else ""
         n = len(capture.small_objects)
-        out.append(
-            f"capture geometry: {n} object{'s' if n > 1 else ''} smaller than a texel from every probe ({listed}{more}) "
-            f"{'were' if n > 1 else 'was'} not drawn by the probes; {'they' if n > 1 else 'it'} still receive{'' if n > 1 else 's'} "
-            "light and cast{} shadows".format("" if n > 1 else "s")
-        )
+        out.append(LeftOut(LeftOutKind.CAPTURE_GEOMETRY, (
+            f"{n} {plural(n, 'object', 'objects')} smaller than a texel from every probe ({', '.join(small[:5])}{more}) "
+            f"{plural(n, 'was', 'were')} not drawn by the probes; {plural(n, 'it', 'they')} still "
+            f"{plural(n, 'receives', 'receive')} light and {plural(n, 'casts', 'cast')} shadows"), n, small))
     proxy = capture.proxy
     if proxy is not None:
         saved = 1.0 - len(proxy.triangles) / max(proxy.source_triangles, 1)
-        out.append(
-            f"capture geometry: the probes drew {len(proxy.triangles):,} of {proxy.source_triangles:,} triangles "
+        out.append(LeftOut(LeftOutKind.CAPTURE_GEOMETRY, (
+            f"the probes drew {len(proxy.triangles):,} of {proxy.source_triangles:,} triangles "
             f"({100 * saved:.0f}% fewer; surfaces within {proxy.max_offset():.3g} of where they are, radiance averaged "
-            f"over clusters that size); direct light and shadows use every triangle"
-        )
+            f"over clusters that size); direct light and shadows use every triangle"), proxy.source_triangles - len(proxy.triangles)))
     return out
 
 

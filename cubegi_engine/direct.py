@@ -77,7 +77,7 @@ class DirectLight:
     emitter_energy_factor: np.ndarray = field(default_factory=lambda: np.ones(3))
     light_seconds: float = 0.0
     probe_seconds: float = 0.0
-    left_out: list = field(default_factory=list)  # lights skipped, each with why
+    left_out: list = field(default_factory=list)  # LeftOut: lights skipped, each with why
 
     def total(self, scene) -> np.ndarray:
         """Every source summed, dark points zeroed: ``(s, 3)``."""
@@ -257,7 +257,7 @@ def direct_light_steps(scene, renderer, settings, transport, landing=None, shado
     working Progress) after each light, the emitters and the sky; returns the DirectLight."""
     import time
 
-    from .records import Progress, Stage
+    from .records import LeftOut, LeftOutKind, Progress, Stage
 
     step = step or (lambda message: Progress(Stage.DIRECT, 1, 1, message, working=True))
     t = time.perf_counter()
@@ -269,7 +269,8 @@ def direct_light_steps(scene, renderer, settings, transport, landing=None, shado
     for k, (key, light) in enumerate(zip(lights_mod.light_keys(scene.lights), scene.lights)):
         if reach[k] <= LIGHT_LEFT_OUT * brightest:  # no shadow map drawn for it
             why = "reaches no surface" if reach[k] <= 0.0 else f"below {LIGHT_LEFT_OUT:g} of the brightest light everywhere"
-            left_out.append(f"light {light.name or k}: {why}")
+            name = light.name or str(k)
+            left_out.append(LeftOut(LeftOutKind.LIGHT, f"{name}: {why}", names=(name,)))
             continue
         parts[key] = yield from light_direct_steps(scene, renderer, settings, light, shadows, step)
         yield step(f"direct light: {k + 1} of {len(scene.lights)} lights")

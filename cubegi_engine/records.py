@@ -9,7 +9,7 @@ from enum import Enum, StrEnum
 
 import numpy as np
 
-__all__ = ["Stage", "Progress", "Route", "BounceRecord", "TailReport", "FrameRecord", "AnimationResult"]
+__all__ = ["Stage", "Progress", "Route", "LeftOut", "LeftOutKind", "plural", "BounceRecord", "TailReport", "FrameRecord", "AnimationResult"]
 
 
 class Stage(str, Enum):
@@ -35,6 +35,52 @@ class Progress:
     new_light: np.ndarray | None = None
     bounce: int | None = None
     working: bool = False
+
+
+class LeftOutKind(StrEnum):
+    """What a bake left out: a light, probes, the near field of some vertices, geometry the
+    probes did not draw."""
+
+    LIGHT = "light"
+    PROBES = "probes"
+    NEAR_FIELD = "near field"
+    CAPTURE_GEOMETRY = "capture geometry"
+
+
+def plural(count: int, one: str, many: str) -> str:
+    """``one`` for a count of 1, else ``many``."""
+    return one if count == 1 else many
+
+
+@dataclass(frozen=True)
+class LeftOut:
+    """One thing a bake left out: its ``kind``, how many (``count``, of ``names`` where it
+    names them) and, in words, what and why (``text``, after the kind)."""
+
+    kind: LeftOutKind
+    text: str
+    count: int = 1
+    names: tuple = ()
+
+    def line(self) -> str:
+        """``light <name>: why``; ``<kind>: text`` for the others."""
+        return f"{self.kind}{' ' if self.kind == LeftOutKind.LIGHT else ': '}{self.text}"
+
+    def to_dict(self) -> dict:
+        return {"kind": str(self.kind), "count": self.count, "names": list(self.names), "text": self.text}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "LeftOut":
+        return cls(LeftOutKind(d["kind"]), d["text"], int(d.get("count", 1)), tuple(d.get("names", ())))
+
+    @classmethod
+    def from_line(cls, line: str) -> "LeftOut":
+        """A record from the text of :meth:`line` (a report that holds lines alone)."""
+        for kind in LeftOutKind:
+            for sep in (": ", " "):
+                if line.startswith(f"{kind}{sep}"):
+                    return cls(kind, line[len(kind) + len(sep):])
+        raise ValueError(f"not a left-out line: {line!r}")
 
 
 class Route(StrEnum):

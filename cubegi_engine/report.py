@@ -9,7 +9,7 @@ import math
 from dataclasses import dataclass, field
 
 from . import __version__
-from .records import BounceRecord, TailReport
+from .records import BounceRecord, LeftOut, TailReport
 
 __all__ = ["BakeReport"]
 
@@ -36,7 +36,7 @@ class BakeReport:
     reference: dict | None = None
     capture_reused: bool = False
     probes_recaptured: int | None = None
-    left_out: list = field(default_factory=list)  # what the bake left out, each with why
+    left_out: list = field(default_factory=list)  # LeftOut: what the bake left out, each with why
     # The probes' simplified geometry: {"triangles", "of", "clusters", "max_offset"}, or None.
     capture_geometry: dict | None = None
     # The near field: {"points", "hits", "pairs", "crowded", "reach", "seconds", "skipped"}, or None (off).
@@ -74,7 +74,8 @@ class BakeReport:
             "estimated_remaining_error": self.estimated_remaining_error,
             "capture_reused": self.capture_reused,
             "probes_recaptured": self.probes_recaptured,
-            "left_out": self.left_out,
+            "left_out": [x.line() for x in self.left_out],
+            "left_out_items": [x.to_dict() for x in self.left_out],
             "capture_geometry": self.capture_geometry,
             "near_field": self.near_field,
             "timings": self.timings,
@@ -104,7 +105,7 @@ class BakeReport:
             bounces=[BounceRecord.from_dict(b) for b in d["bounces"]], indirect_mean_light=d["indirect"]["mean_light"],
             tail=TailReport.from_dict(d["tail"]), timings=timings, attributes=d.get("attributes", []),
             warnings=d.get("warnings", []), reference=d.get("reference"), capture_reused=d.get("capture_reused", False),
-            probes_recaptured=d.get("probes_recaptured"), left_out=d.get("left_out", []),
+            probes_recaptured=d.get("probes_recaptured"), left_out=_left_out(d),
             capture_geometry=d.get("capture_geometry"), near_field=d.get("near_field"),
             input=d.get("input"), output=d.get("output"), version=d.get("cubegi_version", __version__),
         )
@@ -148,10 +149,17 @@ class BakeReport:
                 f"near field: {near['points']:,} points gathered their surroundings within {near['reach']:.3g} by rays "
                 f"({near['hits']:,} hits, {near['seconds']:.2f} s)"
             )
-        lines += [f"left out: {x}" for x in self.left_out]
+        lines += [f"left out: {x.line()}" for x in self.left_out]
         lines += [f"warning: {w}" for w in self.warnings]
         lines += [f"note: {n}" for n in self.notes]
         return lines
+
+
+def _left_out(d):
+    """The report's LeftOut records (from their items; a report that holds lines alone: from them)."""
+    if "left_out_items" in d:
+        return [LeftOut.from_dict(x) for x in d["left_out_items"]]
+    return [LeftOut.from_line(x) for x in d.get("left_out", [])]
 
 
 def _finite(value):

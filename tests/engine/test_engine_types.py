@@ -11,7 +11,7 @@ from cubegi.cubegi_engine import sh
 from cubegi.cubegi_engine.errors import BakeError
 from cubegi.cubegi_engine.field import ProbeField
 from cubegi.cubegi_engine.grid import ProbeGrid
-from cubegi.cubegi_engine.records import AnimationResult, BounceRecord, FrameRecord, Route, TailReport
+from cubegi.cubegi_engine.records import AnimationResult, BounceRecord, FrameRecord, LeftOut, LeftOutKind, Route, TailReport
 from cubegi.cubegi_engine.report import BakeReport
 from cubegi.cubegi_engine.scene import SceneArrays
 from cubegi.cubegi_engine.settings import MAX_BOUNCES, BakeSettings
@@ -93,6 +93,8 @@ def _report(**kw):
         direct_mean_light=[1.0, 1.0, 1.0], emitter_energy_factor=[1.0, 1.0, 1.0], bounces=[rec],
         indirect_mean_light=[0.3, 0.3, 0.3], tail=TailReport(0.25, "geometric", True, mean_light=[0.1] * 3, share_of_indirect=0.2),
         timings={"total": 1.5},
+        left_out=[LeftOut(LeftOutKind.LIGHT, "Away: reaches no surface", names=("Away",)),
+                  LeftOut(LeftOutKind.PROBES, "3 of 8 light no vertex", 3)],
     )
     fields.update(kw)
     return BakeReport(**fields)
@@ -106,6 +108,13 @@ def test_the_report_round_trips_through_strict_json():
     d = json.loads(report.to_json())
     assert d["scene"]["meshes_baked"] == ["Room"] and d["bounces"][0]["attribute"] == "CubeGI_bounce_1"
     assert d["estimated_remaining_error"] == 0.25 and d["total_seconds"] == 1.5
+    # What was left out: typed in the report, lines in its text and its JSON's "left_out".
+    assert d["left_out"] == ["light Away: reaches no surface", "probes: 3 of 8 light no vertex"]
+    assert d["left_out_items"][1] == {"kind": "probes", "count": 3, "names": [], "text": "3 of 8 light no vertex"}
+    assert "left out: light Away: reaches no surface" in report.summary_lines()
+    assert [LeftOut.from_line(x) for x in d["left_out"]][0].kind == LeftOutKind.LIGHT
+    del d["left_out_items"]  # a report of a version that wrote the lines alone
+    assert [x.line() for x in BakeReport.from_dict(d).left_out] == d["left_out"]
 
 
 def test_the_report_json_has_no_nan_or_inf():

@@ -17,13 +17,10 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from ..cubegi_engine.errors import BakeError, Interrupted
+from ..cubegi_engine.errors import ERROR_PREFIX, BakeError, Interrupted
 from ..cubegi_engine.settings import OPTIONS, QUALITY, BakeSettings
 from . import files, interrupts
 from .attributes import LitMode
-
-# How a refusal or failure starts on stderr (the one line a cluster's task reads back).
-ERROR_PREFIX = "cubegi: error: "
 
 # Set to 1 to see the traceback of a failure that is CubeGI's own defect.
 DEBUG_ENV = "CUBEGI_DEBUG"

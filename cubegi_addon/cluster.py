@@ -31,11 +31,10 @@ from dataclasses import asdict, dataclass
 from enum import StrEnum
 
 from ..cubegi_engine import __version__
-from ..cubegi_engine.errors import BakeError, Interrupted
+from ..cubegi_engine.errors import ERROR_PREFIX, BakeError, Interrupted
 from ..cubegi_engine.records import FrameRecord
 from ..cubegi_engine.report import BakeReport
 from . import files
-from .cli import ERROR_PREFIX
 
 # The source tree every worker runs ``python -m cubegi_engine`` from.
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

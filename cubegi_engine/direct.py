@@ -93,25 +93,28 @@ class Shadow:
     position; area: its sample points) or one orthographic map (sun). Kept so that other
     receivers (a moving object) can be tested against the same occluders.
 
-    cubes: CubeCapture; eyes: ``(k, 3)``; ortho: ``(view_proj, axis, eye, tid, dist, back,
-    radius)`` for a sun; ``triangles``, ``vertices``: the occluders the maps were drawn of.
+    occluders: what the maps were drawn of; cubes: CubeCapture; eyes: ``(k, 3)``; turns:
+    ``(k, 3, 3)`` each eye's cube rotation, where there are several; sun, sun_map: a sun's
+    orthographic view and its depth map.
     """
 
     light: object
-    triangles: np.ndarray
-    vertices: np.ndarray
-    scale: float
-    cubes: object = None
+    occluders: lights_mod.Occluders
+    cubes: CubeCapture | None = None
     eyes: np.ndarray | None = None
-    ortho: tuple | None = None
-    turns: np.ndarray | None = None  # (k, 3, 3) each eye's cube rotation, where there are several
-    sides: tuple | None = None  # SceneArrays.sides() of the occluders (two-sided sheets), if any
+    sun: lights_mod.OrthoView | None = None
+    sun_map: lights_mod.DepthMap | None = None
+    turns: np.ndarray | None = None
+
+    def cube_map(self, k) -> lights_mod.DepthMap:
+        """Eye ``k``'s depth cube map."""
+        assert self.cubes is not None, "a sun's shadow has no cube maps"
+        return lights_mod.DepthMap(self.cubes.tid[k], self.cubes.dist[k], self.cubes.backface[k])
 
     @property
     def nbytes(self):
         arrays = [self.cubes.tid, self.cubes.bary, self.cubes.dist, self.cubes.backface] if self.cubes is not None else []
-        arrays += [a for a in (self.ortho or ())[3:6]]
-        return int(sum(a.nbytes for a in arrays))
+        return int(sum(a.nbytes for a in arrays) + (self.sun_map.nbytes if self.sun_map is not None else 0))
 
 
 def draw_shadow(scene, renderer, settings, light, size=None) -> Shadow:
@@ -140,7 +143,7 @@ def draw_shadow_steps(scene, renderer, settings, light, size=None, step=None):
     """:func:`draw_shadow` as a generator: a light's many cube maps (an area light's sample
     points, a soft light's) drawn in batches."""
     size = size or light.shadow_size or None
-    shadow = Shadow(light, scene.triangles, scene.points, scene.scale, sides=scene.sides())
+    shadow = Shadow(light, scene_occluders(scene))
     if light.kind == "SUN":
         lo, hi = scene.bounds()
         centre, radius = 0.5 * (lo + hi), 0.5 * scene.scale * SUN_BOX_MARGIN
@@ -149,7 +152,7 @@ def draw_shadow_steps(scene, renderer, settings, light, size=None, step=None):
         view = cubemap.look_matrix(eye, axis, cubemap.any_perpendicular(axis))
         vp = cubemap.orthographic(radius, SUN_NEAR * radius, SUN_FAR * radius) @ view
         tid, _, dist, back = renderer.render(vp[None], eye[None], axis[None], size or settings.sun_shadow_size, with_bary=False)
-        shadow.ortho = (vp, axis, eye, tid[0], dist[0], back[0], radius)
+        shadow.sun, shadow.sun_map = lights_mod.OrthoView(vp, axis, eye, radius), lights_mod.DepthMap(tid[:1], dist[:1], back[:1])
         return shadow
     nearest, is_soft = yield from in_background(lambda: (_nearest_distance(scene.points, light.position), soft(light, scene.points)),
                                                 _working(step, f"direct light: {light.name or 'a light'}'s shadow maps"))
@@ -184,21 +187,19 @@ def _nearest_distance(points, eye):
     return float(np.sqrt(np.min(np.einsum("sc,sc->s", points - eye, points - eye)))) if len(points) else 1.0
 
 
+def scene_occluders(scene) -> lights_mod.Occluders:
+    """Every triangle of ``scene`` as shadow maps' occluders."""
+    return lights_mod.Occluders(scene.triangles, scene.points, scene.scale, scene.sides())
+
+
 def visibility(shadow, pts, nrm, ids) -> np.ndarray:
     """``(k,)`` in [0, 1]: how much of ``shadow``'s light reaches each receiver (``ids``: the
     receivers' indices among the shadow's vertices, -1 for a receiver not among them)."""
-    light = shadow.light
-    if shadow.ortho is not None:
-        vp, axis, eye, tid, dist, back, radius = shadow.ortho
-        return lights_mod.ortho_visibility(
-            pts, nrm, vp, axis, eye, tid, dist, back, shadow.triangles, shadow.vertices, ids, radius, shadow.scale, shadow.sides
-        )
-    cap = shadow.cubes
+    light, receivers = shadow.light, lights_mod.Receivers(pts, nrm, ids)
+    if shadow.sun is not None:
+        return lights_mod.ortho_visibility(receivers, shadow.occluders, shadow.sun, shadow.sun_map)
     if len(shadow.eyes) == 1 and light.kind != "AREA":
-        return lights_mod.shadow_visibility(
-            pts, nrm, light.position, cap.tid[0], cap.dist[0], cap.backface[0], shadow.triangles, shadow.vertices, ids, shadow.scale,
-            sides=shadow.sides,
-        )
+        return lights_mod.shadow_visibility(receivers, shadow.occluders, light.position, shadow.cube_map(0))
     # Several eyes (an area light's points, a soft point light's sphere): their visibility
     # weighted by how much light each sends the receiver.
     num = np.zeros(len(pts))
@@ -209,10 +210,8 @@ def visibility(shadow, pts, nrm, ids) -> np.ndarray:
         cos_r = np.maximum(0.0, np.einsum("sc,sc->s", nrm, rel)) / np.sqrt(np.maximum(d2, 1e-300))
         cos_l = np.maximum(0.0, -(rel @ light.direction)) / np.sqrt(np.maximum(d2, 1e-300)) if light.kind == "AREA" else 1.0
         w = cos_r * cos_l / np.maximum(d2, 1e-300) + 1e-12
-        vis = lights_mod.shadow_visibility(
-            pts, nrm, eye, cap.tid[k], cap.dist[k], cap.backface[k], shadow.triangles, shadow.vertices, ids, shadow.scale,
-            reach=0, turn=None if shadow.turns is None else shadow.turns[k], sides=shadow.sides,
-        )
+        vis = lights_mod.shadow_visibility(receivers, shadow.occluders, eye, shadow.cube_map(k), reach=0,
+                                           turn=None if shadow.turns is None else shadow.turns[k])
         num += w * vis
         den += w
     return num / den
@@ -367,7 +366,7 @@ def sky_direct_steps(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY
     pts, nrm = scene.points[which], scene.normals[which]
     seen = np.zeros((len(which), 3))
     facing = np.zeros((len(which), 3))
-    sides, scale = scene.sides(), scene.scale
+    occluders = scene_occluders(scene)
 
     def tests(first, tid, dist, back):
         """The shadow tests of a batch of maps: ``[(k, receivers, their visibility)]``."""
@@ -376,8 +375,10 @@ def sky_direct_steps(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY
             k = first + j
             on = np.flatnonzero(nrm @ dirs[k] > 0)
             if len(on):
-                out.append((k, on, lights_mod.ortho_visibility(pts[on], nrm[on], vps[k], -dirs[k], eyes[k], tid[j], dist[j], back[j],
-                                                                scene.triangles, scene.points, which[on], radius, scale, sides)))
+                view = lights_mod.OrthoView(vps[k], -dirs[k], eyes[k], radius)
+                depth = lights_mod.DepthMap(tid[j:j + 1], dist[j:j + 1], back[j:j + 1])
+                receivers = lights_mod.Receivers(pts[on], nrm[on], which[on])
+                out.append((k, on, lights_mod.ortho_visibility(receivers, occluders, view, depth)))
         return out
 
     def add(done):

@@ -271,6 +271,7 @@ def _visibility(scene, renderer, size, verts, radiance, lit):
     cap = capture_cubes(renderer, eyes, size, near, far, with_bary=False, turns=turns)
     pts, nrm = scene.points[lit], scene.normals[lit]
     ids = np.arange(s)[lit]
+    occluders = lights_mod.Occluders(scene.triangles, scene.points, scene.scale, scene.sides())
     for k, (eye, side) in enumerate(zip(eyes, sides)):
         rel = eye - pts
         d2 = np.einsum("sc,sc->s", rel, rel)
@@ -281,10 +282,9 @@ def _visibility(scene, renderer, size, verts, radiance, lit):
         use = w > 0
         if not use.any():
             continue
-        v = lights_mod.shadow_visibility(
-            pts[use], nrm[use], eye, cap.tid[k], cap.dist[k], cap.backface[k], scene.triangles, scene.points, ids[use],
-            scene.scale, reach=0, turn=turns[k], sides=scene.sides(),
-        )
+        depth = lights_mod.DepthMap(cap.tid[k], cap.dist[k], cap.backface[k])
+        v = lights_mod.shadow_visibility(lights_mod.Receivers(pts[use], nrm[use], ids[use]), occluders, eye, depth, reach=0,
+                                         turn=turns[k])
         num[ids[use]] += w[use] * v
         den[ids[use]] += w[use]
     return num, den

@@ -9,7 +9,11 @@ stopped action keeps.
 
 import signal
 
-__all__ = ["BakeError", "Interrupted"]
+__all__ = ["BakeError", "Interrupted", "ERROR_PREFIX"]
+
+# How a refusal (or a failure) starts on the command line's stderr: one line, which a
+# cluster's task reads back as the reason a file failed.
+ERROR_PREFIX = "cubegi: error: "
 
 
 class BakeError(ValueError):

@@ -24,7 +24,8 @@ import numpy as np
 from . import cubemap
 from .geometry import POINT_CHUNK, chunks, cut_triangles
 
-__all__ = ["Light", "area_polygon", "area_samples", "spot_attenuation", "polygon_form_factor", "unshadowed", "shadow_visibility", "ortho_visibility"]
+__all__ = ["Light", "area_polygon", "area_samples", "spot_attenuation", "polygon_form_factor", "unshadowed", "shadow_visibility",
+           "ortho_visibility", "DepthMap", "Receivers", "Occluders", "OrthoView"]
 
 DISK_SEGMENTS = 32
 
@@ -184,45 +185,6 @@ def unshadowed(light, points, normals):
     raise ValueError(f"unknown light kind {light.kind!r}")
 
 
-def shadow_visibility(points, normals, eye, face_tid, face_dist, face_back, triangles, vertices, point_ids, scale, reach=1,
-                      turn=None, sides=None):
-    """Whether each receiver sees ``eye``, from a depth cube map rendered at ``eye``.
-
-    points, normals: ``(s, 3)``; face_tid: ``(6, n, n)`` triangle index seen per texel (-1:
-    nothing); face_dist: ``(6, n, n)`` distance to it; face_back: ``(6, n, n)`` the texel
-    sees a back face; triangles: ``(t, 3)`` indices into vertices ``(v, 3)``; point_ids:
-    ``(s,)`` index of each receiver in the point arrays; scale: scene size; reach: how many
-    texels around the receiver's own are asked (0: its own only); turn: ``(3, 3)`` the cube
-    map's rotation, if it was drawn turned; sides: ``SceneArrays.sides()`` (two-sided sheets),
-    if any.
-
-    The receiver is lifted off its surface by a quarter of a texel's footprint and looked up
-    in the map (see :func:`_occluded`). Returns ``(s,)`` float64 in {0, 1}.
-    """
-    if len(points) > POINT_CHUNK:
-        return np.concatenate([
-            shadow_visibility(points[sl], normals[sl], eye, face_tid, face_dist, face_back, triangles, vertices,
-                              point_ids[sl], scale, reach, turn, sides)
-            for sl in chunks(len(points))
-        ])
-    n = face_dist.shape[-1]
-    rel = points - eye
-    d = np.linalg.norm(rel, axis=1)
-    footprint = d * (2.0 / n)
-    lifted = points + normals * (LIFT * footprint)[:, None]
-    rel2 = lifted - eye
-    d2 = np.linalg.norm(rel2, axis=1)
-    u = rel2 / np.maximum(d2, 1e-300)[:, None]
-    local = rel2 if turn is None else rel2 @ turn  # the cube's own frame
-    face, row, col, _, _ = cubemap.direction_to_texel(np.where(d2[:, None] > 0, local, 1.0), n)
-    cos = np.abs(np.einsum("sc,sc->s", normals, rel / np.maximum(d, 1e-300)[:, None]))
-    maps = (face_tid, face_dist, face_back)
-    origins = np.broadcast_to(eye, u.shape)
-    occluded = _occluded(maps, face, row, col, origins, u, d2, cos, footprint, triangles, vertices, point_ids, scale, reach,
-                         sides)
-    return (~occluded).astype(np.float64)
-
-
 # Shadow test margins (see _occluded): in texel footprints, as a share of the receiver's
 # distance along the ray, and as a share of the scene's size (GPU float32 distances); the
 # cosine below which the slope term stops growing.
@@ -233,8 +195,109 @@ BIAS_FOOTPRINTS, BIAS_OF_DEPTH, SLOPE_OF_SCALE, MIN_COS = 0.1, 1e-5, 1e-4, 0.2
 LIFT = 0.25
 
 
-def _occluded(maps, face, row, col, origins, u, depth, cos, footprint, triangles, vertices, point_ids, scale, reach=1,
-              sides=None):
+@dataclass(frozen=True)
+class DepthMap:
+    """What a shadow map saw per texel, each ``(f, n, n)``: the triangle (``tid``, -1 where
+    nothing), its distance (``dist``) and whether it was seen from behind (``back``); ``f``
+    is 6 for a cube map, 1 for an orthographic map (a sun's)."""
+
+    tid: np.ndarray
+    dist: np.ndarray
+    back: np.ndarray
+
+    @property
+    def size(self) -> int:
+        return int(self.dist.shape[-1])
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.tid.nbytes + self.dist.nbytes + self.back.nbytes)
+
+
+@dataclass(frozen=True)
+class Receivers:
+    """The points a shadow test asks about: ``points``, ``normals`` ``(s, 3)`` and ``ids``
+    ``(s,)``, each one's index among the occluders' vertices (-1: not among them)."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    ids: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def __getitem__(self, which) -> "Receivers":
+        return Receivers(self.points[which], self.normals[which], self.ids[which])
+
+
+@dataclass(frozen=True)
+class Occluders:
+    """The geometry a shadow map was drawn of: ``triangles (t, 3)`` into ``vertices (v, 3)``,
+    the scene's size ``scale`` and ``sides`` (``SceneArrays.sides()``: two-sided sheets, or
+    None)."""
+
+    triangles: np.ndarray
+    vertices: np.ndarray
+    scale: float
+    sides: tuple | None = None
+
+
+@dataclass(frozen=True)
+class OrthoView:
+    """An orthographic shadow map's view: ``view_proj (4, 4)``, looking along ``axis`` from
+    ``eye``, ``half_width`` across."""
+
+    view_proj: np.ndarray
+    axis: np.ndarray
+    eye: np.ndarray
+    half_width: float
+
+
+@dataclass(frozen=True)
+class _Lookup:
+    """Each receiver's place in a depth map (``face``, ``row``, ``col``), its ray (from
+    ``origins`` along ``u``, ``depth`` long), its surface's ``cos`` to the ray and its
+    texel's ``footprint``."""
+
+    face: np.ndarray
+    row: np.ndarray
+    col: np.ndarray
+    origins: np.ndarray
+    u: np.ndarray
+    depth: np.ndarray
+    cos: np.ndarray
+    footprint: np.ndarray
+
+
+def shadow_visibility(receivers: Receivers, occluders: Occluders, eye, depth: DepthMap, reach=1, turn=None):
+    """Whether each receiver sees ``eye``, from the depth cube map ``depth`` drawn at ``eye``
+    of ``occluders``. ``reach``: how many texels around the receiver's own are asked (0: its
+    own only); ``turn``: ``(3, 3)`` the cube map's rotation, if it was drawn turned.
+
+    The receiver is lifted off its surface by a quarter of a texel's footprint and looked up
+    in the map (see :func:`_occluded`). Returns ``(s,)`` float64 in {0, 1}.
+    """
+    if len(receivers) > POINT_CHUNK:
+        return np.concatenate([shadow_visibility(receivers[sl], occluders, eye, depth, reach, turn) for sl in chunks(len(receivers))])
+    points, normals = receivers.points, receivers.normals
+    n = depth.size
+    rel = points - eye
+    d = np.linalg.norm(rel, axis=1)
+    footprint = d * (2.0 / n)
+    lifted = points + normals * (LIFT * footprint)[:, None]
+    rel2 = lifted - eye
+    d2 = np.linalg.norm(rel2, axis=1)
+    u = rel2 / np.maximum(d2, 1e-300)[:, None]
+    local = rel2 if turn is None else rel2 @ turn  # the cube's own frame
+    face, row, col, _, _ = cubemap.direction_to_texel(np.where(d2[:, None] > 0, local, 1.0), n)
+    cos = np.abs(np.einsum("sc,sc->s", normals, rel / np.maximum(d, 1e-300)[:, None]))
+    lookup = _Lookup(face, row, col, np.broadcast_to(eye, u.shape), u, d2, cos, footprint)
+    return (~_occluded(depth, lookup, receivers.ids, occluders, reach)).astype(np.float64)
+
+
+
+
+def _occluded(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occluders, reach=1):
     """Whether something lies between the light and each (lifted) receiver.
 
     The map says which triangles lie towards the light in the receiver's texel and its
@@ -253,16 +316,17 @@ def _occluded(maps, face, row, col, origins, u, depth, cos, footprint, triangles
       (a wall's edge under a ceiling, a floor's edge under a wall the light is behind), as
       it does a ray leaving that point.
     """
-    tid_map, dist_map, back_map = maps
-    n = dist_map.shape[-1]
+    face, row, col, footprint, cos = lookup.face, lookup.row, lookup.col, lookup.footprint, lookup.cos
+    triangles, sides = occluders.triangles, occluders.sides
+    n = depth_map.size
     steps = range(-reach, reach + 1)
     offsets = np.array([(dr, dc) for dr in steps for dc in steps])
     r = np.clip(row[:, None] + offsets[None, :, 0], 0, n - 1)
     c = np.clip(col[:, None] + offsets[None, :, 1], 0, n - 1)
     f = face[:, None]
-    tid = tid_map[f, r, c]
-    seen = dist_map[f, r, c].astype(np.float64)
-    back = back_map[f, r, c]
+    tid = depth_map.tid[f, r, c]
+    seen = depth_map.dist[f, r, c].astype(np.float64)
+    back = depth_map.back[f, r, c]
     if sides is not None:
         # A sheet's face on the far side from the receiver's (a twin, for a receiver on the
         # front or on a one-sided mesh) stands where a one-sided sheet's back face would be
@@ -271,16 +335,16 @@ def _occluded(maps, face, row, col, origins, u, depth, cos, footprint, triangles
         ts = tri_side[np.maximum(tid, 0)]
         ps = np.where(point_ids >= 0, point_side[np.maximum(point_ids, 0)], 0)[:, None]
         back = back | ((tid >= 0) & (ts > 0) & ((ts == 2) != (ps == 2)))
-    plane, _ = cut_triangles(origins[:, None, :], u[:, None, :], tid, triangles, vertices)
+    plane, _ = cut_triangles(lookup.origins[:, None, :], lookup.u[:, None, :], tid, triangles, occluders.vertices)
     own = np.any(triangles[np.maximum(tid, 0)] == point_ids[:, None, None], axis=2)
-    depth = depth[:, None]
+    depth = lookup.depth[:, None]
     # ``nearer`` and ``depth`` are exact (float64 plane cuts): their margin is a tenth of a
     # texel's footprint (slope-scaled) and a hundred-thousandth of the receiver's own distance,
     # never a share of the whole scene (a 1 cm gap under a room on a 2 km plane must hold).
     # ``seen`` comes from the GPU's float32 distances in the scene's unit frame: its margin
     # keeps a ten-thousandth of the scene's size.
     bias = (BIAS_FOOTPRINTS * footprint / np.maximum(cos, MIN_COS) + BIAS_OF_DEPTH * depth[:, 0])[:, None]
-    slope = (footprint / np.maximum(cos, MIN_COS) + SLOPE_OF_SCALE * scale)[:, None]
+    slope = (footprint / np.maximum(cos, MIN_COS) + SLOPE_OF_SCALE * occluders.scale)[:, None]
     nearer = np.where(np.isnan(plane), seen, plane)
     centre = np.all(offsets == 0, axis=1)[None, :]
     front_occ = centre & ~back & (nearer < depth - bias) & (seen < depth + slope)
@@ -288,31 +352,21 @@ def _occluded(maps, face, row, col, origins, u, depth, cos, footprint, triangles
     return np.any((tid >= 0) & ~own & (front_occ | back_occ), axis=1)
 
 
-def ortho_visibility(
-    points, normals, view_proj, axis, eye, tid_map, dist_map, back_map, triangles, vertices, point_ids, half_width, scale,
-    sides=None,
-):
-    """Like :func:`shadow_visibility` for a sun: one orthographic depth map along ``axis``."""
-    if len(points) > POINT_CHUNK:
-        return np.concatenate([
-            ortho_visibility(points[sl], normals[sl], view_proj, axis, eye, tid_map, dist_map, back_map, triangles,
-                             vertices, point_ids[sl], half_width, scale, sides)
-            for sl in chunks(len(points))
-        ])
-    n = dist_map.shape[-1]
-    footprint = np.full(len(points), 2.0 * half_width / n)
+def ortho_visibility(receivers: Receivers, occluders: Occluders, view: OrthoView, depth: DepthMap):
+    """Like :func:`shadow_visibility` for a sun: one orthographic depth map (``view``)."""
+    if len(receivers) > POINT_CHUNK:
+        return np.concatenate([ortho_visibility(receivers[sl], occluders, view, depth) for sl in chunks(len(receivers))])
+    points, normals, axis = receivers.points, receivers.normals, view.axis
+    n = depth.size
+    footprint = np.full(len(points), 2.0 * view.half_width / n)
     lifted = points + normals * (LIFT * footprint)[:, None]
-    clip = np.concatenate([lifted, np.ones((len(points), 1))], axis=1) @ view_proj.T
+    clip = np.concatenate([lifted, np.ones((len(points), 1))], axis=1) @ view.view_proj.T
     ndc = clip[:, :2] / clip[:, 3:4]
     col = np.clip(((ndc[:, 0] + 1.0) * 0.5 * n).astype(np.int64), 0, n - 1)
     row = np.clip(((ndc[:, 1] + 1.0) * 0.5 * n).astype(np.int64), 0, n - 1)
-    depth = (lifted - eye) @ axis
-    cos = np.abs(normals @ axis)
+    distance = (lifted - view.eye) @ axis
     inside = (np.abs(ndc) <= 1.0).all(axis=1)
-    origins = lifted - depth[:, None] * axis
-    u = np.broadcast_to(axis, lifted.shape)
-    maps = (tid_map[None], dist_map[None], back_map[None])
-    face = np.zeros(len(points), dtype=np.int64)
-    occluded = _occluded(maps, face, row, col, origins, u, depth, cos, footprint, triangles, vertices, point_ids, scale,
-                         sides=sides)
+    lookup = _Lookup(np.zeros(len(points), dtype=np.int64), row, col, lifted - distance[:, None] * axis,
+                     np.broadcast_to(axis, lifted.shape), distance, np.abs(normals @ axis), footprint)
+    occluded = _occluded(depth, lookup, receivers.ids, occluders)
     return (~occluded | ~inside).astype(np.float64)

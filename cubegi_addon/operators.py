@@ -16,9 +16,10 @@ MODAL_STEP_SECONDS = 0.05
 
 
 def _settings_from(op, scene):
-    """The operator's settings where the call set them, else the scene's (props.bake_settings)."""
-    given = {name: getattr(op, name) for name in (*(o.name for o in OPTIONS), "quality")
-             if hasattr(op, name) and op.properties.is_property_set(name)}
+    """The settings a bake operator (one with every bake option as a property:
+    props.with_bake_options) was called with where the call set them, else the scene's
+    (props.bake_settings)."""
+    given = {name: getattr(op, name) for name in (*(o.name for o in OPTIONS), "quality") if op.properties.is_property_set(name)}
     return props.bake_settings(scene, given)
 
 
@@ -234,7 +235,7 @@ class CUBEGI_OT_bake_animation(_ModalJob, bpy.types.Operator):
         scene = context.scene
         folder = animation.cache_folder(bpy.data.filepath)
         animation.check_cache_folder(folder, "move it away")
-        settings = _settings_from(self, scene).validate()
+        settings = props.bake_settings(scene, {}).validate()  # the scene's: Bake Animation has no options of its own
         lit = attributes.LitMode.of(scene.cubegi.lit)
         frames = range(scene.frame_start, scene.frame_end + 1)
         self._folder = folder

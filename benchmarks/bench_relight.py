@@ -81,7 +81,7 @@ def main():
         return live.update(bpy.context, materials=True)
 
     t_albedo, u_albedo = best(recolour, max(2, args.repeat // 2))
-    print(f"Room: {rep.points} shading points, {rep.grid['probes']} probes, cube 32, {len(rep.bounces)} bounces + tail")
+    print(f"Room: {rep.points} shading points, {rep.grid.probes} probes, cube 32, {len(rep.bounces)} bounces + tail")
     print(f"full bake (capture included)      {t_full * 1000:8.1f} ms")
     print(f"operator built from the bake      {t_build * 1000:8.1f} ms (once per capture)")
     rows = [

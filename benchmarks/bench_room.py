@@ -52,7 +52,7 @@ def main():
     best = min(reports, key=lambda r: r.timings["total"])
     tm = best.timings
     print(f"Room: {best.triangles} triangles, {best.points} shading points, "
-          f"{best.grid['probes']} probes {tuple(best.grid['resolution'])}, cube 32, {args.bounces} bounces")
+          f"{best.grid.probes} probes {tuple(best.grid.resolution)}, cube 32, {args.bounces} bounces")
     print(f"best of {args.repeat}:")
     for key in ("collect", "gpu_setup", "capture", "tables", "direct_lights", "direct_probes", "bounces", "tail", "write", "total"):
         print(f"  {key:14s} {tm[key] * 1000:8.1f} ms")

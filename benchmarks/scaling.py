@@ -61,8 +61,8 @@ def one(cuts, probes):
     drawn = report.capture_geometry
     return {
         "cuts": cuts, "vertices": vertices, "points": report.points, "triangles": report.triangles,
-        "probes": report.grid["probes"], "probes_captured": report.grid.get("probes_captured", report.grid["probes"]),
-        "capture_triangles": drawn["triangles"] if drawn else report.triangles, "bounces": len(report.bounces),
+        "probes": report.grid.probes, "probes_captured": report.grid.probes_captured or report.grid.probes,
+        "capture_triangles": drawn.triangles if drawn else report.triangles, "bounces": len(report.bounces),
         "cube_size": report.settings["cube_size"], "seconds": seconds, "timings": report.timings,
         "peak_gb": _peak() / 2**30, "before_gb": before / 2**30, "gpu": _gpu(),
         "longest_step_seconds": longest[0], "longest_step_after": longest[1],

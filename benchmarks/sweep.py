@@ -188,10 +188,10 @@ def _cubegi_run(scene_name, objects, ref, areas, settings, log, repeat=1, **bake
     indirect = _stack(objects, {ob.name: attributes.read(ob.data, attributes.INDIRECT) for ob in objects})
     t = float(np.median(times))
     if "grid" not in settings:  # a default bake: what it chose
-        settings = dict(settings, grid="x".join(map(str, rep.grid["resolution"])), cube=rep.settings["cube_size"],
+        settings = dict(settings, grid="x".join(map(str, rep.grid.resolution)), cube=rep.settings["cube_size"],
                         bounces=len(rep.bounces), tail=rep.tail.added, **({"near field": False} if not rep.near_field else {}),
-                        **({"probes moved": rep.grid["probes_moved"]} if rep.grid.get("probes_moved") else {}))
-    extra = {"probes": rep.grid["probes"], "timings": rep.timings, "estimated_remaining_error": rep.estimated_remaining_error}
+                        **({"probes moved": rep.grid.probes_moved} if rep.grid.probes_moved else {}))
+    extra = {"probes": rep.grid.probes, "timings": rep.timings, "estimated_remaining_error": rep.estimated_remaining_error}
     record = _record(scene_name, "cubegi", settings, t, {"indirect": t, "total": t}, direct, indirect, ref, areas, extra)
     e = record["errors"]
     log(

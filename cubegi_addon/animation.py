@@ -151,7 +151,7 @@ def _frame(context, settings, resolution, lit, only, first):
         except BakeError:  # then a full bake
             pass
     report = pipeline.bake(context, settings, resolution, lit=lit, only=only)
-    details = {"probes": report.grid["probes"], "capture_reused": report.capture_reused}
+    details = {"probes": report.grid.probes, "capture_reused": report.capture_reused}
     if report.probes_recaptured is not None:
         return Route.RECAPTURE, dict(details, probes_recaptured=report.probes_recaptured)
     return Route.FULL, details

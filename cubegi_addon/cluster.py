@@ -272,7 +272,7 @@ def _record(src, out_dir, status, error=None):
     out, path = _paths(src, out_dir)
     with open(path) as fh:
         report = BakeReport.from_json(fh.read())
-    return BatchRecord(src, status, round(report.total_seconds, 3), out, path, report.grid["probes"],
+    return BatchRecord(src, status, round(report.total_seconds, 3), out, path, report.grid.probes,
                        report.estimated_remaining_error, error)
 
 

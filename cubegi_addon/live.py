@@ -332,8 +332,8 @@ def _rebake(context):
     bake = session.kept(context.scene).bake
     t = time.perf_counter()
     report = pipeline.bake(context, bake.settings, bake.resolution, lit=bake.lit, only=bake.only)
-    drawn = report.probes_recaptured if report.probes_recaptured is not None else report.grid["probes"]
-    return f"baked again in {1000 * (time.perf_counter() - t):.0f} ms: geometry moved, {drawn} of {report.grid['probes']} probes re-captured"
+    drawn = report.probes_recaptured if report.probes_recaptured is not None else report.grid.probes
+    return f"baked again in {1000 * (time.perf_counter() - t):.0f} ms: geometry moved, {drawn} of {report.grid.probes} probes re-captured"
 
 
 def stop():

@@ -19,7 +19,7 @@ from ..cubegi_engine.bake import bake_steps as engine_bake_steps
 from ..cubegi_engine.bake import run
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.records import LeftOut, LeftOutKind, Progress, Stage, plural
-from ..cubegi_engine.report import BakeReport
+from ..cubegi_engine.report import BakeReport, CaptureGeometryReport, GridReport, NearFieldReport, ReferenceReport
 from ..cubegi_engine.settings import BakeSettings
 from ..cubegi_engine.solve import area_weighted_mean
 from ..cubegi_engine.working import in_background
@@ -216,7 +216,7 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
 
     timings = dict(result.timings)
     # CubeGI's own time: everything but the Cycles reference.
-    total = time.perf_counter() - t0 - (reference_report["seconds"] if reference_report else 0.0)
+    total = time.perf_counter() - t0 - (reference_report.seconds if reference_report else 0.0)
     timings.update(collect=t_collect, gpu_setup=t_setup, write=t_write, total=total)
     names = list(layers_per_target[0] if layers_per_target else moving[0][1])
     return _report(settings, lit, grid, grid_source, collected, result, timings, reference_report, names)
@@ -301,9 +301,9 @@ def _report(settings, lit, grid, grid_source, collected, result, timings, refere
         rec.attribute = attributes.bounce_name(rec.bounce)
     return BakeReport(
         settings=settings.as_dict(lit=str(lit)),
-        grid={**grid_objects.grid_report(grid), "probes_inside_geometry": int((~result.probe_valid).sum()),
-              "probes_captured": int(result.capture.grid.count), "source": grid_source,
-              **_placement(result.placement)},
+        grid=GridReport.from_dict({**grid_objects.grid_report(grid), "probes_inside_geometry": int((~result.probe_valid).sum()),
+                                   "probes_captured": int(result.capture.grid.count), "source": grid_source,
+                                   **_placement(result.placement)}),
         points=len(arrays.points), triangles=len(arrays.triangles), lights=len(arrays.lights), sky=arrays.sky.tolist(),
         meshes_baked=[t.object_name for t in collected.targets], notes=collected.notes,
         direct_seconds=timings["direct"], direct_mean_light=area_weighted_mean(result.direct, areas).tolist(),
@@ -320,15 +320,13 @@ def _report(settings, lit, grid, grid_source, collected, result, timings, refere
 def _near_field(near):
     if near is None:
         return None
-    return {"points": near.count, "hits": len(near.hit_row), "pairs": near.pairs, "crowded": near.crowded,
-            "reach": near.reach, "seconds": near.seconds, "skipped": near.skipped}
+    return NearFieldReport(near.count, len(near.hit_row), near.pairs, near.crowded, near.reach, near.seconds, near.skipped)
 
 
 def _capture_geometry(proxy):
     if proxy is None:
         return None
-    return {"triangles": len(proxy.triangles), "of": proxy.source_triangles, "clusters": proxy.count,
-            "max_offset": proxy.max_offset()}
+    return CaptureGeometryReport(len(proxy.triangles), proxy.source_triangles, proxy.count, proxy.max_offset())
 
 
 def _placement(placement):
@@ -390,14 +388,7 @@ def _reference_report(targets, arrays, ours, theirs, samples, ref_seconds, cubeg
         stack(ours, attributes.DIRECT), stack(ours, attributes.INDIRECT),
         stack(theirs, attributes.REF_DIRECT), stack(theirs, attributes.REF_INDIRECT), areas,
     )
-    return {
-        "renderer": "cycles",
-        "samples": int(samples),
-        "seconds": ref_seconds,
-        "cubegi_seconds": cubegi_seconds,
-        "attributes": [attributes.REF_DIRECT, attributes.REF_INDIRECT],
-        "errors": errors,
-    }
+    return ReferenceReport(int(samples), ref_seconds, cubegi_seconds, [attributes.REF_DIRECT, attributes.REF_INDIRECT], errors)
 
 
 def write_all(targets, layers_per_target):

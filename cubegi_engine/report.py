@@ -6,18 +6,116 @@ The JSON layout (``to_dict``) is the report file's documented format (docs/repor
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 
 from . import __version__
 from .records import BounceRecord, LeftOut, TailReport
 
-__all__ = ["BakeReport"]
+__all__ = ["BakeReport", "GridReport", "ReferenceReport", "NearFieldReport", "CaptureGeometryReport"]
+
+
+def _known(cls, d: dict) -> dict:
+    """The entries of ``d`` that are fields of ``cls`` (a report of another version may hold more)."""
+    names = {f.name for f in fields(cls)}
+    return {k: v for k, v in d.items() if k in names}
+
+
+@dataclass(frozen=True)
+class GridReport:
+    """The probe grid: the first grid's ``resolution``, ``lo``, ``hi``; ``probes`` in all;
+    ``grids``: each grid's ``{"resolution", "lo", "hi", "probes"}``; how many probes sit
+    inside geometry, were captured, were moved out of geometry or left inside it; the
+    grid's ``source`` (the grid objects, or the automatic box)."""
+
+    resolution: list
+    lo: list
+    hi: list
+    probes: int
+    grids: list
+    probes_inside_geometry: int = 0
+    probes_captured: int | None = None
+    source: str = ""
+    probes_moved: int | None = None
+    probes_left_inside: int | None = None
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        return {k: v for k, v in d.items() if v is not None or k not in ("probes_moved", "probes_left_inside")}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "GridReport":
+        return cls(**_known(cls, d))
+
+
+@dataclass(frozen=True)
+class ReferenceReport:
+    """The Cycles reference: its ``samples`` and ``seconds``, CubeGI's ``cubegi_seconds``, the
+    ``attributes`` it wrote and ``errors`` (``metrics.compare``: per part, the error measures)."""
+
+    samples: int
+    seconds: float
+    cubegi_seconds: float
+    attributes: list
+    errors: dict
+    renderer: str = "cycles"
+
+    def to_dict(self) -> dict:
+        return {"renderer": self.renderer, "samples": self.samples, "seconds": self.seconds,
+                "cubegi_seconds": self.cubegi_seconds, "attributes": self.attributes, "errors": self.errors}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ReferenceReport":
+        return cls(**_known(cls, d))
+
+
+@dataclass(frozen=True)
+class NearFieldReport:
+    """The near field: the ``points`` that gathered, their ray ``hits``, the (point, triangle)
+    ``pairs`` tested, the ``crowded`` points left out, the rays' ``reach``, its ``seconds``, and
+    why it was ``skipped`` as a whole ("" where it was not)."""
+
+    points: int
+    hits: int
+    pairs: int
+    crowded: int
+    reach: float
+    seconds: float
+    skipped: str = ""
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "NearFieldReport":
+        return cls(**_known(cls, d))
+
+
+@dataclass(frozen=True)
+class CaptureGeometryReport:
+    """The probes' simplified geometry: the ``triangles`` they drew ``of`` the scene's, in
+    ``clusters``, none more than ``max_offset`` from where it is."""
+
+    triangles: int
+    of: int
+    clusters: int
+    max_offset: float
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "CaptureGeometryReport":
+        return cls(**_known(cls, d))
+
+
+def _part(cls, d):
+    return None if d is None else cls.from_dict(d)
 
 
 @dataclass
 class BakeReport:
     settings: dict
-    grid: dict  # resolution, lo, hi, probes, grids, probes_inside_geometry, probes_moved, probes_left_inside, source
+    grid: GridReport
     points: int
     triangles: int
     lights: int
@@ -33,14 +131,12 @@ class BakeReport:
     timings: dict
     attributes: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
-    reference: dict | None = None
+    reference: ReferenceReport | None = None
     capture_reused: bool = False
     probes_recaptured: int | None = None
     left_out: list = field(default_factory=list)  # LeftOut: what the bake left out, each with why
-    # The probes' simplified geometry: {"triangles", "of", "clusters", "max_offset"}, or None.
-    capture_geometry: dict | None = None
-    # The near field: {"points", "hits", "pairs", "crowded", "reach", "seconds", "skipped"}, or None (off).
-    near_field: dict | None = None
+    capture_geometry: CaptureGeometryReport | None = None  # None: the probes drew every triangle
+    near_field: NearFieldReport | None = None  # None: off
     input: str | None = None
     output: str | None = None
     version: str = __version__
@@ -59,7 +155,7 @@ class BakeReport:
         d = {
             "cubegi_version": self.version,
             "settings": self.settings,
-            "grid": self.grid,
+            "grid": self.grid.to_dict(),
             "scene": {
                 "points": self.points, "triangles": self.triangles, "lights": self.lights, "sky": self.sky,
                 "meshes_baked": self.meshes_baked, "notes": self.notes,
@@ -76,11 +172,11 @@ class BakeReport:
             "probes_recaptured": self.probes_recaptured,
             "left_out": [x.line() for x in self.left_out],
             "left_out_items": [x.to_dict() for x in self.left_out],
-            "capture_geometry": self.capture_geometry,
-            "near_field": self.near_field,
+            "capture_geometry": self.capture_geometry and self.capture_geometry.to_dict(),
+            "near_field": self.near_field and self.near_field.to_dict(),
             "timings": self.timings,
             "total_seconds": self.total_seconds,
-            "reference": self.reference,
+            "reference": self.reference and self.reference.to_dict(),
             "attributes": self.attributes,
             "warnings": self.warnings,
         }
@@ -98,15 +194,16 @@ class BakeReport:
         timings = dict(d.get("timings", {}))
         timings.setdefault("total", d.get("total_seconds", 0.0))
         return cls(
-            settings=d["settings"], grid=d["grid"], points=scene["points"], triangles=scene["triangles"],
+            settings=d["settings"], grid=GridReport.from_dict(d["grid"]), points=scene["points"], triangles=scene["triangles"],
             lights=scene["lights"], sky=scene["sky"], meshes_baked=scene["meshes_baked"], notes=scene["notes"],
             direct_seconds=direct["seconds"], direct_mean_light=direct["mean_light"],
             emitter_energy_factor=direct.get("emitter_energy_factor", [1.0, 1.0, 1.0]),
             bounces=[BounceRecord.from_dict(b) for b in d["bounces"]], indirect_mean_light=d["indirect"]["mean_light"],
             tail=TailReport.from_dict(d["tail"]), timings=timings, attributes=d.get("attributes", []),
-            warnings=d.get("warnings", []), reference=d.get("reference"), capture_reused=d.get("capture_reused", False),
+            warnings=d.get("warnings", []), reference=_part(ReferenceReport, d.get("reference")), capture_reused=d.get("capture_reused", False),
             probes_recaptured=d.get("probes_recaptured"), left_out=_left_out(d),
-            capture_geometry=d.get("capture_geometry"), near_field=d.get("near_field"),
+            capture_geometry=_part(CaptureGeometryReport, d.get("capture_geometry")),
+            near_field=_part(NearFieldReport, d.get("near_field")),
             input=d.get("input"), output=d.get("output"), version=d.get("cubegi_version", __version__),
         )
 
@@ -119,7 +216,7 @@ class BakeReport:
         reused = ", capture reused" if self.capture_reused else (
             f", {self.probes_recaptured} re-captured" if self.probes_recaptured is not None else "")
         lines = [
-            f"baked {len(self.meshes_baked)} meshes, {self.grid['probes']} probes{reused}, "
+            f"baked {len(self.meshes_baked)} meshes, {self.grid.probes} probes{reused}, "
             f"{len(self.bounces)} bounces in {self.total_seconds:.3f} s"
         ]
         for rec in self.bounces:
@@ -135,19 +232,19 @@ class BakeReport:
         lines.append(missing)
         ref = self.reference
         if ref:
-            lines.append(f"Cycles reference, {ref['samples']} samples: {ref['seconds']:.2f} s against CubeGI's {ref['cubegi_seconds']:.2f} s")
+            lines.append(f"Cycles reference, {ref.samples} samples: {ref.seconds:.2f} s against CubeGI's {ref.cubegi_seconds:.2f} s")
             for part in ("direct", "indirect", "total"):
-                e = ref["errors"][part]
+                e = ref.errors[part]
                 lines.append(
                     f"  {part:8s} rel. RMSE {100 * e['rel_rmse']:6.2f}%  bias {100 * e['rel_bias']:+6.2f}%  p95 {100 * e['p95_rel']:6.2f}%"
                 )
-        if self.grid.get("probes_moved"):
-            lines.append(f"probes: {self.grid['probes_moved']} found inside geometry were moved out of it, within their cells")
+        if self.grid.probes_moved:
+            lines.append(f"probes: {self.grid.probes_moved} found inside geometry were moved out of it, within their cells")
         near = self.near_field
-        if near and near.get("points"):
+        if near and near.points:
             lines.append(
-                f"near field: {near['points']:,} points gathered their surroundings within {near['reach']:.3g} by rays "
-                f"({near['hits']:,} hits, {near['seconds']:.2f} s)"
+                f"near field: {near.points:,} points gathered their surroundings within {near.reach:.3g} by rays "
+                f"({near.hits:,} hits, {near.seconds:.2f} s)"
             )
         lines += [f"left out: {x.line()}" for x in self.left_out]
         lines += [f"warning: {w}" for w in self.warnings]

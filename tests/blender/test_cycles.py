@@ -367,6 +367,6 @@ def test_the_reference_report_leaves_black_vertices_out(empty_scene, cubegi):
     black = np.concatenate([np.full(len(o.data.vertices), o.name == "Panel") for o in obs])
     kept = metrics.errors(ours[~black], theirs[~black], areas[~black])
     everything = metrics.errors(ours, theirs, areas)
-    got = report.reference["errors"]["indirect"]
+    got = report.reference.errors["indirect"]
     assert got["rel_rmse"] == pytest.approx(kept["rel_rmse"], rel=1e-6)
     assert everything["rel_rmse"] > got["rel_rmse"] + 0.01, (everything, got)

@@ -12,7 +12,7 @@ from cubegi.cubegi_engine.errors import BakeError
 from cubegi.cubegi_engine.field import ProbeField
 from cubegi.cubegi_engine.grid import ProbeGrid
 from cubegi.cubegi_engine.records import AnimationResult, BounceRecord, FrameRecord, LeftOut, LeftOutKind, Route, TailReport
-from cubegi.cubegi_engine.report import BakeReport
+from cubegi.cubegi_engine.report import BakeReport, GridReport, NearFieldReport, ReferenceReport
 from cubegi.cubegi_engine.scene import SceneArrays
 from cubegi.cubegi_engine.settings import MAX_BOUNCES, BakeSettings
 
@@ -88,11 +88,14 @@ def test_settings_name_what_is_out_of_range(kw, setting):
 def _report(**kw):
     rec = BounceRecord(1, 0.01, 0.005, 0.002, [0.1, 0.2, 0.3], 0.2, [0.5, 0.5, 0.5], 0.5, 0.25, [1.0, 1.0, 1.0], "CubeGI_bounce_1")
     fields = dict(
-        settings=BakeSettings().as_dict(lit="NONE"), grid={"probes": 8, "resolution": [2, 2, 2]}, points=10, triangles=12,
+        settings=BakeSettings().as_dict(lit="NONE"), grid=GridReport([2, 2, 2], [0.0] * 3, [1.0] * 3, 8, [], probes_moved=2), points=10, triangles=12,
         lights=1, sky=[0.0, 0.0, 0.0], meshes_baked=["Room"], notes=["a note"], direct_seconds=0.1,
         direct_mean_light=[1.0, 1.0, 1.0], emitter_energy_factor=[1.0, 1.0, 1.0], bounces=[rec],
         indirect_mean_light=[0.3, 0.3, 0.3], tail=TailReport(0.25, "geometric", True, mean_light=[0.1] * 3, share_of_indirect=0.2),
         timings={"total": 1.5},
+        near_field=NearFieldReport(5, 40, 60, 1, 0.25, 0.01),
+        reference=ReferenceReport(16, 2.0, 0.5, ["CubeGI_ref_direct"],
+                                  {part: {"rel_rmse": 0.1, "rel_bias": 0.0, "p95_rel": 0.2} for part in ("direct", "indirect", "total")}),
         left_out=[LeftOut(LeftOutKind.LIGHT, "Away: reaches no surface", names=("Away",)),
                   LeftOut(LeftOutKind.PROBES, "3 of 8 light no vertex", 3)],
     )
@@ -108,6 +111,9 @@ def test_the_report_round_trips_through_strict_json():
     d = json.loads(report.to_json())
     assert d["scene"]["meshes_baked"] == ["Room"] and d["bounces"][0]["attribute"] == "CubeGI_bounce_1"
     assert d["estimated_remaining_error"] == 0.25 and d["total_seconds"] == 1.5
+    assert d["grid"]["probes_moved"] == 2 and "probes_left_inside" not in d["grid"] and d["near_field"]["hits"] == 40
+    assert d["reference"]["renderer"] == "cycles" and d["capture_geometry"] is None
+    assert "probes: 2 found inside geometry were moved out of it, within their cells" in report.summary_lines()
     # What was left out: typed in the report, lines in its text and its JSON's "left_out".
     assert d["left_out"] == ["light Away: reaches no surface", "probes: 3 of 8 light no vertex"]
     assert d["left_out_items"][1] == {"kind": "probes", "count": 3, "names": [], "text": "3 of 8 light no vertex"}

@@ -27,7 +27,7 @@ import numpy as np
 
 from . import cubemap, nearfield, sh
 from .nearfield import NEAR_REACH
-from .visibility import Cover, probes_in_front, visibility_weights
+from .visibility import Cover, PointProbes, Probes, probes_in_front, visibility_weights
 
 # A covered point in the open (see Transport._light_under) casts rays this many cells long,
 # and is lit through the gap where at least this share of them meets what covers it.
@@ -197,8 +197,8 @@ class Transport:
         if scene.point_object is not None:
             cover = Cover.of(capture.tid.reshape(p, 6, n, n), triangles, scene.points if proxy is None else proxy.points,
                              self.triangle_object, scene.point_object)
-        seen, behind = visibility_weights(grid, positions, capture.dist.reshape(p, 6, n, n), self.probe_valid, scene.points,
-                                          scene.normals, index, weight, cover, both=True,
+        probes = Probes(positions, capture.dist.reshape(p, 6, n, n), self.probe_valid)
+        seen, behind = visibility_weights(grid, probes, PointProbes(scene.points, scene.normals, index, weight), cover, both=True,
                                           sheet=None if scene.sheets() is None else scene.sheets().point_sheet)
         alone = np.flatnonzero(~seen.any(axis=1) & behind.any(axis=1))
         return seen, ((alone, behind[alone]) if len(alone) else None)

@@ -12,7 +12,48 @@ import numpy as np
 from . import cubemap
 from .geometry import POINT_CHUNK, chunks, cut_planes, edge_neighbours, triangle_planes
 
-__all__ = ["visibility_weights", "probes_in_front", "Cover", "BEHIND"]
+__all__ = ["visibility_weights", "probes_in_front", "Cover", "Probes", "PointProbes", "BEHIND"]
+
+
+@dataclass(frozen=True)
+class Probes:
+    """The probes as captured: ``positions (p, 3)``, ``dist (p, 6, n, n)`` each texel's
+    distance to the first surface (inf where the probe sees sky), ``valid (p,)`` bool."""
+
+    positions: np.ndarray
+    dist: np.ndarray
+    valid: np.ndarray
+
+
+@dataclass(frozen=True)
+class PointProbes:
+    """Points (``points``, ``normals`` ``(s, 3)``) with their 8 probes and trilinear weights
+    (``index``, ``weight`` ``(s, 8)``: :meth:`ProbeGrid.trilinear`)."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    index: np.ndarray
+    weight: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def __getitem__(self, which) -> "PointProbes":
+        return PointProbes(self.points[which], self.normals[which], self.index[which], self.weight[which])
+
+
+@dataclass(frozen=True)
+class _Texels:
+    """Each (point, probe) pair's texel towards the point: ``face``, ``row``, ``col`` ``(s, 8)``
+    on cube faces of edge ``n``."""
+
+    face: np.ndarray
+    row: np.ndarray
+    col: np.ndarray
+    n: int
+
+    def __getitem__(self, which) -> "_Texels":
+        return _Texels(self.face[which], self.row[which], self.col[which], self.n)
 
 
 # How far behind a point's tangent plane (in cells) a probe may stand and still light it.
@@ -27,8 +68,7 @@ def probes_in_front(probe_pos, probe_valid, points, normals, index, weight):
     return w / np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
 
 
-def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals, index, weight, cover=None, both=False,
-                       sheet=None):
+def visibility_weights(grid, probes: Probes, at: PointProbes, cover=None, both=False, sheet=None):
     """Trilinear weights with probes that cannot see a point, or are invalid, left out.
 
     A probe is kept for a point if the point, lifted off its surface along the normal by a
@@ -42,9 +82,8 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     lowest probes: the near field lights it). With ``both``, also the weights where such a
     point keeps the probes behind its plane that see it: ``(weights, kept behind)``.
 
-    probe_pos: ``(p, 3)``; probe_dist: ``(p, 6, n, n)`` distance to the first surface (inf
-    where the probe sees sky); probe_valid: ``(p,)`` bool; points, normals: ``(s, 3)``;
-    index, weight: ``(s, 8)`` from :meth:`ProbeGrid.trilinear`. Returns new weights ``(s, 8)``.
+    ``probes``: the probes as captured; ``at``: the points and their probes. Returns new
+    weights ``(s, 8)``.
 
     ``cover`` (a :class:`Cover` of the triangles the probes drew) adds a
     test the depth map's tolerance is too coarse for: a triangle of another object (or of
@@ -55,34 +94,33 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     gets no probe light, instead of falling back to its plain weights. ``sheet``: ``(s,)``
     bool, points of two-sided sheets, which only probes in front of their plane light.
     """
-    if len(points) > POINT_CHUNK:
-        parts = [visibility_weights(grid, probe_pos, probe_dist, probe_valid, points[sl], normals[sl], index[sl], weight[sl],
-                                    None if cover is None else cover.rows(sl), both, None if sheet is None else sheet[sl])
-                 for sl in chunks(len(points))]
+    if len(at) > POINT_CHUNK:
+        parts = [visibility_weights(grid, probes, at[sl], None if cover is None else cover.rows(sl), both,
+                                    None if sheet is None else sheet[sl])
+                 for sl in chunks(len(at))]
         if both:
             return tuple(np.concatenate(p) for p in zip(*parts))
         return np.concatenate(parts)
-    n = probe_dist.shape[-1]
+    points, normals, index, weight = at.points, at.normals, at.index, at.weight
     cell = grid.point_cell_edge(points)[:, None]  # (s, 1)
-    visible, face, row, col = _depth_test(probe_pos, probe_dist, points, normals, index, cell)
-    eyes = probe_pos[index]
+    visible, texels = _depth_test(probes, at, cell)
+    eyes = probes.positions[index]
     # How far each probe stands in front of the point's tangent plane.
     height = np.einsum("skc,sc->sk", eyes - points[:, None, :], normals)
     if sheet is not None:
         # A point of a two-sided sheet: a probe behind its plane is on the sheet's other side,
         # whose own twin point it lights (the depth test cannot tell the two apart).
         visible &= ~sheet[:, None] | (height > 0)
-    valid = probe_valid[index]
+    valid = probes.valid[index]
     covered = np.zeros_like(visible)
     if cover is not None:
         # The pairs that light the point are asked first; a point that none of them lights
         # after that is dark if any other probe's ray to it is covered too (see ``dark``).
         ask = visible & valid & (weight > 0)
-        covered = _covered(cover, eyes, points, normals, index, face, row, col, n, cell, ask)
+        covered = _covered(cover, at, eyes, texels, cell, ask)
         unlit = np.flatnonzero((weight * (ask & ~covered)).sum(axis=1) <= 1e-9)
         if len(unlit):
-            covered[unlit] |= _covered(cover.rows(unlit), eyes[unlit], points[unlit], normals[unlit], index[unlit],
-                                      face[unlit], row[unlit], col[unlit], n, cell[unlit], ~ask[unlit])
+            covered[unlit] |= _covered(cover.rows(unlit), at[unlit], eyes[unlit], texels[unlit], cell[unlit], ~ask[unlit])
         visible &= ~covered
     # A probe more than BEHIND cells behind the point's tangent plane sees its hemisphere from
     # the far side: at a convex edge nothing hides it.
@@ -92,7 +130,7 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     # A point no probe sees takes the valid probes in front of its surface (a vertex in a
     # corner too tight for the grid); none behind it (the outer face of a wall, whose probes
     # are all inside the room: their light would leak out).
-    fallback = probes_in_front(probe_pos, probe_valid, points, normals, index, weight)
+    fallback = probes_in_front(probes.positions, probes.valid, points, normals, index, weight)
     dark = (seen_by.sum(axis=1) <= 1e-9) & covered.any(axis=1)  # no probe, on either side, sees it
 
     def settled(fallback):
@@ -106,20 +144,21 @@ def visibility_weights(grid, probe_pos, probe_dist, probe_valid, points, normals
     return settled(fallback), settled(np.where(fallback.sum(axis=1, keepdims=True) > 1e-9, fallback, seen_by))
 
 
-def _depth_test(probe_pos, probe_dist, points, normals, index, cell):
-    """The shadow-map test of :func:`visibility_weights`: ``(visible (s, 8) bool, face, row,
-    col (s, 8))``, whether each point lifted off its surface by a tenth of its cell edge
-    ``cell (s, 1)`` is no farther from its probe than the first surface that probe's texel
-    towards it records, and that texel."""
+def _depth_test(probes: Probes, at: PointProbes, cell):
+    """The shadow-map test of :func:`visibility_weights`: ``(visible (s, 8) bool, texels)``,
+    whether each point lifted off its surface by a tenth of its cell edge ``cell (s, 1)`` is
+    no farther from its probe than the first surface that probe's texel towards it records,
+    and that texel."""
+    probe_dist, index = probes.dist, at.index
     n = probe_dist.shape[-1]
-    q = points[:, None, :] + 0.1 * cell[..., None] * normals[:, None, :]  # (s, 1, 3)
-    v = q - probe_pos[index]  # (s, 8, 3)
+    q = at.points[:, None, :] + 0.1 * cell[..., None] * at.normals[:, None, :]  # (s, 1, 3)
+    v = q - probes.positions[index]  # (s, 8, 3)
     dist = np.linalg.norm(v, axis=-1)
     face, row, col, _, _ = cubemap.direction_to_texel(np.where(dist[..., None] > 0, v, 1.0), n)
     seen = probe_dist[index, face, row, col]
     # Tolerance: two texels' worth of angle at that distance plus a hundredth of a cell.
     tol = dist * (4.0 / n) + 0.01 * cell
-    return dist <= seen + tol, face, row, col
+    return dist <= seen + tol, _Texels(face, row, col, n)
 
 
 # How many edges away from a seen triangle the cover test looks for the one the ray crosses,
@@ -157,7 +196,7 @@ def _blocks(cover, tid, point_object, normals):
     return (cover.triangle_object[safe] != point_object) | facing_away
 
 
-def _covered(cover, eyes, points, normals, index, face, row, col, n, cell, ask):
+def _covered(cover, at: PointProbes, eyes, texels: _Texels, cell, ask):
     """``(s, 8)``: another object's triangle lies between each probe and point (see above),
     for the pairs ``ask (s, 8)`` (False elsewhere).
 
@@ -168,6 +207,8 @@ def _covered(cover, eyes, points, normals, index, face, row, col, n, cell, ask):
     triangle it really crosses, near a rug's edge; a cut near but outside the other object
     must not count, or the floor around a rug would go dark.)
     """
+    points, normals, index = at.points, at.normals, at.index
+    face, row, col, n = texels.face, texels.row, texels.col, texels.n
     q = points[:, None, :] + 1e-3 * cell[..., None] * normals[:, None, :]
     ray = q - eyes
     d = np.linalg.norm(ray, axis=-1)

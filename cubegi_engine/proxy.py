@@ -217,7 +217,7 @@ def _cluster(prep, cell):
     count = np.bincount(cluster, minlength=c).astype(np.float64)
     share = np.where(weight[cluster] > 0, point_areas / np.maximum(weight[cluster], 1e-300), 1.0 / count[cluster])
     centres = np.stack([np.bincount(cluster, points[:, a] * share, minlength=c) for a in range(3)], axis=1)
-    centres = _place(centres, points, normals, point_areas, cells, away, cluster, ijk, h, rel, whole)
+    centres = _place(prep, _Clusters(cells, away, cluster, ijk, h, whole), centres)
     mapped = cluster[tris]
     ok = (mapped[:, 0] != mapped[:, 1]) & (mapped[:, 1] != mapped[:, 2]) & (mapped[:, 0] != mapped[:, 2])
     # A triangle that turned over when its corners moved to their clusters' centres would
@@ -292,13 +292,30 @@ def _contact(prep, cell, ijk):
 QUADRIC_RANK_SHARE = 1e-3
 
 
-def _place(mean, points, normals, areas, cells, away, cluster, ijk, h, rel, whole):
-    """Each cluster's position: the point nearest (least squares) to the planes of the
+@dataclass(frozen=True)
+class _Clusters:
+    """How one clustering round grouped the points, each ``(s,)`` (``ijk``: ``(s, 3)``): its
+    ``cells`` (one per object and grid cell), the points that face ``away`` from their cell's
+    largest point, each point's ``cluster``, its cell's grid index ``ijk`` and edge ``h``,
+    and the points kept ``whole`` (their own clusters)."""
+
+    cells: np.ndarray
+    away: np.ndarray
+    cluster: np.ndarray
+    ijk: np.ndarray
+    h: np.ndarray
+    whole: np.ndarray
+
+
+def _place(prep, clusters: _Clusters, mean):
+    """Each cluster's position (``mean (c, 3)``: its points' area-weighted mean): the point nearest (least squares) to the planes of the
     cell's points that do not face away from it (its own, and a perpendicular neighbour's: a
     wall's bottom face, a floor), nearest the mean where they leave it free, kept inside
     its cell. So a cluster at a wall's foot sits on the edge where the wall meets its
     bottom, as in the scene: nothing lifts off the floor (no slit under a wall), and a
     cluster on a flat patch stays in its plane (Lindstrom's vertex clustering with quadrics)."""
+    points, normals, areas, rel = prep.points, prep.normals, prep.areas, prep.rel
+    cells, away, cluster, ijk, h, whole = clusters.cells, clusters.away, clusters.cluster, clusters.ijk, clusters.h, clusters.whole
     c = len(mean)
     ref = np.empty(c, dtype=np.int64)  # each cluster's largest point
     order = np.lexsort((areas, cluster))

@@ -4,10 +4,14 @@ placement (:mod:`cubegi_engine.placement`). Pure numpy; must not import bpy."""
 
 import numpy as np
 
+from .geometry import chunks
+
 __all__ = ["VoxelIndex", "intersect_pairs", "over_triangles", "SLACK", "COORD_SLACK", "BARY_SLACK", "MAX_NEARBY"]
 
-# Points whose candidates are found at a time, and (pair, ray) tests at a time.
-POINT_CHUNK = 4096
+# Points whose candidate voxels are listed at a time (27 voxels and their triangles each:
+# smaller than geometry.POINT_CHUNK, which holds a few arrays per point), and (pair, ray)
+# tests at a time.
+VOXEL_CHUNK = 4096
 TEST_CHUNK = 1 << 21
 # A point with more triangles than this listed in the voxels around it is left out as
 # crowded (dense, folded geometry), before its pairs are made.
@@ -150,8 +154,8 @@ class VoxelIndex:
         last = np.floor((hi - self.origin) / self.h).astype(np.int64)
         offsets = np.array([[i >> 0 & 1, i >> 1 & 1, i >> 2 & 1] for i in range(8)], dtype=np.int64)
         out_p, out_t = [], []
-        for at in range(0, len(starts), POINT_CHUNK):
-            sl = slice(at, at + POINT_CHUNK)
+        for sl in chunks(len(starts), VOXEL_CHUNK):
+            at = sl.start
             idx = first[sl, None, :] + offsets[None]  # (m, 8, 3)
             use = np.all(idx <= last[sl, None, :], axis=2)
             key = np.where(use, self._key(idx[..., 0], idx[..., 1], idx[..., 2]), -1)
@@ -177,8 +181,8 @@ class VoxelIndex:
         crowded = np.zeros(len(points), dtype=bool)
         offsets = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
         out_p, out_t = [], []
-        for lo in range(0, len(points), POINT_CHUNK):
-            sl = slice(lo, lo + POINT_CHUNK)
+        for sl in chunks(len(points), VOXEL_CHUNK):
+            lo = sl.start
             idx = base[sl, None, :] + offsets[None]  # (m, 27, 3)
             # Only the voxels within reach with a part in front of the point's tangent plane.
             rel = self.origin + (idx + 0.5) * self.h - points[sl, None, :]
@@ -195,7 +199,7 @@ class VoxelIndex:
             # Points with more triangles than MAX_NEARBY listed around them are left out
             # before their pairs are made (dense, folded geometry).
             many = np.bincount(pt, count, minlength=len(idx)) > MAX_NEARBY
-            crowded[lo : lo + POINT_CHUNK] = many
+            crowded[sl] = many
             pp, tt = self._listed(pt[~many[pt]], slot[~many[pt]])
             pp += lo
             # Cheapest tests first: the boxes, then the plane, then a corner in front.

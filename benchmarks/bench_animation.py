@@ -47,8 +47,8 @@ def main():
     from tools import load_extension
 
     load_extension()
+    from benchmarks import analysis
     from cubegi.cubegi_addon import animation, attributes, pipeline, reference, scene_data, session
-    from cubegi.cubegi_engine import benchmark as analysis
     from cubegi.cubegi_engine import metrics
     from cubegi.cubegi_engine.bake import run
     from cubegi.cubegi_engine.settings import BakeSettings

@@ -52,7 +52,7 @@ def main():
 
     t_full, rep = best(full, args.repeat)
     t = time.perf_counter()
-    live.state_of(bpy.context).light  # noqa: B018 - builds the operator, once per capture
+    live.state_of(bpy.context).live.light  # noqa: B018 - builds the operator, once per capture
     t_build = time.perf_counter() - t
     lamp = bpy.data.lights["Lamp A"]
 

@@ -1,9 +1,11 @@
-"""Rays against the triangles a cube-map texel saw, and points near triangles. Pure numpy;
-must not import bpy."""
+"""Rays against triangles (the one kernel, :func:`ray_cut`: the shadow maps' and the probes'
+cover tests, the near field's and the placement's rays), and points near triangles. Pure
+numpy; must not import bpy."""
 
 import numpy as np
 
-__all__ = ["triangle_planes", "cut_planes", "cut_triangles", "near_any_triangle", "edge_neighbours", "chunks", "POINT_CHUNK"]
+__all__ = ["triangle_planes", "planes_of", "ray_cut", "cut_planes", "cut_triangles", "near_any_triangle", "edge_neighbours",
+           "chunks", "POINT_CHUNK", "GRAZING"]
 
 # Per-point tests that make several (s, 9, 3) float64 arrays run this many points at a time:
 # a million points then need tens of megabytes, not gigabytes, and stay in cache.
@@ -15,14 +17,28 @@ def chunks(count, size=POINT_CHUNK):
     return [slice(start, start + size) for start in range(0, count, size)]
 
 
+# The one ray-triangle kernel (:func:`ray_cut`) and its tolerances. A test that compares a
+# cut's distance with a depth map's (the shadow maps, the probes' cover test) takes no cut
+# within GRAZING (a cosine: 0.06 degrees) of a triangle's plane, whose distance along the ray
+# is ill-conditioned: the map's own depth decides there. A ray that only asks whether it
+# meets a triangle within its reach (the near field's, the placement's: spatial.py) takes
+# every cut of a triangle of some area (grazing 0), and counts a cut within BARY_SLACK
+# outside the triangle's edges; the shadow and cover tests take the exact triangle.
+GRAZING = 1e-3
+
+
 def triangle_planes(triangles, vertices):
-    """``(t, 4, 3)``: per triangle its first corner ``a``, its unit normal, and the gradients
-    ``g1, g2`` of its barycentric coordinates: a point ``x`` of its plane has the weights
-    ``(x - a) . g1`` of its second corner and ``(x - a) . g2`` of its third. All zero but
-    ``a`` for a triangle of no area."""
+    """:func:`planes_of` the triangles ``(t, 3)`` (indices into ``vertices``)."""
     tri = np.asarray(triangles).reshape(-1, 3)
-    a = vertices[tri[:, 0]]
-    e1, e2 = vertices[tri[:, 1]] - a, vertices[tri[:, 2]] - a
+    return planes_of(vertices[tri[:, 0]], vertices[tri[:, 1]], vertices[tri[:, 2]])
+
+
+def planes_of(a, b, c):
+    """``(t, 4, 3)``: per triangle of corners ``a, b, c`` (each ``(t, 3)``) its first corner
+    ``a``, its unit normal, and the gradients ``g1, g2`` of its barycentric coordinates: a
+    point ``x`` of its plane has the weights ``(x - a) . g1`` of its second corner and
+    ``(x - a) . g2`` of its third. All zero but ``a`` for a triangle of no area."""
+    e1, e2 = b - a, c - a
     n = np.cross(e1, e2)
     area2 = np.einsum("tc,tc->t", n, n)
     inv = np.divide(1.0, area2, out=np.zeros_like(area2), where=area2 > 0)[:, None]
@@ -48,17 +64,27 @@ def cut_triangles(origins, u, tid, triangles, vertices):
     return _cut(origins, u, tid, planes)
 
 
-def _cut(origins, u, tid, planes):
+def ray_cut(origins, u, planes, present=True, grazing=GRAZING):
+    """The one ray-triangle kernel: where rays ``origins + t u`` (``(..., 3)``, ``u`` unit)
+    cut the planes of their triangles (:func:`planes_of`, ``(..., 4, 3)``). Returns ``(t,
+    b, c, ok, front)``: the distance along each ray (nan where not ``ok``), the barycentric
+    weights of the cut's second and third corners, whether the ray cuts the plane at all
+    (a triangle ``present``, of some area, not within ``grazing`` of parallel: see
+    :data:`GRAZING`), and whether it meets the triangle's front."""
     a, n, g1, g2 = planes[..., 0, :], planes[..., 1, :], planes[..., 2, :], planes[..., 3, :]
     denom = np.einsum("...c,...c->...", u, n)
-    ok = (tid >= 0) & (np.abs(denom) > 1e-3)
+    ok = present & (np.abs(denom) > grazing)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.einsum("...c,...c->...", a - origins, n) / np.where(ok, denom, 1.0)
         x = origins + t[..., None] * u - a
         b = np.einsum("...c,...c->...", x, g1)
         c = np.einsum("...c,...c->...", x, g2)
-    inside = ok & (b >= 0) & (c >= 0) & (b + c <= 1)
-    return np.where(ok, t, np.nan), inside
+    return np.where(ok, t, np.nan), b, c, ok, denom < 0
+
+
+def _cut(origins, u, tid, planes):
+    t, b, c, ok, _ = ray_cut(origins, u, planes, tid >= 0)
+    return t, ok & (b >= 0) & (c >= 0) & (b + c <= 1)
 
 
 def near_any_triangle(centres, radius, a, b, c, tiles=8, centre_normals=None, across=None):

@@ -24,6 +24,7 @@ from .capture import ProbeCapture
 from .direct import DirectLight, direct_light_steps
 from .errors import BakeError
 from .field import ProbeField
+from .geometry import chunks
 from .grid import ProbeSubset, probes_used
 from .placement import Placement, place
 from .proxy import simplify
@@ -104,6 +105,10 @@ class BakeResult:
 # back-face flag), the gather tables (corners, weights) and the gather's temporaries.
 BYTES_PER_TEXEL = 80
 BYTES_PER_POINT = 8 * 8 * 9 * 4 + 400  # interpolation weights and per-point arrays
+
+
+# Probes whose distances to every object are taken at a time (small-object test).
+PROBES_AT_ONCE = 256
 
 
 def memory_estimate(probes, cube_size, points) -> int:
@@ -261,8 +266,8 @@ def small_objects(points, triangles, triangle_object, probes, cube_size) -> np.n
     radius = np.where(used, 0.5 * np.linalg.norm(np.where(used[:, None], hi - lo, 0.0), axis=1), 0.0)
     probes = np.asarray(probes, dtype=np.float64)
     nearest = np.full(count, np.inf)
-    for first in range(0, len(probes), 256):  # (objects, 256) distances at a time
-        d = np.linalg.norm(centre[:, None, :] - probes[None, first : first + 256], axis=2)
+    for sl in chunks(len(probes), PROBES_AT_ONCE):  # (objects, PROBES_AT_ONCE) distances at a time
+        d = np.linalg.norm(centre[:, None, :] - probes[None, sl], axis=2)
         nearest = np.minimum(nearest, d.min(axis=1))
     gap = nearest - radius
     texel = 2.0 / float(cube_size)  # radians subtended by a texel at a face's centre

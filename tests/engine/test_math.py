@@ -383,3 +383,36 @@ def test_a_subdivided_emitter_sends_what_its_triangles_send_one_by_one():
     other = emitters._flat_groups(tri_verts, np.ones((len(tri_verts), 3)) * (np.arange(len(tri_verts)) % 2)[:, None] + 1,
                                   np.zeros(len(tri_verts), int), 2.0)
     assert sorted(len(g) for g in other) == [n * n, n * n]  # two radiances: two groups
+
+
+def test_the_one_ray_kernel_cuts_as_moller_trumbore_and_leaves_grazing_rays_to_its_caller():
+    """geometry.ray_cut against an independent Moller-Trumbore: the same distance and
+    barycentrics wherever the ray is not within GRAZING of the plane, the front told from
+    the back, and a triangle of no area never cut."""
+    from cubegi.cubegi_engine.geometry import GRAZING, planes_of, ray_cut
+
+    rng = np.random.default_rng(7)
+    m = 2000
+    a, b, c = (rng.normal(size=(m, 3)) for _ in range(3))
+    o = rng.normal(size=(m, 3)) * 3.0
+    d = rng.normal(size=(m, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t, u, v, ok, front = ray_cut(o, d, planes_of(a, b, c))
+    e1, e2 = b - a, c - a
+    p = np.cross(d, e2)
+    det = np.einsum("ij,ij->i", e1, p)
+    s = o - a
+    q = np.cross(s, e1)
+    mt_u, mt_v, mt_t = np.einsum("ij,ij->i", s, p) / det, np.einsum("ij,ij->i", d, q) / det, np.einsum("ij,ij->i", e2, q) / det
+    cos = np.abs(det) / np.linalg.norm(np.cross(e1, e2), axis=1)
+    assert np.array_equal(ok, cos > GRAZING) and ok.sum() > 0.99 * m
+    np.testing.assert_allclose(t[ok], mt_t[ok], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(np.stack([u, v])[:, ok], np.stack([mt_u, mt_v])[:, ok], rtol=1e-8, atol=1e-8)
+    assert np.array_equal(front[ok], (det > 0)[ok]) and np.isnan(t[~ok]).all()  # det = -d . (e1 x e2)
+    # A ray along the plane is left to the caller's tolerance; a degenerate triangle is never cut.
+    flat = planes_of(np.zeros((1, 3)), np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
+    along = np.array([[1.0, np.sqrt(1 - 1e-8), 1e-4]]) / np.linalg.norm([1.0, np.sqrt(1 - 1e-8), 1e-4])
+    assert not ray_cut(np.array([[0.2, 0.2, -1e-5]]), along, flat)[3][0]
+    assert ray_cut(np.array([[0.2, 0.2, -1e-5]]), along, flat, grazing=0.0)[3][0]
+    line = planes_of(np.zeros((1, 3)), np.array([[1.0, 0, 0]]), np.array([[2.0, 0, 0]]))
+    assert not ray_cut(np.array([[0.5, 0, -1.0]]), np.array([[0.0, 0, 1.0]]), line, grazing=0.0)[3][0]

@@ -198,8 +198,9 @@ class Transport:
             cover = Cover.of(capture.tid.reshape(p, 6, n, n), triangles, scene.points if proxy is None else proxy.points,
                              self.triangle_object, scene.point_object)
         probes = Probes(positions, capture.dist.reshape(p, 6, n, n), self.probe_valid)
-        seen, behind = visibility_weights(grid, probes, PointProbes(scene.points, scene.normals, index, weight), cover, both=True,
-                                          sheet=None if scene.sheets() is None else scene.sheets().point_sheet)
+        lit_by = visibility_weights(grid, probes, PointProbes(scene.points, scene.normals, index, weight), cover, both=True,
+                                    sheet=None if scene.sheets() is None else scene.sheets().point_sheet)
+        seen, behind = lit_by.weights, lit_by.behind
         alone = np.flatnonzero(~seen.any(axis=1) & behind.any(axis=1))
         return seen, ((alone, behind[alone]) if len(alone) else None)
 

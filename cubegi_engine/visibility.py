@@ -12,7 +12,7 @@ import numpy as np
 from . import cubemap
 from .geometry import POINT_CHUNK, chunks, cut_planes, edge_neighbours, triangle_planes
 
-__all__ = ["visibility_weights", "probes_in_front", "Cover", "Probes", "PointProbes", "BEHIND"]
+__all__ = ["visibility_weights", "probes_in_front", "Cover", "Probes", "PointProbes", "ProbeWeights", "BEHIND"]
 
 
 @dataclass(frozen=True)
@@ -43,6 +43,17 @@ class PointProbes:
 
 
 @dataclass(frozen=True)
+class ProbeWeights:
+    """Which probes light each point, and how much: ``weights (s, 8)`` over its 8 probes
+    (normalised; zeros where none does); ``behind (s, 8)``, where asked for: the weights
+    with which a point that no probe in front of it sees keeps the probes behind its plane
+    that see it (else as ``weights``)."""
+
+    weights: np.ndarray
+    behind: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
 class _Texels:
     """Each (point, probe) pair's texel towards the point: ``face``, ``row``, ``col`` ``(s, 8)``
     on cube faces of edge ``n``."""
@@ -68,7 +79,7 @@ def probes_in_front(probe_pos, probe_valid, points, normals, index, weight):
     return w / np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
 
 
-def visibility_weights(grid, probes: Probes, at: PointProbes, cover=None, both=False, sheet=None):
+def visibility_weights(grid, probes: Probes, at: PointProbes, cover=None, both=False, sheet=None) -> ProbeWeights:
     """Trilinear weights with probes that cannot see a point, or are invalid, left out.
 
     A probe is kept for a point if the point, lifted off its surface along the normal by a
@@ -80,10 +91,10 @@ def visibility_weights(grid, probes: Probes, at: PointProbes, cover=None, both=F
     point is left out, the point keeps its plain trilinear weights over the valid probes in
     front of its surface; with none, it gets no probe light (a block's underside below the
     lowest probes: the near field lights it). With ``both``, also the weights where such a
-    point keeps the probes behind its plane that see it: ``(weights, kept behind)``.
+    point keeps the probes behind its plane that see it (:attr:`ProbeWeights.behind`).
 
-    ``probes``: the probes as captured; ``at``: the points and their probes. Returns new
-    weights ``(s, 8)``.
+    ``probes``: the probes as captured; ``at``: the points and their probes. Returns a
+    :class:`ProbeWeights`.
 
     ``cover`` (a :class:`Cover` of the triangles the probes drew) adds a
     test the depth map's tolerance is too coarse for: a triangle of another object (or of
@@ -98,9 +109,8 @@ def visibility_weights(grid, probes: Probes, at: PointProbes, cover=None, both=F
         parts = [visibility_weights(grid, probes, at[sl], None if cover is None else cover.rows(sl), both,
                                     None if sheet is None else sheet[sl])
                  for sl in chunks(len(at))]
-        if both:
-            return tuple(np.concatenate(p) for p in zip(*parts))
-        return np.concatenate(parts)
+        weights = np.concatenate([p.weights for p in parts])
+        return ProbeWeights(weights, np.concatenate([p.behind for p in parts]) if both else None)
     points, normals, index, weight = at.points, at.normals, at.index, at.weight
     cell = grid.point_cell_edge(points)[:, None]  # (s, 1)
     visible, texels = _depth_test(probes, at, cell)
@@ -140,8 +150,8 @@ def visibility_weights(grid, probes: Probes, at: PointProbes, cover=None, both=F
         return out
 
     if not both:
-        return settled(fallback)
-    return settled(fallback), settled(np.where(fallback.sum(axis=1, keepdims=True) > 1e-9, fallback, seen_by))
+        return ProbeWeights(settled(fallback))
+    return ProbeWeights(settled(fallback), settled(np.where(fallback.sum(axis=1, keepdims=True) > 1e-9, fallback, seen_by)))
 
 
 def _depth_test(probes: Probes, at: PointProbes, cell):

@@ -145,13 +145,14 @@ def test_probes_behind_a_points_plane_light_it_only_where_no_probe_in_front_can(
     dist = np.full((8, 6, 4, 4), np.inf)
     valid = np.ones(8, dtype=bool)
     probes, at = visibility.Probes(pos, dist, valid), visibility.PointProbes(pts, nrm, index, weight)
-    w = visibility.visibility_weights(g, probes, at)
+    w = visibility.visibility_weights(g, probes, at).weights
     above = pos[index][..., 2] > 1.0
     right = pos[index][..., 0] > 1.0
     np.testing.assert_allclose(w[0], np.where(above[0], 0.25, 0.0))
     assert not w[1].any()  # all eight stand more than a tenth of a cell below its plane
     np.testing.assert_allclose(w[2], np.where(right[2], 0.25, 0.0))
-    strict, kept = visibility.visibility_weights(g, probes, at, both=True)
+    both = visibility.visibility_weights(g, probes, at, both=True)
+    strict, kept = both.weights, both.behind
     np.testing.assert_array_equal(strict, w)
     np.testing.assert_allclose(kept[1], weight[1])
     np.testing.assert_allclose(kept[[0, 2]], w[[0, 2]])

@@ -20,7 +20,7 @@ def write_moving(kept):
     for (obj, target), mesh in zip(live.moving, session.target_meshes([t for _, t in live.moving])):
         if mesh is None:
             continue
-        for name, values in moving_layers(obj, target, live.field, live.lights, bake.result.shadows, bake.settings,
+        for name, values in moving_layers(obj, target, live.field, live.lights, live.shadows or {}, bake.settings,
                                           bake.lit).items():
             attributes.put(mesh, name, values)
         mesh.update()

@@ -63,7 +63,8 @@ def _scene_light(kept):
     """The kept bake's SceneLight, per source, made from the bake on first use."""
     bake, live = kept.bake, kept.live
     if live.light is None:
-        live.light = relight.solved_light(bake.result, bake.arrays, bake.settings, lambda: _renderer(kept), bool(live.moving))
+        live.light = relight.solved_light(bake.result, bake.arrays, bake.settings, lambda: _renderer(kept),
+                                          live.shadows if live.moving else None)
     return live.light
 
 

@@ -176,8 +176,9 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
                                                                          working=True))
     yield Progress(Stage.TAIL, total, total, "the light of every mesh is ready", working=True)
     state = None
+    shadows = dict(result.shadows)  # the live state's copy: later edits redraw into it, never into the bake's
     if groups is not None:  # each group's light: the bake's, per source (kept for updates too)
-        state = relight.solved_light(result, arrays, settings, lambda: renderer, bool(collected.moving))
+        state = relight.solved_light(result, arrays, settings, lambda: renderer, shadows if collected.moving else None)
         per_group = light_groups.layers(state, groups, result.direct + result.indirect)
         for target, layers in zip(collected.targets, layers_per_target):
             layers.update((attributes.group_name(g), attributes.vertex_values(target, v)) for g, v in per_group.items())
@@ -211,7 +212,7 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
         shapes=scene_data.static_shapes(context.view_layer, context.evaluated_depsgraph_get()),
         bake_id=context.scene.cubegi.bake_id, resolution=resolution, only=None if only is None else frozenset(only))
     session.keep(context.scene, session.Kept(snapshot, session.LiveState.of(
-        snapshot, collected.moving, groups, light=state, renderer=renderer if state is not None else None)))
+        snapshot, collected.moving, groups, light=state, renderer=renderer if state is not None else None, shadows=shadows)))
     t_write = t_layers + time.perf_counter() - t
 
     timings = dict(result.timings)

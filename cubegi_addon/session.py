@@ -57,7 +57,9 @@ class BakeSnapshot:
 class LiveState:
     """The light now, as updates left it (:mod:`.live`), on a :class:`BakeSnapshot`:
     ``lights``, ``sky``, ``albedo``, ``emission`` (what the light was last made with),
-    ``field`` (the probe field now), ``moving`` (``[(SceneArrays, MeshTarget)]`` of the
+    ``field`` (the probe field now), ``shadows`` (the shadow maps now, by
+    ``Light.shadow_key``, for dynamic objects: a copy of the bake's, redrawn lights
+    replaced), ``moving`` (``[(SceneArrays, MeshTarget)]`` of the
     dynamic objects as last lit), ``groups`` (the view layer's LightGroups, or None: no group
     layers); made on first use: ``light`` (the engine's SceneLight, per source) and
     ``renderer`` (for shadow maps). ``unsettled``: an instant update left the balance and
@@ -68,6 +70,7 @@ class LiveState:
     albedo: np.ndarray
     emission: np.ndarray
     field: Any
+    shadows: dict | None = None
     moving: list = field(default_factory=list)
     groups: Any = None
     light: Any = None
@@ -75,11 +78,14 @@ class LiveState:
     unsettled: bool = False
 
     @classmethod
-    def of(cls, snapshot: BakeSnapshot, moving=(), groups=None, light=None, renderer=None) -> "LiveState":
-        """The live state of a bake just made: its lights, sky, materials and field."""
+    def of(cls, snapshot: BakeSnapshot, moving=(), groups=None, light=None, renderer=None, shadows=None) -> "LiveState":
+        """The live state of a bake just made: its lights, sky, materials, field and (a copy
+        of) its shadow maps, unless ``shadows`` (that copy) is given."""
         arrays = snapshot.arrays
+        if shadows is None:
+            shadows = dict(snapshot.result.shadows)
         return cls(list(arrays.lights), np.asarray(arrays.sky, dtype=np.float64), arrays.albedo, arrays.emission,
-                   snapshot.result.field, list(moving), groups, light, renderer)
+                   snapshot.result.field, shadows, list(moving), groups, light, renderer)
 
 
 @dataclass

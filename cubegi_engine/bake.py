@@ -73,7 +73,7 @@ class BakeResult:
     timings: dict = dataclasses.field(default_factory=dict)
     capture_reused: bool = False
     probes_recaptured: int | None = None  # a patched capture: how many probes were drawn again
-    shadows: dict = dataclasses.field(default_factory=dict)  # light name -> Shadow, when kept (moving objects)
+    shadows: dict = dataclasses.field(default_factory=dict)  # Light.shadow_key -> Shadow, when kept (moving objects)
     placement: Placement | None = None  # probes moved out of geometry or left out before the capture
 
     @property

@@ -233,7 +233,7 @@ def light_direct_steps(scene, renderer, settings, light, shadows=None, step=None
         return value
     shadow = yield from draw_shadow_steps(scene, renderer, settings, light, step=step)
     if shadows is not None:
-        shadows[light.name] = shadow
+        shadows[light.shadow_key] = shadow
     ids = np.arange(len(scene.points))[lit]
     seen = yield from in_background(visibility, _working(step, f"direct light: {light.name or 'a light'}'s shadows"), shadow,
                                     scene.points[lit], scene.normals[lit], ids)

@@ -61,6 +61,12 @@ class Light:
     shadow_size: int = 0
     group: str = ""
 
+    @property
+    def shadow_key(self) -> str:
+        """What the light's kept shadow maps are found by: its key (its name where it has
+        none), which a rename keeps."""
+        return self.key or self.name
+
 
 def light_keys(lights):
     """Each light's source key, in order: its own :attr:`Light.key`, or ``"light:#k"`` by

@@ -34,7 +34,7 @@ SELF_SHADOW_SIZE = 128
 
 def light_moving(obj, lights, shadows, field, renderer, settings):
     """``(direct, indirect)``, each ``(s, 3)``, for a moving object ``obj`` (SceneArrays of
-    the object alone, world space). ``shadows``: light name -> the static scene's
+    the object alone, world space). ``shadows``: a light's ``shadow_key`` -> the static scene's
     :class:`~cubegi_engine.direct.Shadow`; ``renderer`` draws the object alone."""
     s = len(obj.points)
     direct = np.zeros((s, 3))
@@ -45,7 +45,7 @@ def light_moving(obj, lights, shadows, field, renderer, settings):
         if light.casts_shadow and lit.any():
             pts, nrm = obj.points[lit], obj.normals[lit]
             vis = np.ones(len(pts))
-            static = shadows.get(light.name)
+            static = shadows.get(light.shadow_key)
             if static is not None:
                 vis *= visibility(static, pts, nrm, outside[lit])
             # Its own shadow from the light's centre alone (one small map, every update).

@@ -448,15 +448,16 @@ def from_bake(result, scene, light_direct, add_tail=True, conserve_energy=True, 
     return state
 
 
-def solved_light(result, scene, settings, renderer, moving=False):
+def solved_light(result, scene, settings, renderer, shadows=None):
     """:func:`from_bake` with the drawing a later edit needs: a light drawn again with its
-    shadows (kept for dynamic objects if ``moving``), emitters and the sky by the bake's own
-    functions. ``renderer()``: the GPU renderer (made on first use by the caller)."""
+    shadows (kept in ``shadows``, a dict by ``Light.shadow_key``, for dynamic objects, where
+    given; never the bake's own), emitters and the sky by the bake's own functions.
+    ``renderer()``: the GPU renderer (made on first use by the caller)."""
     from .direct import light_direct, unit_sky_direct
     from .emitters import emitter_direct
 
     def draw(light):
-        return light_direct(scene, renderer(), settings, light, result.shadows if moving else None)
+        return light_direct(scene, renderer(), settings, light, shadows)
 
     def emitters(emission):
         return emitter_direct(replace(scene, emission=emission), renderer(), settings.area_shadow_size)

@@ -95,3 +95,33 @@ def test_a_dynamic_object_changes_colour_as_cycles_says(red_room):
     change_ours = ours["corner"][1].sum() / ours["wall"][1].sum()
     change_theirs = theirs["corner"][1].sum() / theirs["wall"][1].sum()
     assert abs(change_ours / change_theirs - 1.0) < 0.15, (change_ours, change_theirs)
+
+
+def test_a_dynamic_object_keeps_a_renamed_lights_shadows_and_the_bake_keeps_its_maps(red_room):
+    """The kept shadow maps are found by the light's key, which a rename keeps: a renamed
+    light still shadows a dynamic object behind a pillar as before the rename. A light drawn
+    again for an update replaces its maps in the live state, never in the bake's snapshot."""
+    live, session = red_room.cubegi_addon.live, red_room.cubegi_addon.session
+    v, f = scenes.box_mesh((-0.2, -0.2, 0.0), (0.4, 0.4, 2.5), (2, 2, 4), inward=False)
+    scenes.mesh_object("Pillar", v, f, bpy.data.materials["White"])
+    hidden = (1.2, 1.2, 0.5)  # the pillar stands between it and the light
+    assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
+    lit_at_wall = _mean("Suzanne", "CubeGI_direct")
+    bpy.data.objects["Suzanne"].location = hidden
+    assert live.update(bpy.context).route == "dynamic"
+    behind = _mean("Suzanne", "CubeGI_direct")
+    assert behind.max() < 0.25 * lit_at_wall.max()  # the pillar's shadow
+    bpy.data.objects["Suzanne"].location = WALL
+    live.update(bpy.context)
+    lamp = next(ob for ob in bpy.data.objects if ob.type == "LIGHT")
+    lamp.name = lamp.data.name = "Renamed lamp"
+    assert live.update(bpy.context).route == "none"
+    bpy.data.objects["Suzanne"].location = hidden
+    assert live.update(bpy.context).route == "dynamic"
+    np.testing.assert_allclose(_mean("Suzanne", "CubeGI_direct"), behind, rtol=1e-6, atol=1e-9)
+    kept = session.kept(bpy.context.scene)
+    (key,) = kept.bake.result.shadows
+    baked_maps = kept.bake.result.shadows[key]
+    lamp.location.x += 0.3
+    assert live.update(bpy.context).route == "lights"
+    assert kept.bake.result.shadows[key] is baked_maps and kept.live.shadows[key] is not baked_maps

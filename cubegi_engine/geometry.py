@@ -1,6 +1,5 @@
-"""Rays against triangles (the one kernel, :func:`ray_cut`: the shadow maps' and the probes'
-cover tests, the near field's and the placement's rays), and points near triangles. Pure
-numpy; must not import bpy."""
+"""Rays against the triangles a depth map saw (:func:`ray_cut`: the shadow maps' and the
+probes' cover tests), and points near triangles. Pure numpy; must not import bpy."""
 
 import numpy as np
 
@@ -17,13 +16,12 @@ def chunks(count, size=POINT_CHUNK):
     return [slice(start, start + size) for start in range(0, count, size)]
 
 
-# The one ray-triangle kernel (:func:`ray_cut`) and its tolerances. A test that compares a
-# cut's distance with a depth map's (the shadow maps, the probes' cover test) takes no cut
-# within GRAZING (a cosine: 0.06 degrees) of a triangle's plane, whose distance along the ray
-# is ill-conditioned: the map's own depth decides there. A ray that only asks whether it
-# meets a triangle within its reach (the near field's, the placement's: spatial.py) takes
-# every cut of a triangle of some area (grazing 0), and counts a cut within BARY_SLACK
-# outside the triangle's edges; the shadow and cover tests take the exact triangle.
+# The plane-cut kernel (:func:`ray_cut`) of the tests that compare a cut's distance with a
+# depth map's (the shadow maps, the probes' cover test), and its tolerance: no cut within
+# GRAZING (a cosine: 0.06 degrees) of a triangle's plane, whose distance along the ray is
+# ill-conditioned (the map's own depth decides there); a cut counts inside the exact
+# triangle. The near field's and the placement's rays, which ask for the nearest hit within
+# a reach, are spatial.intersect_pairs (Moller-Trumbore, BARY_SLACK at the edges).
 GRAZING = 1e-3
 
 

@@ -5,7 +5,8 @@ The file holds the values of the release that wrote it; a restructuring of the c
 reproduce them (``tests/blender/test_golden.py``). A change that is meant to change the light
 rewrites the file on purpose, with the reason in its commit:
 
-    .venv/bin/python tests/blender/golden.py
+    .venv/bin/python tests/blender/golden.py          # every scene
+    .venv/bin/python tests/blender/golden.py --add    # only scenes the file does not hold yet
 """
 
 import os
@@ -15,7 +16,12 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 PATH = os.path.join(HERE, "data", "golden_bakes.npz")
-SCENES = ("room", "cornell", "courtyard", "white_box_0.95", "thin_wall")
+SCENES = ("room", "cornell", "courtyard", "white_box_0.95", "thin_wall",
+          "cornell@turned", "courtyard@turned", "white_box_0.95@turned", "thin_wall@turned")
+# A scene "@turned" is the benchmark scene turned off the grid's axes (0.2 rad about X, then
+# 0.3 about the world's Z): its walls meet the probes' and the near field's rays at every angle, where an
+# axis-aligned scene's meet them square on (a change to the ray kernels shows there first).
+TURN = ((0.3, "Z"), (0.2, "X"))
 LAYERS = ("CubeGI_direct", "CubeGI", "CubeGI_total", "CubeGI_bounce_1")
 # Cheap but complete: a grid with probes inside and outside geometry, three bounces and
 # the solved tail (the closed white box needs it), lit colour on.
@@ -25,10 +31,19 @@ SETTINGS = dict(grid=(5, 5, 3), cube_size=16, bounces=3, lit="ALL")
 def bake_scene(name):
     """Build one benchmark scene, bake it, return ``{"<object>:<layer>": (v, 3) float32}``."""
     import bpy
+    import mathutils
 
     from benchmarks.sweep import SCENES
 
-    SCENES[name]()
+    base, _, turned = name.partition("@")
+    SCENES[base]()
+    if turned:
+        turn = mathutils.Matrix.Identity(4)
+        for angle, axis in TURN:
+            turn = turn @ mathutils.Matrix.Rotation(angle, 4, axis)
+        for ob in bpy.context.scene.objects:
+            if ob.parent is None:
+                ob.matrix_world = turn @ ob.matrix_world
     assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
     out = {}
     for ob in sorted(bpy.context.scene.objects, key=lambda o: o.name):
@@ -42,7 +57,9 @@ def bake_scene(name):
     return out
 
 
-def main():
+def main(add=False):
+    """Bake every scene and write the file; with ``add`` (``--add``), bake only the scenes the
+    file does not hold yet and add them, the kept values of the others as they are."""
     import tempfile
 
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="cubegi-golden-"))
@@ -50,8 +67,13 @@ def main():
     from tools import load_extension
 
     load_extension()
-    arrays = {}
+    import bpy
+
+    arrays = dict(np.load(PATH)) if add and os.path.exists(PATH) else {}
     for name in SCENES:
+        if add and any(k.startswith(name + "/") for k in arrays):
+            continue
+        bpy.ops.wm.read_factory_settings(use_empty=True)
         arrays.update(bake_scene(name))
     tmp = PATH + ".tmp.npz"
     np.savez_compressed(tmp, **arrays)
@@ -60,4 +82,4 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    main(add="--add" in sys.argv[1:])

@@ -146,12 +146,13 @@ def light_layers(direct, indirect, bounces=(), albedo=None, lit=LitMode.NONE):
     ``CubeGI``, ``CubeGI_total``, ``CubeGI_bounce_k`` for each of ``bounces``, and with
     ``lit`` (a :class:`LitMode`) ``CubeGI_lit``: ``albedo`` times all light, or the indirect
     light alone. The one place that knows which light each layer holds."""
+    lit = LitMode.of(lit)
     layers = {DIRECT: direct}
     layers.update((bounce_name(k), b) for k, b in enumerate(bounces, start=1))
     layers[INDIRECT] = indirect
     layers[TOTAL] = direct + indirect
     if lit:
-        layers[LIT] = albedo * (indirect if LitMode.of(lit) == LitMode.INDIRECT else direct + indirect)
+        layers[LIT] = albedo * (indirect if lit == LitMode.INDIRECT else direct + indirect)
     return layers
 
 

@@ -45,6 +45,7 @@ class LeftOutKind(StrEnum):
     PROBES = "probes"
     NEAR_FIELD = "near field"
     CAPTURE_GEOMETRY = "capture geometry"
+    OTHER = "other"  # a line of another version's report, kept as it reads
 
 
 def plural(count: int, one: str, many: str) -> str:
@@ -63,7 +64,9 @@ class LeftOut:
     names: tuple = ()
 
     def line(self) -> str:
-        """``light <name>: why``; ``<kind>: text`` for the others."""
+        """``light <name>: why``; ``<kind>: text`` for the others (the text alone for OTHER)."""
+        if self.kind == LeftOutKind.OTHER:
+            return self.text
         return f"{self.kind}{' ' if self.kind == LeftOutKind.LIGHT else ': '}{self.text}"
 
     def to_dict(self) -> dict:
@@ -71,16 +74,19 @@ class LeftOut:
 
     @classmethod
     def from_dict(cls, d: dict) -> "LeftOut":
-        return cls(LeftOutKind(d["kind"]), d["text"], int(d.get("count", 1)), tuple(d.get("names", ())))
+        kind = str(d.get("kind", ""))
+        known = kind in {k.value for k in LeftOutKind}
+        return cls(LeftOutKind(kind) if known else LeftOutKind.OTHER, d["text"] if known else f"{kind}: {d['text']}",
+                   int(d.get("count", 1)), tuple(d.get("names", ())))
 
     @classmethod
     def from_line(cls, line: str) -> "LeftOut":
         """A record from the text of :meth:`line` (a report that holds lines alone)."""
         for kind in LeftOutKind:
             for sep in (": ", " "):
-                if line.startswith(f"{kind}{sep}"):
+                if kind != LeftOutKind.OTHER and line.startswith(f"{kind}{sep}"):
                     return cls(kind, line[len(kind) + len(sep):])
-        raise ValueError(f"not a left-out line: {line!r}")
+        return cls(LeftOutKind.OTHER, line)
 
 
 class Route(StrEnum):

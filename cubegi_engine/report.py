@@ -28,10 +28,10 @@ class GridReport:
     grid's ``source`` (the grid objects, or the automatic box)."""
 
     resolution: list
-    lo: list
-    hi: list
     probes: int
-    grids: list
+    lo: list | None = None
+    hi: list | None = None
+    grids: list = field(default_factory=list)
     probes_inside_geometry: int = 0
     probes_captured: int | None = None
     source: str = ""
@@ -40,7 +40,8 @@ class GridReport:
 
     def to_dict(self) -> dict:
         d = asdict(self)
-        return {k: v for k, v in d.items() if v is not None or k not in ("probes_moved", "probes_left_inside")}
+        first = {k: d.pop(k) for k in ("resolution", "lo", "hi", "probes", "grids")}  # the report's order
+        return {**first, **{k: v for k, v in d.items() if v is not None or k not in ("probes_moved", "probes_left_inside")}}
 
     @classmethod
     def from_dict(cls, d: dict) -> "GridReport":

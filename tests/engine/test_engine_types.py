@@ -88,7 +88,7 @@ def test_settings_name_what_is_out_of_range(kw, setting):
 def _report(**kw):
     rec = BounceRecord(1, 0.01, 0.005, 0.002, [0.1, 0.2, 0.3], 0.2, [0.5, 0.5, 0.5], 0.5, 0.25, [1.0, 1.0, 1.0], "CubeGI_bounce_1")
     fields = dict(
-        settings=BakeSettings().as_dict(lit="NONE"), grid=GridReport([2, 2, 2], [0.0] * 3, [1.0] * 3, 8, [], probes_moved=2), points=10, triangles=12,
+        settings=BakeSettings().as_dict(lit="NONE"), grid=GridReport([2, 2, 2], 8, [0.0] * 3, [1.0] * 3, probes_moved=2), points=10, triangles=12,
         lights=1, sky=[0.0, 0.0, 0.0], meshes_baked=["Room"], notes=["a note"], direct_seconds=0.1,
         direct_mean_light=[1.0, 1.0, 1.0], emitter_energy_factor=[1.0, 1.0, 1.0], bounces=[rec],
         indirect_mean_light=[0.3, 0.3, 0.3], tail=TailReport(0.25, "geometric", True, mean_light=[0.1] * 3, share_of_indirect=0.2),
@@ -121,6 +121,9 @@ def test_the_report_round_trips_through_strict_json():
     assert [LeftOut.from_line(x) for x in d["left_out"]][0].kind == LeftOutKind.LIGHT
     del d["left_out_items"]  # a report of a version that wrote the lines alone
     assert [x.line() for x in BakeReport.from_dict(d).left_out] == d["left_out"]
+    d["left_out"].append("a line no kind names")  # another version's: kept as it reads
+    assert BakeReport.from_dict(d).left_out[-1] == LeftOut(LeftOutKind.OTHER, "a line no kind names")
+    assert list(d["grid"])[:5] == ["resolution", "lo", "hi", "probes", "grids"]
 
 
 def test_the_report_json_has_no_nan_or_inf():

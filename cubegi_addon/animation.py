@@ -146,7 +146,7 @@ def _frame(context, settings, resolution, lit, only, first):
     """Bring the attributes to the current frame; ``(route, details)``."""
     if not first and session.kept(context.scene) is not None:
         try:  # the update's plan refuses a frame whose static geometry changed (updates.geometry_changes)
-            report = live.update(context, materials=_animated_materials(), bounce_layers=False)
+            report = live.update(context, materials=_animated_materials(), bounce_layers=False, rendered=True)
             return report.route, {"changed": report.changed}
         except BakeError:  # then a full bake
             pass

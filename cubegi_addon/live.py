@@ -77,7 +77,7 @@ def _renderer(kept):
     return live.renderer
 
 
-def update(context, materials=False, write=True, settle=True, bounce_layers=True, geometry=True):
+def update(context, materials=False, write=True, settle=True, bounce_layers=True, geometry=True, rendered=False):
     """Bring the baked light up to date with the scene's lights, world (and with
     ``materials``, the materials' colours and emission): :func:`.updates.plan`, then applied
     here. Returns an :class:`Update`. Refuses (BakeError, nothing written) what the plan
@@ -87,10 +87,11 @@ def update(context, materials=False, write=True, settle=True, bounce_layers=True
     energy balance's factors as they were and the bounce layers left for the next settled
     update (the one-shot bake's numbers come back then). ``bounce_layers=False``: the
     per-bounce layers are not written (an animation's frames cache direct and indirect light
-    only)."""
+    only). ``rendered``: the geometry is also checked as a render evaluates it (an animation's
+    frames: a modifier enabled for renders alone)."""
     kept = _kept(context)
     t = time.perf_counter()
-    plan = updates.plan(context, kept, materials, geometry, settle)
+    plan = updates.plan(context, kept, materials, geometry, settle, rendered)
     report = Update(plan.route, plan.changed, {"read": time.perf_counter() - t})
     live = kept.live
     if plan.regroup:

@@ -17,6 +17,7 @@ geometry moved is :func:`geometry_changes` for all of them.
 
 from dataclasses import dataclass, field, replace
 
+import bpy
 import numpy as np
 
 from ..cubegi_engine.errors import BakeError
@@ -108,19 +109,41 @@ def geometry_changes(view_layer, depsgraph, kept, only=None):
     return changes
 
 
+def render_geometry_changes(context, kept):
+    """For an animation's frames: the static objects that can deform (modifiers, shape keys,
+    animated mesh data) as a render evaluates them, against the bake's, one phrase per object
+    that differs; empty when none can deform. (:func:`geometry_changes` reads the viewport's
+    evaluation, which a modifier enabled for renders alone does not reach.)"""
+    names = kept.bake.arrays.object_names
+    if not any(_can_deform(bpy.data.objects.get(name)) for name in names):
+        return []
+    changed = scene_data.collect(context).arrays.fingerprint().changed(kept.bake.arrays.fingerprint())
+    return [f"{name} deformed as rendered" for name in sorted(changed)]
+
+
+def _can_deform(ob):
+    if ob is None:
+        return False
+    data = ob.data
+    return bool(len(ob.modifiers)) or getattr(data, "shape_keys", None) is not None or getattr(data, "animation_data", None) is not None
+
+
 def effective_albedo(arrays, albedo):
     """``albedo (s, 3)`` as light sees it: zero at the snapshot's dark points."""
     return np.where(arrays.dark[:, None], 0.0, albedo) if arrays.dark is not None else albedo
 
 
-def plan(context, kept, materials=False, geometry=True, settle=True):
+def plan(context, kept, materials=False, geometry=True, settle=True, rendered=False):
     """The :class:`UpdatePlan` that brings ``kept``'s light up to the scene now. Refuses
     (BakeError) what an update cannot do: the static geometry changed (``geometry=False``:
-    not checked; Live checks each edit as it comes instead), another environment image,
-    other light groups. ``materials``: read the materials too."""
+    not checked; Live checks each edit as it comes instead; ``rendered``: also as a render
+    evaluates it, :func:`render_geometry_changes`, for an animation's frames), another
+    environment image, other light groups. ``materials``: read the materials too."""
     bake, live = kept.bake, kept.live
     if geometry:
         changes = geometry_changes(context.view_layer, context.evaluated_depsgraph_get(), kept)
+        if rendered and not changes:
+            changes = render_geometry_changes(context, kept)
         if changes:
             raise BakeError(f"the geometry changed since the bake ({', '.join(changes)}): Bake again (an update keeps "
                             "the capture, which only a bake redraws)")

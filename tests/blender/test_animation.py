@@ -143,6 +143,25 @@ def test_a_frame_whose_static_geometry_moved_is_baked_in_full(empty_scene, cubeg
     assert [f["path"] for f in json.loads(report.read_text())["frames"]] == ["full", "lights", "full"]
 
 
+def test_a_frame_whose_render_only_modifier_moved_the_geometry_is_baked_in_full(empty_scene, cubegi, tmp_path):
+    """A modifier enabled for renders alone and animated (the Block pushed up at frame 3): the
+    viewport's evaluation does not see it, the render's does; that frame is baked in full."""
+    src = _animated_room(tmp_path, dynamic=False)
+    bpy.ops.wm.open_mainfile(filepath=str(src))
+    block = bpy.data.objects["Block"]
+    push = block.modifiers.new("Push", "DISPLACE")
+    push.show_viewport, push.show_render, push.direction, push.mid_level = False, True, "Z", 0.0
+    push.strength = 0.0
+    push.keyframe_insert("strength", frame=2)
+    push.strength = 0.4
+    push.keyframe_insert("strength", frame=3)
+    bpy.ops.wm.save_as_mainfile(filepath=str(src))
+    report = tmp_path / "r.json"
+    r = _cli("bake-animation", src, "-o", tmp_path / "out.blend", "--report", report, *FAST)
+    assert r.returncode == 0, r.stderr
+    assert [f["path"] for f in json.loads(report.read_text())["frames"]][1:] == ["lights", "full"]
+
+
 def test_an_object_keyframed_into_and_out_of_renders_casts_its_shadow_only_while_it_renders(empty_scene, cubegi, tmp_path):
     """The Block leaves renders at frame 2 and comes back at frame 3; a Crate renders only at
     frame 2. Each frame whose set of rendered objects changed is baked in full, and every

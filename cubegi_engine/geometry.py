@@ -1,5 +1,6 @@
-"""Rays against the triangles a depth map saw (:func:`ray_cut`: the shadow maps' and the
-probes' cover tests), and points near triangles. Pure numpy; must not import bpy."""
+"""Rays against triangles (the one kernel, :func:`ray_cut`: the shadow maps' and the probes'
+cover tests, the near field's and the placement's rays), and points near triangles. Pure
+numpy; must not import bpy."""
 
 import numpy as np
 
@@ -16,12 +17,14 @@ def chunks(count, size=POINT_CHUNK):
     return [slice(start, start + size) for start in range(0, count, size)]
 
 
-# The plane-cut kernel (:func:`ray_cut`) of the tests that compare a cut's distance with a
-# depth map's (the shadow maps, the probes' cover test), and its tolerance: no cut within
-# GRAZING (a cosine: 0.06 degrees) of a triangle's plane, whose distance along the ray is
-# ill-conditioned (the map's own depth decides there); a cut counts inside the exact
-# triangle. The near field's and the placement's rays, which ask for the nearest hit within
-# a reach, are spatial.intersect_pairs (Moller-Trumbore, BARY_SLACK at the edges).
+# The one ray-triangle kernel (:func:`ray_cut`) and its tolerances. A test that compares a
+# cut's distance with a depth map's (the shadow maps, the probes' cover test) takes no cut
+# within GRAZING (a cosine: 0.06 degrees) of a triangle's plane, whose distance along the ray
+# is ill-conditioned: the map's own depth decides there; a cut counts inside the exact
+# triangle. A ray that asks for its nearest hit within a reach (the near field's, the
+# placement's: spatial.intersect_pairs) takes every cut of a triangle of some area (grazing
+# 0), counts a cut within BARY_SLACK outside the triangle's edges, and a front face before a
+# back face as near (spatial.TIE).
 GRAZING = 1e-3
 
 

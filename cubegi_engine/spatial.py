@@ -4,7 +4,7 @@ placement (:mod:`cubegi_engine.placement`). Pure numpy; must not import bpy."""
 
 import numpy as np
 
-from .geometry import chunks
+from .geometry import chunks, planes_of, ray_cut
 
 __all__ = ["VoxelIndex", "intersect_pairs", "over_triangles", "SLACK", "COORD_SLACK", "BARY_SLACK", "MAX_NEARBY"]
 
@@ -20,6 +20,10 @@ MAX_NEARBY = 1024
 # cubegi_engine.nearfield.build); a hit within BARY_SLACK outside a triangle's edge counts
 # (a ray along an edge).
 SLACK, COORD_SLACK, BARY_SLACK = 1e-5, 4e-6, 1e-5
+# A back face is a ray's nearest hit only where it is nearer than a front face by more than
+# this share of the ray's reach: which of two coincident faces float rounding puts first must
+# not decide (see VoxelIndex.trace).
+TIE = 1e-9
 
 
 def over_triangles(x, a, b, c, unit):
@@ -34,23 +38,16 @@ def over_triangles(x, a, b, c, unit):
     return inside
 
 
-def intersect_pairs(o, d, a, b, c, reach, start):
-    """Paired rays ``o + t d`` and triangles (Moller-Trumbore): ``(t, u, v, hit, front)``.
-    A hit lies within ``start < t < reach``; a ray that starts on a triangle's plane (within
-    ``start``: where two surfaces meet) is stopped by it only if it heads into its front."""
-    e1, e2 = b - a, c - a
-    pvec = np.cross(d, e2)
-    det = np.einsum("ij,ij->i", e1, pvec)
-    ok = np.abs(det) > 1e-12 * np.einsum("ij,ij->i", e1, e1)
-    inv = 1.0 / np.where(ok, det, 1.0)
-    tvec = o - a
-    u = np.einsum("ij,ij->i", tvec, pvec) * inv
-    qvec = np.cross(tvec, e1)
-    v = np.einsum("ij,ij->i", d, qvec) * inv
-    t = np.einsum("ij,ij->i", e2, qvec) * inv
-    front = np.einsum("ij,ij->i", d, np.cross(e1, e2)) < 0
+def intersect_pairs(o, d, planes, reach, start):
+    """Paired rays ``o + t d`` (``d`` unit) and triangles (their :func:`~.geometry.planes_of`),
+    by the one kernel :func:`~.geometry.ray_cut`: ``(t, u, v, hit, front)``. A hit lies
+    within BARY_SLACK of the triangle and ``start < t < reach``; a ray that starts on a
+    triangle's plane (within ``start``: where two surfaces meet) is stopped by it only if it
+    heads into its front."""
+    t, u, v, ok, front = ray_cut(o, d, planes, grazing=0.0)  # any cut: see geometry.GRAZING
     e = BARY_SLACK  # a ray along a triangle's edge (from a point where surfaces meet) hits it
-    hit = ok & (u >= -e) & (v >= -e) & (u + v <= 1 + e) & (t < reach) & ((t > start) | ((t >= -start) & front))
+    with np.errstate(invalid="ignore"):
+        hit = ok & (u >= -e) & (v >= -e) & (u + v <= 1 + e) & (t < reach) & ((t > start) | ((t >= -start) & front))
     return t, u, v, hit, front
 
 
@@ -66,6 +63,7 @@ class VoxelIndex:
         normal = np.cross(b - a, c - a)
         self.unit = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
         self.offset = np.einsum("ij,ij->i", self.unit, a)
+        self.planes = planes_of(a, b, c)
         self.lo = lo = np.minimum(np.minimum(a, b), c)
         self.hi = hi = np.maximum(np.maximum(a, b), c)
         self.origin = lo.min(axis=0) - voxel
@@ -88,9 +86,9 @@ class VoxelIndex:
         within ``reach`` among the candidate pairs: ``(t (s, k) inf where none, triangle (s, k)
         -1 where none, (u, v) (s, k, 2), front (s, k))``. Only the rays inside the cone around a
         triangle's bounding sphere are tested against it."""
-        a, b, c = self.a, self.b, self.c
         s, rays = dirs.shape[:2]
         best = np.full((s, rays), np.inf)
+        best_key = np.full((s, rays), np.inf)
         hit_tri = np.full((s, rays), -1, dtype=np.int64)
         hit_uv = np.zeros((s, rays, 2))
         hit_front = np.zeros((s, rays), dtype=bool)
@@ -105,20 +103,25 @@ class VoxelIndex:
             pi, ki = np.nonzero(along >= cos_cone[:, None] - 1e-9)
             p, t_ = pp[pi], tt[pi]
             origin = points[p] + slack[p, None] * normals[p]
-            t, u, v, hit, front = intersect_pairs(origin, dirs[p, ki], a[t_], b[t_], c[t_], reach[p], 2.0 * slack[p])
+            t, u, v, hit, front = intersect_pairs(origin, dirs[p, ki], self.planes[t_], reach[p], 2.0 * slack[p])
             if self.sheets is not None:
                 # A sheet is met on the side a ray comes from: its back faces are its twin's
                 # fronts. A ray from a point on a sheet's plane (a wall's foot on a floor) is
                 # stopped there by the sheet's front only, not by the twin behind it.
                 hit &= (front | ~self.sheets.triangles[t_]) & ((t > 2.0 * slack[p]) | ~self.sheets.triangle_back[t_])
             p, k, t_, t, u, v, front = p[hit], ki[hit], t_[hit], t[hit], u[hit], v[hit], front[hit]
-            order = np.lexsort((t, p * rays + k))
-            p, k, t_, t, u, v, front = (x[order] for x in (p, k, t_, t, u, v, front))
+            # Two hits as near as each other (a surface and a coincident twin facing the other
+            # way, the faces meeting at a turned wall's edge) go to the front: a back face is
+            # the nearest hit only where it is nearer by more than TIE of the reach.
+            key = t + np.where(front, 0.0, TIE * reach[p])
+            order = np.lexsort((key, p * rays + k))
+            p, k, t_, t, u, v, front, key = (x[order] for x in (p, k, t_, t, u, v, front, key))
             head = np.ones(len(p), dtype=bool)
             head[1:] = (p[1:] != p[:-1]) | (k[1:] != k[:-1])
-            p, k, t_, t, u, v, front = (x[head] for x in (p, k, t_, t, u, v, front))
-            nearer = t < best[p, k]
+            p, k, t_, t, u, v, front, key = (x[head] for x in (p, k, t_, t, u, v, front, key))
+            nearer = key < best_key[p, k]
             p, k = p[nearer], k[nearer]
+            best_key[p, k] = key[nearer]
             best[p, k], hit_tri[p, k] = t[nearer], t_[nearer]
             hit_uv[p, k] = np.stack([u[nearer], v[nearer]], axis=1)
             hit_front[p, k] = front[nearer]

@@ -41,6 +41,7 @@ def bake_scene(name):
         turn = mathutils.Matrix.Identity(4)
         for angle, axis in TURN:
             turn = turn @ mathutils.Matrix.Rotation(angle, 4, axis)
+        bpy.context.view_layer.update()  # the builders set locations: their world matrices follow here
         for ob in bpy.context.scene.objects:
             if ob.parent is None:
                 ob.matrix_world = turn @ ob.matrix_world

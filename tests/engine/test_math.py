@@ -386,8 +386,8 @@ def test_a_subdivided_emitter_sends_what_its_triangles_send_one_by_one():
     assert sorted(len(g) for g in other) == [n * n, n * n]  # two radiances: two groups
 
 
-def test_the_plane_cut_kernel_cuts_as_moller_trumbore_and_leaves_grazing_rays_to_its_caller():
-    """geometry.ray_cut (the shadow and cover tests) against Moller-Trumbore: the same distance and
+def test_the_one_ray_kernel_cuts_as_moller_trumbore_and_leaves_grazing_rays_to_its_caller():
+    """geometry.ray_cut against an independent Moller-Trumbore: the same distance and
     barycentrics wherever the ray is not within GRAZING of the plane, the front told from
     the back, and a triangle of no area never cut."""
     from cubegi.cubegi_engine.geometry import GRAZING, planes_of, ray_cut

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from cubegi.cubegi_engine import nearfield, sh, spatial
+from cubegi.cubegi_engine.geometry import planes_of
 
 
 def _quad(lo, hi, z, up=True):
@@ -103,11 +104,12 @@ def _brute_force_hits(points, normals, reach, vertices, triangles, rays):
     slack = spatial.SLACK * reach + spatial.COORD_SLACK * np.abs(points).max(axis=1)
     out = np.full((len(points), rays), -1)
     a, b, c = (vertices[triangles[:, i]] for i in range(3))
+    planes = planes_of(a, b, c)
     for i in range(len(points)):
         o = np.repeat(points[i : i + 1] + slack[i] * normals[i], len(a), axis=0)
         for k in range(rays):
             d = np.repeat(dirs[i, k][None], len(a), axis=0)
-            t, _, _, hit, _ = spatial.intersect_pairs(o, d, a, b, c, np.full(len(a), reach), np.full(len(a), 2 * slack[i]))
+            t, _, _, hit, _ = spatial.intersect_pairs(o, d, planes, np.full(len(a), reach), np.full(len(a), 2 * slack[i]))
             # Only triangles with a corner in front of the point's plane count (as in the near field).
             front = np.max(np.stack([(v - points[i]) @ normals[i] for v in (a, b, c)]), axis=0) > slack[i]
             t = np.where(hit & front, t, np.inf)

@@ -106,8 +106,21 @@ class Route(StrEnum):
     FULL = "full"
 
 
+class Record:
+    """What the report's records share: ``to_dict`` (their fields) and ``from_dict`` (the
+    entries that are fields; a report of another version may hold more)."""
+
+    def to_dict(self) -> dict:
+        return asdict(self)  # type: ignore[call-overload]
+
+    @classmethod
+    def from_dict(cls, d: dict):
+        names = {f.name for f in fields(cls)}  # type: ignore[arg-type]
+        return cls(**{k: v for k, v in d.items() if k in names})
+
+
 @dataclass
-class BounceRecord:
+class BounceRecord(Record):
     bounce: int
     seconds: float
     gather_seconds: float  # gathering and projecting the light the probes see
@@ -120,18 +133,9 @@ class BounceRecord:
     energy_factor: list  # (3,) see series.conserve_energy
     attribute: str = ""
 
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "BounceRecord":
-        """A record from :meth:`to_dict` (keys of other versions' reports left out)."""
-        names = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in d.items() if k in names})
-
 
 @dataclass
-class TailReport:
+class TailReport(Record):
     """The light after the last bounce: how it was found and whether it was added."""
 
     estimated_remaining: float
@@ -153,9 +157,6 @@ class TailReport:
             d.pop("share_of_indirect")
         return d
 
-    @classmethod
-    def from_dict(cls, d: dict) -> "TailReport":
-        return cls(**{k: d[k] for k in cls.__dataclass_fields__ if k in d})
 
 
 @dataclass(frozen=True)

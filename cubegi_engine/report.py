@@ -6,22 +6,16 @@ The JSON layout (``to_dict``) is the report file's documented format (docs/repor
 
 import json
 import math
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 
 from . import __version__
-from .records import BounceRecord, LeftOut, TailReport
+from .records import BounceRecord, LeftOut, Record, TailReport
 
 __all__ = ["BakeReport", "GridReport", "ReferenceReport", "NearFieldReport", "CaptureGeometryReport"]
 
 
-def _known(cls, d: dict) -> dict:
-    """The entries of ``d`` that are fields of ``cls`` (a report of another version may hold more)."""
-    names = {f.name for f in fields(cls)}
-    return {k: v for k, v in d.items() if k in names}
-
-
 @dataclass(frozen=True)
-class GridReport:
+class GridReport(Record):
     """The probe grid: the first grid's ``resolution``, ``lo``, ``hi``; ``probes`` in all;
     ``grids``: each grid's ``{"resolution", "lo", "hi", "probes"}``; how many probes sit
     inside geometry, were captured, were moved out of geometry or left inside it; the
@@ -43,13 +37,9 @@ class GridReport:
         first = {k: d.pop(k) for k in ("resolution", "lo", "hi", "probes", "grids")}  # the report's order
         return {**first, **{k: v for k, v in d.items() if v is not None or k not in ("probes_moved", "probes_left_inside")}}
 
-    @classmethod
-    def from_dict(cls, d: dict) -> "GridReport":
-        return cls(**_known(cls, d))
-
 
 @dataclass(frozen=True)
-class ReferenceReport:
+class ReferenceReport(Record):
     """The Cycles reference: its ``samples`` and ``seconds``, CubeGI's ``cubegi_seconds``, the
     ``attributes`` it wrote and ``errors`` (``metrics.compare``: per part, the error measures)."""
 
@@ -64,13 +54,9 @@ class ReferenceReport:
         return {"renderer": self.renderer, "samples": self.samples, "seconds": self.seconds,
                 "cubegi_seconds": self.cubegi_seconds, "attributes": self.attributes, "errors": self.errors}
 
-    @classmethod
-    def from_dict(cls, d: dict) -> "ReferenceReport":
-        return cls(**_known(cls, d))
-
 
 @dataclass(frozen=True)
-class NearFieldReport:
+class NearFieldReport(Record):
     """The near field: the ``points`` that gathered, their ray ``hits``, the (point, triangle)
     ``pairs`` tested, the ``crowded`` points left out, the rays' ``reach``, its ``seconds``, and
     why it was ``skipped`` as a whole ("" where it was not)."""
@@ -83,16 +69,9 @@ class NearFieldReport:
     seconds: float
     skipped: str = ""
 
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "NearFieldReport":
-        return cls(**_known(cls, d))
-
 
 @dataclass(frozen=True)
-class CaptureGeometryReport:
+class CaptureGeometryReport(Record):
     """The probes' simplified geometry: the ``triangles`` they drew ``of`` the scene's, in
     ``clusters``, none more than ``max_offset`` from where it is."""
 
@@ -100,13 +79,6 @@ class CaptureGeometryReport:
     of: int
     clusters: int
     max_offset: float
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "CaptureGeometryReport":
-        return cls(**_known(cls, d))
 
 
 def _part(cls, d):

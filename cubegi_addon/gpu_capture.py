@@ -18,9 +18,11 @@ import gpu
 import numpy as np
 from gpu_extras.batch import batch_for_shader
 
+from ..cubegi_engine import geometry
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.working import in_background, run
 from . import compat
+from .bvh_rays import BvhRays
 
 # Largest atlas edge in texels; 2048^2 RGBA32F is 64 MiB.
 ATLAS_EDGE = 2048
@@ -86,27 +88,48 @@ def ensure_gpu():
 _ID_VERT = """
 void main() {
   v_id = tid;
+  v_twin = twin;
   v_bary = bary;
+  v_twin_bary = twin_bary;
   v_pos = pos;
   gl_Position = view_proj * vec4(pos, 1.0);
 }
 """
-# A triangle of a two-sided object (see SceneArrays.back) comes as tid = -(triangle + 1): its
-# back face is not drawn, for its twin facing the other way stands in the same place.
+# A triangle of a two-sided object (see SceneArrays.back) is drawn once for itself and its
+# twin facing the other way, which stands in the same place: ``twin`` >= 0 is the twin's
+# index, reported (with the hit's weights of the twin's corners, ``twin_bary``) where the
+# triangle is seen from behind. One with no twin comes as tid = -(triangle + 1): its back face
+# is not drawn.
 _ID_FRAG = """
 void main() {
-  if (v_id < 0.0 && !gl_FrontFacing) discard;
+  bool front = gl_FrontFacing;
+  float id = v_id < 0.0 ? -v_id - 1.0 : v_id;
+  vec2 bary = v_bary;
+  if (!front && v_twin >= 0.0) {
+    id = v_twin;
+    bary = v_twin_bary;
+    front = true;
+  }
+  else if (v_id < 0.0 && !front) {
+    discard;
+  }
   float dist = ortho > 0.5 ? dot(v_pos - eye, axis) : length(v_pos - eye);
-  float id = (v_id < 0.0 ? -v_id - 1.0 : v_id) + 1.0;
-  out_texel = vec4(gl_FrontFacing ? id : -id, v_bary, dist);
+  out_texel = vec4(front ? id + 1.0 : -(id + 1.0), bary, dist);
 }
 """
 _DEPTH_FRAG = """
 void main() {
-  if (v_id < 0.0 && !gl_FrontFacing) discard;
+  bool front = gl_FrontFacing;
+  float id = v_id < 0.0 ? -v_id - 1.0 : v_id;
+  if (!front && v_twin >= 0.0) {
+    id = v_twin;
+    front = true;
+  }
+  else if (v_id < 0.0 && !front) {
+    discard;
+  }
   float dist = ortho > 0.5 ? dot(v_pos - eye, axis) : length(v_pos - eye);
-  float id = (v_id < 0.0 ? -v_id - 1.0 : v_id) + 1.0;
-  out_texel = vec2(gl_FrontFacing ? id : -id, dist);
+  out_texel = vec2(front ? id + 1.0 : -(id + 1.0), dist);
 }
 """
 _COLOUR_VERT = """
@@ -134,7 +157,9 @@ def _id_shader(with_bary=True):
     texels' bytes to write and read back)."""
     iface = gpu.types.GPUStageInterfaceInfo("cubegi_id_iface" if with_bary else "cubegi_depth_iface")
     iface.flat("FLOAT", "v_id")
+    iface.flat("FLOAT", "v_twin")
     iface.smooth("VEC2", "v_bary")
+    iface.smooth("VEC2", "v_twin_bary")
     iface.smooth("VEC3", "v_pos")
     info = gpu.types.GPUShaderCreateInfo()
     info.push_constant("MAT4", "view_proj")
@@ -144,6 +169,8 @@ def _id_shader(with_bary=True):
     info.vertex_in(0, "VEC3", "pos")
     info.vertex_in(1, "VEC2", "bary")
     info.vertex_in(2, "FLOAT", "tid")
+    info.vertex_in(3, "FLOAT", "twin")
+    info.vertex_in(4, "VEC2", "twin_bary")
     info.vertex_out(iface)
     info.fragment_out(0, "VEC4" if with_bary else "VEC2", "out_texel")
     info.vertex_source(_ID_VERT)
@@ -226,8 +253,14 @@ class GpuRenderer:
         self.__dict__.update(prepared)
         bary = self.__dict__.pop("bary")
         self.id_shader = _id_shader()
-        self.id_batch = yield from _batch_steps(self.id_shader, {"pos": self.corner_pos, "bary": bary, "tid": self.tid}, working)
+        self.id_batch = yield from _batch_steps(self.id_shader, {"pos": self.corner_pos, "bary": bary, "tid": self.tid,
+                                                                 "twin": self.twin, "twin_bary": self.twin_bary}, working)
         self._colour_shader = None
+
+    def rays(self, points, triangles):
+        """A ray caster over ``triangles (k, 3)`` of ``points`` (the engine's
+        :class:`~cubegi_engine.rays.RayCaster`): Blender's BVH tree."""
+        return BvhRays(points, triangles)
 
     def with_geometry(self, points, triangles, drawn=None, sheet=None):
         """A renderer of other triangles (the probes' simplified copy of the scene), drawing
@@ -339,18 +372,19 @@ class GpuRenderer:
         return self.depth_batch
 
     def _depth_columns(self):
-        return {"pos": self.corner_pos, "tid": self.tid, "bary": np.zeros((len(self.corner_pos), 2), dtype=np.float32)}
+        zeros = np.zeros((len(self.corner_pos), 2), dtype=np.float32)
+        return {"pos": self.corner_pos, "tid": self.tid, "bary": zeros, "twin": self.twin, "twin_bary": zeros}
 
     def render_colour(self, view_projs, size, point_radiance):
         if self._colour_shader is None:
             self._colour_shader = _colour_shader()
         shader = self._colour_shader
-        colour = np.asarray(point_radiance, dtype=np.float32)[self.drawn].reshape(-1, 3)
-        batch = batch_for_shader(shader, "TRIS", {"pos": self.corner_pos, "colour": colour,
-                                                  "sheet": np.repeat(self.sheet.astype(np.float32), 3)})
+        colour = np.asarray(point_radiance, dtype=np.float32)[self.all_drawn].reshape(-1, 3)
+        batch = batch_for_shader(shader, "TRIS", {"pos": self.all_corner_pos, "colour": colour,
+                                                  "sheet": np.repeat(self.all_sheet.astype(np.float32), 3)})
         out = np.empty((len(view_projs), size, size, 3), dtype=np.float32)
         local = [self._local(vp) for vp in view_projs]
-        ranges = self._ranges(local)
+        ranges = None  # every triangle, both twins of a sheet (a check in the tests, not a bake's path)
         shader.bind()
 
         def draw_one(k):
@@ -374,6 +408,11 @@ def _prepared(points, triangles, drawn, sheet):
     out = {"triangles": triangles, "centre": 0.5 * (lo + hi), "unit": max(float(np.max(hi - lo)), 1e-300)}
     unit_pts = ((pts - out["centre"]) / out["unit"]).astype(np.float32)
     drawn = np.arange(len(triangles)) if drawn is None else np.asarray(drawn, dtype=np.int64)
+    sheet = np.zeros(len(triangles), dtype=bool) if sheet is None else np.asarray(sheet, dtype=bool)
+    out["all_drawn"], out["all_sheet"] = triangles[drawn], sheet[drawn]
+    out["all_corner_pos"] = unit_pts[out["all_drawn"]].reshape(-1, 3)
+    twin, twin_bary = geometry.twin_triangles(unit_pts, triangles, sheet & np.isin(np.arange(len(triangles)), drawn))
+    drawn = drawn[~(twin[drawn] >= 0) | (twin[drawn] > drawn)]  # a pair drawn once, as its first
     t = len(drawn)
     # Drawn in spatial order; each vertex carries its triangle's own index, so what a
     # texel reports does not depend on the order (nor on triangles left out).
@@ -383,8 +422,11 @@ def _prepared(points, triangles, drawn, sheet):
     out["corner_pos"] = unit_pts[out["drawn"]].reshape(-1, 3)
     out["chunk_boxes"] = _chunk_boxes(out["corner_pos"].reshape(-1, 3, 3), CULL_CHUNK) if t > CULL_CHUNK else None
     out["bary"] = np.tile(np.array([[0, 0], [1, 0], [0, 1]], dtype=np.float32), (t, 1))
-    out["sheet"] = np.zeros(t, dtype=bool) if sheet is None else np.asarray(sheet, dtype=bool)[order]
-    out["tid"] = np.repeat(np.where(out["sheet"], -(order + 1.0), order).astype(np.float32), 3)
+    out["sheet"] = sheet[order]
+    lone = out["sheet"] & (twin[order] < 0)  # a sheet's triangle with no twin here: its back face is not drawn
+    out["tid"] = np.repeat(np.where(lone, -(order + 1.0), order).astype(np.float32), 3)
+    out["twin"] = np.repeat(twin[order].astype(np.float32), 3)
+    out["twin_bary"] = twin_bary[order].reshape(-1, 2)
     return out
 
 

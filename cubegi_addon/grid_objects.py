@@ -110,7 +110,12 @@ def resolve_grid(scene, arrays, resolution=None, cells=8, spacing=None, notes=No
     whole = ProbeGrid(lo, hi, fit_bounds(lo, hi, float(np.max(hi - lo)) / cells, max_probes=MAX_FITTED_PROBES))
     dense = dense_region(arrays)
     if dense is not None and np.max(dense[1] - dense[0]) < DENSE_SHARE * np.max(hi - lo):
-        dlo, dhi = _padded(*dense, arrays.scale)
+        dlo, dhi = _padded(dense[0], dense[1], arrays.scale)
+        if dense[2]:
+            # A solid seen from outside (a block on a room's floor): the finer grid reaches a
+            # coarse cell beyond it, so its probes stand round it, not all inside it (fitted
+            # tight, every probe was inside the block, and the block, lit by none, went black).
+            dlo, dhi = np.maximum(dense[0] - whole.cell_size, lo), np.minimum(dense[1] + whole.cell_size, hi)
         fine = ProbeGrid(dlo, dhi, fit_bounds(dlo, dhi, float(np.max(dhi - dlo)) / cells, max_probes=MAX_FITTED_PROBES))
         return GridSet([whole, fine]), "fitted to scene bounds, and finer over where most of its geometry is", 0.0
     return whole, "fitted to scene bounds", 0.0
@@ -123,11 +128,14 @@ DENSE_SHARE = 0.25
 # The region: the objects with at least half of their points inside the box of the middle
 # 90% of all points (per axis).
 DENSE_QUANTILES = (0.05, 0.95)
+# Dense geometry is a solid where its faces enclose, outward, at least this share of its box.
+SOLID_SHARE = 0.05
 
 
 def dense_region(arrays):
-    """``(lo, hi)`` of the objects most of whose points lie where most of the scene's points
-    are, or None (see DENSE_SHARE)."""
+    """``(lo, hi, solid)`` of the objects most of whose points lie where most of the scene's
+    points are, or None (see DENSE_SHARE); ``solid``: they enclose a volume with their faces
+    outward (a block, not a room seen from inside nor open sheets, whose twins cancel)."""
     if arrays.point_object is None or len(arrays.points) < 16:
         return None
     q_lo, q_hi = np.quantile(arrays.points, DENSE_QUANTILES, axis=0)
@@ -138,7 +146,11 @@ def dense_region(arrays):
     if not keep.any() or keep.all():
         return None
     pts = arrays.points[keep]
-    return pts.min(axis=0), pts.max(axis=0)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    tri = arrays.triangles[keep[arrays.triangles[:, 0]]]
+    p = arrays.points
+    volume = float(np.einsum("ij,ij->i", p[tri[:, 0]], np.cross(p[tri[:, 1]], p[tri[:, 2]])).sum()) / 6.0
+    return lo, hi, volume > SOLID_SHARE * float(np.prod(np.maximum(hi - lo, 0.0)))
 
 
 def _padded(lo, hi, scale):

@@ -149,8 +149,11 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
     total = 3 + settings.bounces
     collected = yield from scene_data.collect_steps(context, Progress(Stage.CAPTURE, 0, total, "reading the scene", working=True),
                                                     only=only)
-    arrays = collected.arrays
     groups, grid, grid_source = _checked_grid(context, collected, settings, resolution, lit, reference_samples, only)
+    coarse = _coarse_objects(collected.arrays, grid)  # as modelled, before their light's sampling
+    collected = yield from in_background(scene_data.sampled, Progress(Stage.CAPTURE, 0, total, "sampling the surfaces", working=True),
+                                         collected, grid)
+    arrays = collected.arrays
     t_collect = time.perf_counter() - t0
     yield Progress(Stage.CAPTURE, 0, total, f"read {len(collected.targets)} meshes", working=True)  # Blender's turn
 
@@ -169,7 +172,7 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
 
     t = time.perf_counter()
     def vertex_layers():  # numpy alone: in a thread
-        _note_capture(collected, result, grid)
+        _note_capture(collected, result, grid, coarse)
         return [_layers(target, result, arrays, lit) for target in collected.targets]
 
     layers_per_target = yield from in_background(vertex_layers, Progress(Stage.TAIL, total, total, "the light of each mesh's vertices",
@@ -243,7 +246,7 @@ def _coarse_objects(arrays, grid):
 TRAPPED_NOTES = 3
 
 
-def _note_capture(collected, result, grid):
+def _note_capture(collected, result, grid, coarse=()):
     no_probe = result.capture.transport.no_probe
     if collected.arrays.dark is not None:
         no_probe = no_probe & ~collected.arrays.dark
@@ -267,12 +270,11 @@ def _note_capture(collected, result, grid):
         )
     if len(traps) > TRAPPED_NOTES:
         collected.notes.append(f"and {len(traps) - TRAPPED_NOTES} more emitters as close to a surface (the same holds there)")
-    coarse = _coarse_objects(collected.arrays, grid)
     if coarse:
         collected.notes.append(
-            f"{', '.join(coarse[:5])}{' and more' if len(coarse) > 5 else ''}: edges longer than a probe cell, so their "
-            "light is known only at corners far apart (a cube's 8 vertices sit where it meets its neighbours); "
-            "subdivide them for light that changes across them"
+            f"{', '.join(coarse[:5])}{' and more' if len(coarse) > 5 else ''}: edges longer than a probe cell; the bake "
+            "samples their light across them, but a vertex colour holds it only at their corners, far apart (a cube's 8 "
+            "vertices sit where it meets its neighbours): subdivide them for light that changes across them"
         )
     if not result.probe_valid.any():
         collected.notes.append(

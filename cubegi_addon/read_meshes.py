@@ -9,6 +9,7 @@ Cycles bake of the face corners does); a vertex's value is the mean over its cor
 
 import numpy as np
 
+from ..cubegi_engine.geometry import mix64
 from . import read_materials
 
 
@@ -140,16 +141,6 @@ def _is_open(data):
     return bool(single.any())
 
 
-def _mixed(x):
-    """SplitMix64's finaliser of each uint64 (every input bit moves every output bit)."""
-    x = x ^ (x >> np.uint64(30))
-    x *= np.uint64(0xBF58476D1CE4E5B9)
-    x ^= x >> np.uint64(27)
-    x *= np.uint64(0x94D049BB133111EB)
-    x ^= x >> np.uint64(31)
-    return x
-
-
 def _welded(co):
     """``(vertices,)`` a label per position, equal for vertices that stand at one spot (as
     ``np.unique(co, axis=0, return_inverse=True)`` labels them, ten times faster: one sort
@@ -157,9 +148,9 @@ def _welded(co):
     a hash)."""
     exact = co + 0.0  # -0.0 and 0.0 are one position
     bits = exact.view(np.uint64)
-    h = _mixed(bits[:, 0])
-    h = _mixed(h ^ bits[:, 1])
-    h = _mixed(h ^ bits[:, 2])
+    h = mix64(bits[:, 0])
+    h = mix64(h ^ bits[:, 1])
+    h = mix64(h ^ bits[:, 2])
     _, first, labels = np.unique(h, return_index=True, return_inverse=True)
     labels = labels.ravel()
     if not np.array_equal(exact[first][labels], exact):  # a shared hash (or a NaN)

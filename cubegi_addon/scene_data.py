@@ -17,6 +17,7 @@ from ..cubegi_engine import working as working_steps
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.scene import SceneArrays
 from . import attributes, read_lights, read_meshes, read_world
+from .sampling import sampled
 
 
 @dataclass
@@ -143,7 +144,7 @@ def collect_steps(context, working, only=None):
     return (yield from working_steps.in_background(_assemble, working, reading))
 
 
-def collect(context, depsgraph=None, only=None):
+def collect(context, depsgraph=None, only=None, grid=None):
     """The scene's arrays and the meshes to write back to.
 
     Every mesh-like object that renders contributes geometry (modifiers applied, world
@@ -151,12 +152,14 @@ def collect(context, depsgraph=None, only=None):
     its Contribute is off (then it is lit as a dynamic object is); original, non-instanced
     mesh objects whose evaluated vertex count matches their mesh receive the baked light,
     unless their Receive is off or ``only`` (objects' ``session_uid``: Bake Selected, ``--only``) leaves
-    them out.
+    them out. ``grid``: the arrays as a bake on that grid has them (:func:`sampled`).
     """
     if depsgraph is not None:
-        return _collect(context, depsgraph, only)
-    with _as_rendered(context.view_layer):
-        return _collect(context, context.evaluated_depsgraph_get(), only)
+        collected = _collect(context, depsgraph, only)
+    else:
+        with _as_rendered(context.view_layer):
+            collected = _collect(context, context.evaluated_depsgraph_get(), only)
+    return collected if grid is None else sampled(collected, grid)
 
 
 def _rendered_instances(context, depsgraph):

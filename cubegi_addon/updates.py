@@ -117,7 +117,7 @@ def render_geometry_changes(context, kept):
     names = kept.bake.arrays.object_names
     if not any(_can_deform(bpy.data.objects.get(name)) for name in names):
         return []
-    changed = scene_data.collect(context).arrays.fingerprint().changed(kept.bake.arrays.fingerprint())
+    changed = scene_data.collect(context, grid=kept.bake.result.grid.whole()).arrays.fingerprint().changed(kept.bake.arrays.fingerprint())
     return [f"{name} deformed as rendered" for name in sorted(changed)]
 
 
@@ -211,7 +211,7 @@ def _light_edits(before, before_sky, lights, sky, changed):
 def _material_edits(context, kept, changed):
     """The materials' colours and emission now, where they differ from the light now's."""
     bake, live = kept.bake, kept.live
-    arrays = scene_data.collect(context, only=bake.only).arrays
+    arrays = scene_data.collect(context, only=bake.only, grid=bake.result.grid.whole()).arrays
     if not arrays.fingerprint().same_geometry(bake.arrays.fingerprint()):
         raise BakeError("the geometry changed since the bake: Bake again (an update keeps the capture, which only a bake redraws)")
     albedo = emission = None

@@ -24,6 +24,7 @@ from .capture import ProbeCapture
 from .direct import DirectLight, direct_light_steps
 from .errors import BakeError
 from .field import ProbeField
+from .gather import gathered_for
 from .geometry import chunks
 from .grid import ProbeSubset, probes_used
 from .placement import Placement, place
@@ -187,6 +188,11 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
     assert capture is not None  # reused, patched or new
     transport = capture.transport
     timings["near_field"] = transport.near.seconds if transport.near is not None and not reused else 0.0  # part of "tables"
+    if scene.gathered is not None and scene.gathered.any():
+        gathered = yield from in_background(gathered_for, working(Stage.CAPTURE, 0)("rays from the vertices that stand for much "
+                                                                                   "surface"), scene, renderer)
+        transport.take_gathered(gathered)
+        timings["gather"] = gathered.seconds
 
     yield Progress(Stage.DIRECT, 1, total, f"direct light from {len(scene.lights)} lights")
     t = time.perf_counter()

@@ -21,6 +21,7 @@ import numpy as np
 from . import cubemap, nearfield, sh
 from . import lights as lights_mod
 from .emitters import emitter_direct
+from .gather import gathered_for, light_visibility, scene_caster
 from .transport import CubeCapture, clip_planes
 from .working import CAPTURE_DRAWS_PER_STEP, in_background, in_batches, run, start, wait
 
@@ -237,7 +238,11 @@ def light_direct_steps(scene, renderer, settings, light, shadows=None, step=None
     ids = np.arange(len(scene.points))[lit]
     seen = yield from in_background(visibility, _working(step, f"direct light: {light.name or 'a light'}'s shadows"), shadow,
                                     scene.points[lit], scene.normals[lit], ids)
+    gathered = gathered_for(scene, renderer)
+    unshadowed = value[gathered.rows] if gathered is not None else None
     value[lit] *= seen[:, None]
+    if gathered is not None:  # their own rays towards the light, from each corner
+        value[gathered.rows] = unshadowed * light_visibility(gathered, scene_caster(scene, renderer), light, shadow.eyes)[:, None]
     return value
 
 
@@ -314,9 +319,13 @@ def unit_sky_direct_steps(scene, renderer, transport, per_vertex=False, step=Non
         alone[alone] = ~resting
     if per_vertex:  # every vertex its probes give any sky (one under a roof has none)
         alone |= ~transport.covered & (light.max(axis=1) > 0)
+    if transport.gathered is not None:  # their own rays say it
+        alone[transport.gathered.rows] = False
     if alone.any():
         sampling = (SKY_PER_VERTEX_DIRECTIONS, SKY_PER_VERTEX_MAP_SIZE) if per_vertex else (SKY_DIRECTIONS, SKY_MAP_SIZE)
         light[alone] = yield from sky_direct_steps(scene, renderer, np.flatnonzero(alone), *sampling, step=step)
+    if transport.gathered is not None:
+        light[transport.gathered.rows] = transport.gathered.sky
     return light
 
 

@@ -5,7 +5,7 @@ numpy; must not import bpy."""
 import numpy as np
 
 __all__ = ["triangle_planes", "planes_of", "ray_cut", "cut_planes", "cut_triangles", "near_any_triangle", "edge_neighbours",
-           "chunks", "POINT_CHUNK", "GRAZING"]
+           "chunks", "POINT_CHUNK", "GRAZING", "twin_triangles", "mix64", "position_hash"]
 
 # Per-point tests that make several (s, 9, 3) float64 arrays run this many points at a time:
 # a million points then need tens of megabytes, not gigabytes, and stay in cache.
@@ -155,3 +155,53 @@ def edge_neighbours(triangles) -> np.ndarray:
     out.ravel()[first] = second // 3
     out.ravel()[second] = first // 3
     return out
+
+
+def twin_triangles(points, triangles, sheet):
+    """Each triangle's twin (``(t,)``, -1: none): among ``sheet`` triangles, the other one of
+    a pair over the same three positions, wound the other way; and ``(t, 3, 2)`` per corner
+    its place in the twin (its weights of the twin's second and third corners), so that the
+    hit's weights carry over. Exact positions (the twins are copies), hashed."""
+    t = len(triangles)
+    twin = np.full(t, -1, dtype=np.int64)
+    twin_bary = np.zeros((t, 3, 2), dtype=np.float32)
+    ids = np.flatnonzero(sheet)
+    if len(ids) < 2:
+        return twin, twin_bary
+    corner = position_hash(np.asarray(points)[triangles[ids]].reshape(-1, 3)).reshape(-1, 3)  # (k, 3)
+    key = np.sort(corner, axis=1)
+    key = mix64(mix64(key[:, 0]) ^ key[:, 1])
+    key = mix64(key ^ np.sort(corner, axis=1)[:, 2])
+    order = np.argsort(key, kind="stable")
+    k = key[order]
+    pair = np.flatnonzero((k[1:] == k[:-1]) & np.append(k[2:] != k[1:-1], True) & np.insert(k[1:-1] != k[:-2], 0, True))
+    a, b = order[pair], order[pair + 1]
+    # Same corners (not just the same hash), and wound the other way: b's corners are a's in
+    # a reversed cycle.
+    match = (corner[b][:, None, :] == corner[a][:, :, None])  # (m, 3 of a, 3 of b)
+    same = match.any(axis=2).all(axis=1) & match.any(axis=1).all(axis=1)
+    where = np.argmax(match, axis=2)  # a's corner j is b's corner where[j]
+    reversed_ = (where[:, 1] - where[:, 0]) % 3 == 2
+    a, b, where = a[same & reversed_], b[same & reversed_], where[same & reversed_]
+    ia, ib = ids[a], ids[b]
+    twin[ia], twin[ib] = ib, ia
+    unit = np.eye(3, dtype=np.float32)[:, 1:]  # a corner's weights of corners 1 and 2
+    twin_bary[ia] = unit[where]
+    back = np.argsort(where, axis=1)  # b's corner j is a's corner back[j]
+    twin_bary[ib] = unit[back]
+    return twin, twin_bary
+
+
+def mix64(x):
+    """SplitMix64's finaliser (every input bit moves every output bit)."""
+    x = x ^ (x >> np.uint64(30))
+    x = x * np.uint64(0xBF58476D1CE4E5B9)
+    x = x ^ (x >> np.uint64(27))
+    x = x * np.uint64(0x94D049BB133111EB)
+    return x ^ (x >> np.uint64(31))
+
+
+def position_hash(p):
+    """``(n,)`` uint64: a hash of each float32 position's exact bits."""
+    bits = (np.ascontiguousarray(p, dtype=np.float32) + np.float32(0.0)).view(np.uint32).astype(np.uint64)
+    return mix64(mix64(mix64(bits[:, 0]) ^ bits[:, 1]) ^ bits[:, 2])

@@ -39,7 +39,7 @@ import numpy as np
 from . import convergence, sh
 from .spatial import COORD_SLACK, SLACK, VoxelIndex
 
-__all__ = ["NearField", "build", "ray_pattern", "NEAR_REACH", "NEAR_RAYS", "MAX_CANDIDATES", "MAX_PAIRS"]
+__all__ = ["NearField", "build", "ray_pattern", "hemisphere_rays", "NEAR_REACH", "NEAR_RAYS", "MAX_CANDIDATES", "MAX_PAIRS"]
 
 # Reach of the rays, as a share of the point's cell edge (measured on the benchmark's Cornell
 # box when it was chosen: 16.2% indirect error without, 10.1% at 0.25, 9.9% at 0.5 and 1.0,
@@ -82,7 +82,7 @@ def ray_pattern(k, turn=None):
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
 
 
-def _directions(normals, rays, turn):
+def hemisphere_rays(normals, rays, turn):
     """Each point's rays in world space, ``(m, rays, 3)``."""
     helper = np.where(np.abs(normals[:, 2:3]) < 0.9, np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))
     t1 = np.cross(helper, normals)
@@ -180,7 +180,11 @@ class NearField:
         r = np.asarray(radiance, dtype=np.float64)[corner_local if local else corner]
         if not len(weight):
             return np.zeros((self.count, r.shape[1]))
-        return np.add.reduceat(weight[:, None] * r, starts, axis=0)
+        # A row with no hits (a gathered point under the open sky) gathers nothing: reduceat
+        # would take the next row's first entry (or run past the end) for it.
+        summed = np.add.reduceat(np.concatenate([weight[:, None] * r, np.zeros((1, r.shape[1]))]), starts, axis=0)
+        summed[np.diff(np.append(starts, len(weight))) == 0] = 0.0
+        return summed
 
     def gather(self, radiance):
         """``(m, 3)``: each row's light from its hits, for point radiance ``(s, 3)``."""
@@ -292,7 +296,7 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     pair_local = pair_local.ravel()
     at, nrm, rch = points[cast], normals[cast], reach[cast]
     turn = 2.0 * np.pi * ((at / np.maximum(rch, 1e-300)[:, None]) @ TURN_HASH % 1.0)
-    dirs = _directions(nrm, rays, turn)  # (c, rays, 3)
+    dirs = hemisphere_rays(nrm, rays, turn)  # (c, rays, 3)
     # Rays start this far off their surface, and a surface within twice that of a ray's start
     # counts as met there: float32 meshes put points that lie on another surface up to a
     # few 1e-7 of their coordinates off it, at any scale.
@@ -403,14 +407,28 @@ def resting(points, normals, triangles, scale, which, twins=None):
     if not len(which) or not len(tri):
         return np.zeros(len(which), dtype=bool)
     reach = np.full(len(which), 1e-3 * scale)
-    # Coarse voxels (a 64th of the scene): few entries to sort, and few points to ask.
-    index = VoxelIndex(points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]], scale / 64.0)
+    index = _resting_index(points, tri, scale)
     pp, tt, _ = index.candidates(points[which], np.asarray(normals, dtype=np.float64)[which], reach, touching=True)
     if twins is not None:
         pp = pp[~np.any(tri[tt] == np.asarray(twins)[which[pp]][:, None], axis=1)]
     out = np.zeros(len(which), dtype=bool)
     out[pp] = True
     return out
+
+
+_RESTING_INDEX: list = []  # [(key, arrays held, VoxelIndex)]: the last scene's
+
+
+def _resting_index(points, tri, scale):
+    """The voxel index :func:`resting` asks, coarse (a 64th of the scene: few entries to sort,
+    and few points to ask); made once per scene (a bake asks three times: the sky's open
+    points, the near field's hidden ones, the gathered ones), the arrays held while kept."""
+    key = (points.__array_interface__["data"][0], points.shape, tri.__array_interface__["data"][0], tri.shape, float(scale))
+    if _RESTING_INDEX and _RESTING_INDEX[0][0] == key:
+        return _RESTING_INDEX[0][2]
+    index = VoxelIndex(points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]], scale / 64.0)
+    _RESTING_INDEX[:] = [(key, (points, tri), index)]
+    return index
 
 
 def _uncover(index, weight, corners, hidden, tri, reach):
@@ -469,7 +487,7 @@ def _gap_darkening(index, weight, corners, openness, at, tri, front, reach, turn
     keep = np.flatnonzero(gap)
     ask, up, r, slack = ask[keep], up[keep], r[keep], slack[keep]
     pair_p, pair_t, _ = index.candidates(at[ask], up, r)
-    dirs = _directions(up, OPENNESS_RAYS, turn[ask])
+    dirs = hemisphere_rays(up, OPENNESS_RAYS, turn[ask])
     best, _, _, _ = index.trace(at[ask], up, dirs, r, slack, pair_p, pair_t)
     open_hit = 1.0 - np.clip((r[:, None] - best) / (FADE * r[:, None]), 0.0, 1.0).mean(axis=1)
     out = weight.copy()

@@ -34,8 +34,10 @@ from .geometry import near_any_triangle
 
 __all__ = ["CaptureProxy", "simplify"]
 
-# An object with at most this many triangles is never simplified.
-KEEP_WHOLE = 64
+# An object with at most this many triangles, or this share of the budget, is never
+# simplified: clustering it saves little and smears the light of its large triangles (a
+# room's walls cut to a cell's size for the light, cells of metres wide).
+KEEP_WHOLE, KEEP_WHOLE_SHARE = 64, 0.01
 # Rounds of adjusting the cluster size towards the budget; each one is a clustering pass.
 ROUNDS = 4
 
@@ -101,7 +103,7 @@ def simplify(scene, budget) -> CaptureProxy | None:
     prep = _Prepared(points, np.asarray(scene.normals, dtype=np.float64), tris, owner, objects, scene.point_areas())
     tri_count = np.bincount(prep.tri_owner, minlength=objects)
     area = np.bincount(prep.tri_owner, prep.tri_area, minlength=objects)
-    simplified = tri_count > KEEP_WHOLE
+    simplified = tri_count > max(KEEP_WHOLE, KEEP_WHOLE_SHARE * budget)
     kept_whole = int(tri_count[~simplified].sum())
     if kept_whole >= budget or not simplified.any():
         return None

@@ -338,7 +338,7 @@ class SceneLight:
         weights = np.stack([s.weight for s in sources])  # (n, 3)
         albedo = np.tile(self.op.albedo[sup], (1, n))
         area = self.op.areas[sup]
-        unseen = np.asarray(self.transport.covered, dtype=bool)[sup]  # as solve.keep_total: not balanced
+        unseen = np.asarray(self.transport.exact, dtype=bool)[sup]  # as solve.keep_total: not balanced
         balanced = area * ~unseen
 
         def side_by_side(arrays):  # n arrays (r, 3) -> (r, 3n)
@@ -363,7 +363,10 @@ class SceneLight:
                 added = ((balanced @ d).reshape(n, 3) * weights).sum(axis=0)
                 scale[k] = near_factor(probe, added)
             f = np.where(unseen[:, None], 1.0, np.tile(scale[k], n)[None, :])
-            deltas.append(f * d)  # what the near field adds on the support, scaled
+            # What the near field adds on the support, scaled; on the points the balance leaves
+            # alone (a gathered point's whole light is its rays') the probe light, which every
+            # point's gets scaled below, is given back its scale.
+            deltas.append(f * d + np.where(unseen[:, None], 1.0 - np.tile(scale[k], n)[None, :], 0.0) * base)
             prev = f * (base + d)
         self.near_factors = scale
         for m, src in enumerate(sources):
@@ -388,7 +391,7 @@ class SceneLight:
         w = t.probe_weights(near.rows)  # (m, 8)
         parts_m = _dense_interpolation(t.index[near.rows], (w[:, :, None] * near.open_basis[:, None, :]).reshape(near.count, -1),
                                        t.probe_count)
-        seen = self.op.areas * ~np.asarray(t.covered, dtype=bool)
+        seen = self.op.areas * ~np.asarray(t.exact, dtype=bool)
         self._near_cache = (near, (rows_i, parts_m, seen @ self.op.I))
         return self._near_cache[1]
 

@@ -69,6 +69,9 @@ class SceneArrays:
     # facing the other way, and the triangles over them (wound the other way). They get and
     # pass on light like any point, and are not written. None: every surface one-sided.
     back: np.ndarray | None = None
+    # (s,) bool: points that stand for a large share of the surface, whose light is gathered
+    # by rays at the point itself (:mod:`cubegi_engine.gather`); None: none.
+    gathered: np.ndarray | None = None
 
     def zero_dark_points_inplace(self, light: np.ndarray) -> np.ndarray:
         """``light (s, 3)`` with the dark points' rows set to zero, in place; returned."""

@@ -210,10 +210,10 @@ def _one_bounce(series, scene, transport, albedo, areas, landing, seen_before) -
     near, light = transport.near, bounce.light
     if near is None:
         return bounce, light
-    part = transport.interpolate_rows(bounce.balanced, near.rows, near.open_basis)
+    part = transport.near_part(bounce.balanced, light)
     gathered = scene.zero_dark_points_inplace(near.correct(light, part, albedo * seen_before))
     if landing is not None:
-        gathered = keep_total(gathered, light, areas, transport.covered)
+        gathered = keep_total(gathered, light, areas, transport.exact)
     return bounce, gathered
 
 
@@ -221,9 +221,9 @@ def _near_tail(transport, tail, tail_coeffs, albedo, seen_before, areas, balance
     """A solved tail with its near field summed to the end (and its total kept where the
     bake is ``balanced``)."""
     near = transport.near
-    part = transport.interpolate_rows(tail_coeffs, near.rows, near.open_basis)
+    part = transport.near_part(tail_coeffs, tail)
     fixed = near.correct_sum(tail, part, albedo, seen_before)
-    return keep_total(fixed, tail, areas, transport.covered) if balanced else fixed
+    return keep_total(fixed, tail, areas, transport.exact) if balanced else fixed
 
 
 def _tail(op, last: Bounce | None, bounces, records, remaining, areas, settings):

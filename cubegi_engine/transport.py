@@ -21,7 +21,7 @@ Light is carried as the diffuse value of a white Lambertian surface, ``E / pi``;
 radiance of a surface of albedo rho receiving diffuse light l is ``rho * l`` (+ emission).
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -167,6 +167,7 @@ class Transport:
         self.covered = _weightless(self.point_weights) & ~self.no_probe
         # The near field (a final gather of each point's short-range surroundings), or None.
         self.near = None
+        self.gathered = None  # the points gathered by rays over their whole view (take_gathered)
         if near_field:
             reach = NEAR_REACH * grid.point_cell_edge(scene.points)
             lit_if_open = None
@@ -179,6 +180,26 @@ class Transport:
             self._light_from_behind(spare, basis, len(scene.points))
         if self.near is not None and visibility and self.covered.any():
             self._light_under(scene, grid, index, trilinear_weight, basis, positions)
+
+    def take_gathered(self, gathered):
+        """Light the points of ``gathered`` (a :class:`~cubegi_engine.gather.Gathered`) by their
+        own rays from now on: their rows join the near field in place of any they had (every
+        probe light of theirs taken away). Once per Gathered."""
+        if gathered is None or gathered is self.gathered:
+            return
+        near = _same_side(gathered.near, self.covered)
+        self.near = near if self.near is None or not self.near.count else self.near.replaced_rows(near)
+        self.gathered = gathered
+
+    @property
+    def exact(self) -> np.ndarray:
+        """``(s,)`` bool: the points whose light the energy balance neither counts nor scales:
+        those no probe lights (:attr:`covered`: their light is the near field's alone) and
+        the gathered points (their own rays' light, whole)."""
+        out = self.covered.copy()
+        if self.gathered is not None:
+            out[self.gathered.rows] = True
+        return out
 
     def _sky_pattern_projection(self, dirs, sky):
         """``(p, 9, 3)``: the SH of the scene's sky pattern (an environment image) as each
@@ -290,6 +311,20 @@ class Transport:
             light[self.near.rows] - self.interpolate_rows(coeffs, self.near.rows, self.near.open_basis), 0.0)
         return light
 
+    def near_part(self, coeffs, light):
+        """What the near field's rows lose of the probes' light ``light (s, 3)`` of ``coeffs``:
+        their probe light in the hit directions (:meth:`interpolate_rows` of their open basis),
+        and a gathered point's whole probe light as ``light`` has it (its rays replace it,
+        deringed and clamped as it is: the same as a linear update's, which subtracts what it
+        adds)."""
+        near = self.near
+        part = self.interpolate_rows(coeffs, near.rows, near.open_basis)
+        if self.gathered is not None and self.gathered.count:
+            place = np.full(len(self.index), -1, dtype=np.int64)
+            place[near.rows] = np.arange(near.count)
+            part[place[self.gathered.rows]] = np.asarray(light, dtype=np.float64)[self.gathered.rows]
+        return part
+
     def interpolate_rows(self, coeffs, rows, basis):
         """``(m, 3)``: the probe light of points ``rows (m,)`` from coefficients ``(p, 9, 3)``
         for per-row bases ``(m, 9)`` instead of their normals' diffuse basis (same weights)."""
@@ -322,6 +357,8 @@ class Transport:
         unit = np.repeat(self.sky_projection[:, :, None], 3, axis=2)  # geometric: a uniform unit sky
         landing = np.clip(1.0 - self.interpolate(unit).astype(np.float64), 0.0, 1.0)
         landing[_weightless(self.point_weights)] = 0.0
+        if self.gathered is not None:  # their own rays say it
+            landing[self.gathered.rows] = self.gathered.near.share[:, None]
         return landing
 
     def sky_coefficients(self, sky):
@@ -369,6 +406,23 @@ class Transport:
             g = np.take(flat, self.index[sl], axis=0).reshape(-1, COEFFS_PER_POINT, 3)
             out[sl] = np.matmul(self.point_weights[sl, None, :], g)[:, 0]
         return np.maximum(out, 0.0) if clamp else out
+
+
+def _same_side(near, covered):
+    """The gathered rows' hits (a NearField) taking their light from the corners of the hit
+    triangle that lie on the gathering point's side of the walls: lit by the probes where it
+    is, unlit by them (``covered (s,)``: outside the room, or under something) where it is
+    not; all of them where none does. A floor running under a wall into the open has a
+    corner outside, in the sun, and a wall's foot gathering from the floor beside it must not
+    take that light (the Breakfast Room's walls: their corners' indirect light 50 times
+    Cycles')."""
+    if not near.count:
+        return near
+    same = covered[near.hit_corner] == covered[near.rows][near.hit_row][:, None]
+    kept = near.hit_weight * same
+    total, part = near.hit_weight.sum(axis=1), kept.sum(axis=1)
+    weight = np.where(part[:, None] > 0, kept * (total / np.maximum(part, 1e-300))[:, None], near.hit_weight)
+    return replace(near, hit_weight=weight)
 
 
 def _outer_float32(weight, basis):

@@ -100,7 +100,7 @@ def _brute_force_hits(points, normals, reach, vertices, triangles, rays):
     """Per point and ray, the nearest triangle hit within reach (-1 for none), testing every
     triangle with the same rays as the near field."""
     turn = 2.0 * np.pi * ((points / reach) @ nearfield.TURN_HASH % 1.0)
-    dirs = nearfield._directions(normals, rays, turn)
+    dirs = nearfield.hemisphere_rays(normals, rays, turn)
     slack = spatial.SLACK * reach + spatial.COORD_SLACK * np.abs(points).max(axis=1)
     out = np.full((len(points), rays), -1)
     a, b, c = (vertices[triangles[:, i]] for i in range(3))

@@ -1,0 +1,36 @@
+"""Rays against a scene's triangles through Blender's BVH tree (``mathutils.bvhtree``): the
+add-on's :class:`~cubegi_engine.rays.RayCaster`."""
+
+import numpy as np
+from mathutils.bvhtree import BVHTree
+
+from ..cubegi_engine.rays import Hits, hits_from_distances
+
+
+class BvhRays:
+    """Each ray's nearest hit among ``triangles (k, 3)`` over ``points (s, 3)`` (both sides of
+    a triangle are met; :class:`~cubegi_engine.rays.Hits` says which)."""
+
+    def __init__(self, points, triangles):
+        self.points = np.asarray(points, dtype=np.float64)
+        self.triangles = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+        used = np.unique(self.triangles)  # the tree holds only the points its triangles use
+        local = np.searchsorted(used, self.triangles)
+        self.tree = BVHTree.FromPolygons(self.points[used].tolist(), local.tolist(), all_triangles=True)
+
+    def cast(self, origins, dirs, reach=None) -> Hits:
+        origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+        dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
+        n = len(origins)
+        t = np.full(n, np.inf)
+        which = np.full(n, -1, dtype=np.int64)
+        cast = self.tree.ray_cast
+        if reach is None:
+            found = [cast(o, d) for o, d in zip(origins.tolist(), dirs.tolist())]
+        else:
+            limit = np.broadcast_to(np.asarray(reach, dtype=np.float64), (n,)).tolist()
+            found = [cast(o, d, r) for o, d, r in zip(origins.tolist(), dirs.tolist(), limit)]
+        for k, (_, _, index, distance) in enumerate(found):
+            if index is not None:
+                t[k], which[k] = distance, index
+        return hits_from_distances(self.points, self.triangles, origins, dirs, t, which)

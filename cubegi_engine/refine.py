@@ -1,0 +1,235 @@
+"""Light sampled finely enough: long triangles split into smaller ones for the bake.
+
+Pure numpy; must not import bpy.
+
+A bake knows the light at the shading points, and everything it passes on (what the probes
+see of a surface, what the near field's rays meet) is the barycentric mix of a triangle's
+corners' light. A triangle larger than a probe cell (a room's floor as two triangles, a wall
+as one quad) then passes on the light of its far-apart corners, not the light across it:
+a sun patch in its middle is lost, and a corner that stands a few centimetres outside the
+room (a floor running under the walls, a wall's end past the next wall: common in real
+files) spreads the outside's sky and sun over the whole surface. The Breakfast Room's floor
+is 6 vertices over 14 x 11 m, two of them outside the room: its chairs got 3 to 4 times
+Cycles' indirect light.
+
+:func:`refine` splits every triangle whose longest edge is longer than the given length into
+``n x n`` smaller ones (its edges cut into ``n`` equal parts); the new points lie in the
+triangle, with its corners' normal, albedo and emission mixed barycentrically. The bake
+lights them as any point; the light written to a mesh is the light at its own vertices.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .geometry import mix64
+from .scene import SceneArrays
+
+__all__ = ["refine", "split_counts", "MAX_SPLIT", "MAX_NEW_SHARE"]
+
+# A triangle is cut into at most MAX_SPLIT parts along its edges (MAX_SPLIT^2 triangles), and
+# a scene gains at most MAX_NEW_SHARE times its points (plus MIN_NEW_POINTS): past that the
+# length is raised for every triangle alike (a huge low-poly scene under a fine grid).
+MAX_SPLIT = 32
+MAX_NEW_SHARE, MIN_NEW_POINTS = 0.5, 20_000
+
+
+def split_counts(points, triangles, max_edge) -> np.ndarray:
+    """``(t,)`` int: the parts each triangle's edges are cut into so that none is longer than
+    ``max_edge`` (one length, or ``(t,)``), at least 1, at most MAX_SPLIT."""
+    p = np.asarray(points, dtype=np.float64)
+    tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    a, b, c = p[tri[:, 0]], p[tri[:, 1]], p[tri[:, 2]]
+    longest = np.sqrt(np.max(np.stack([np.einsum("ij,ij->i", x - y, x - y) for x, y in ((a, b), (b, c), (c, a))]), axis=0))
+    limit = np.broadcast_to(np.asarray(max_edge, dtype=np.float64), longest.shape)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        n = np.ceil(np.where(limit > 0, longest / limit, 1.0) - 1e-9)
+    return np.clip(np.nan_to_num(n, nan=1.0, posinf=MAX_SPLIT), 1, MAX_SPLIT).astype(np.int64)
+
+
+def _new_points(n) -> int:
+    """Points a triangle cut ``n`` ways gains (the lattice less its 3 corners)."""
+    return (n + 1) * (n + 2) // 2 - 3
+
+
+def _lattice(n):
+    """The barycentric lattice of a triangle cut ``n`` ways: ``(weights (L, 3), sub (n^2, 3))``,
+    lattice points (i along a->b, j along a->c) with the corners first, and the smaller
+    triangles over them, wound as the triangle is."""
+    ij = [(0, 0), (n, 0), (0, n)] + [(i, j) for j in range(n + 1) for i in range(n + 1 - j)
+                                     if (i, j) not in ((0, 0), (n, 0), (0, n))]
+    at = {key: k for k, key in enumerate(ij)}
+    ij_arr = np.array(ij, dtype=np.float64)
+    weights = np.stack([1.0 - (ij_arr[:, 0] + ij_arr[:, 1]) / n, ij_arr[:, 0] / n, ij_arr[:, 1] / n], axis=1)
+    sub = [(at[(i, j)], at[(i + 1, j)], at[(i, j + 1)]) for j in range(n) for i in range(n - j)]
+    sub += [(at[(i + 1, j)], at[(i + 1, j + 1)], at[(i, j + 1)]) for j in range(n - 1) for i in range(n - 1 - j)]
+    return weights, np.array(sub, dtype=np.int64)
+
+
+def _budgeted(counts, refine, points):
+    """``counts`` lowered (by one scale for every triangle) until the new points stay within
+    the budget (MAX_NEW_SHARE of ``points`` plus MIN_NEW_POINTS)."""
+    budget = MAX_NEW_SHARE * points + MIN_NEW_POINTS
+    scale = 1.0
+    while True:
+        n = np.maximum(np.ceil(counts / scale - 1e-9), 1).astype(np.int64) if scale > 1 else counts
+        if int(np.sum(_new_points(n[refine]))) <= budget:
+            return n
+        scale *= 1.25
+
+
+def refine(scene: SceneArrays, max_edge) -> tuple[SceneArrays, np.ndarray]:
+    """``scene`` with every triangle whose longest edge exceeds ``max_edge`` (one length, or
+    ``(t,)`` per triangle) cut into smaller ones (see the module docstring), and ``(s,)``
+    the index of each of ``scene``'s points in the new arrays.
+
+    Each object's points stay together and in order, its own first: an object's new points
+    follow its own, and a two-sided object's back side (its twins, ``SceneArrays.back``)
+    follows all of them, in the same order (a refined triangle's twin is refined alike).
+    Returns ``scene`` itself, and the identity, where no triangle is too long."""
+    s = len(scene.points)
+    tri = np.asarray(scene.triangles, dtype=np.int64).reshape(-1, 3)
+    identity = np.arange(s)
+    if not len(tri):
+        return scene, identity
+    back_pt = np.zeros(s, dtype=bool) if scene.back is None else np.asarray(scene.back, dtype=bool)
+    counts = split_counts(scene.points, tri, max_edge)
+    refine_tri = (counts > 1) & ~back_pt[tri[:, 0]]
+    if refine_tri.any():
+        counts = _budgeted(counts, refine_tri, s)
+        refine_tri &= counts > 1
+    if not refine_tri.any():
+        return scene, identity
+    lay = _Layout.of(scene, tri, back_pt, refine_tri, counts)
+    out = _moved_arrays(scene, lay, back_pt)
+    front_parts, twin_parts = [], []
+    for n in np.unique(counts[lay.rows]):
+        front, twin = _split(scene, tri, lay, out, counts[lay.rows] == n, int(n))
+        front_parts.append(front)
+        if twin is not None:
+            twin_parts.append(twin)
+    kept_tri = lay.moved[tri[~refine_tri]]
+    if twin_parts:  # the refined triangles' old twins leave with them
+        two = lay.sheet[lay.row_obj]
+        kept_tri = kept_tri[~_among(kept_tri, lay.moved[tri[lay.rows[two]]] + lay.twin_offset[lay.row_obj[two]][:, None])]
+    triangles = np.concatenate([kept_tri, *front_parts, *twin_parts]).astype(np.int64)
+    refined = SceneArrays(out["points"], out["normals"], out["albedo"], out["emission"], triangles, sky=scene.sky,
+                          lights=scene.lights, point_object=out["point_object"] if scene.point_object is not None else None,
+                          dark=out.get("dark"), object_names=list(scene.object_names), sky_map=scene.sky_map,
+                          back=out["back"] if scene.back is not None else None, gathered=out.get("gathered"))
+    return refined, lay.moved
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """Where everything goes in the refined arrays. Per object: its own points, its new
+    points, then (a two-sided object) its twins and the new points' twins.
+
+    rows ``(r,)``: the triangles refined, by object; row_obj: their objects; local_first:
+    each row's first new point among its object's new points; moved ``(s,)``: each old
+    point's new index; out_start, own, sheet, twin_offset: per object, its first index, its
+    front (or only) side's old points, whether it is two-sided, how far after a front point
+    its twin lies; total: the new point count."""
+
+    rows: np.ndarray
+    row_obj: np.ndarray
+    local_first: np.ndarray
+    moved: np.ndarray
+    out_start: np.ndarray
+    out_sizes: np.ndarray
+    own: np.ndarray
+    sheet: np.ndarray
+    twin_offset: np.ndarray
+    total: int
+
+    @classmethod
+    def of(cls, scene, tri, back_pt, refine_tri, counts):
+        s = len(scene.points)
+        owner = np.zeros(s, dtype=np.int64) if scene.point_object is None else np.asarray(scene.point_object, dtype=np.int64)
+        objects = int(owner.max()) + 1 if s else 0
+        sizes = np.bincount(owner, minlength=objects)
+        sheet = np.bincount(owner[back_pt], minlength=objects) > 0
+        own = np.where(sheet, sizes // 2, sizes)
+        rows = np.flatnonzero(refine_tri)
+        row_obj = owner[tri[rows, 0]]
+        order = np.lexsort((rows, row_obj))  # by object, then triangle: each object's new points together
+        rows, row_obj = rows[order], row_obj[order]
+        gained = _new_points(counts[rows])
+        new_per_obj = np.bincount(row_obj, gained, minlength=objects).astype(np.int64)
+        local_first = (np.cumsum(gained) - gained) - (np.cumsum(new_per_obj) - new_per_obj)[row_obj]
+        out_sizes = sizes + new_per_obj * np.where(sheet, 2, 1)
+        out_start = np.cumsum(out_sizes) - out_sizes
+        within = np.arange(s) - np.searchsorted(owner, np.arange(objects))[owner]
+        moved = np.where(back_pt, out_start[owner] + own[owner] + new_per_obj[owner] + (within - own[owner]),
+                         out_start[owner] + within)
+        return cls(rows, row_obj, local_first, moved, out_start, out_sizes, own, sheet, own + new_per_obj, int(out_sizes.sum()))
+
+
+def _moved_arrays(scene, lay, back_pt) -> dict:
+    """The refined arrays with the old points in their new places (the new ones to fill)."""
+    out = {}
+    for name in ("points", "normals", "albedo", "emission"):
+        out[name] = np.empty((lay.total, 3))
+        out[name][lay.moved] = getattr(scene, name)
+    out["point_object"] = np.repeat(np.arange(len(lay.out_sizes)), lay.out_sizes)
+    out["back"] = np.zeros(lay.total, dtype=bool)
+    out["back"][lay.moved] = back_pt
+    for name in ("dark", "gathered"):  # the new points are not set aside, and stand for little surface each
+        if getattr(scene, name) is not None:
+            out[name] = np.zeros(lay.total, dtype=bool)
+            out[name][lay.moved] = getattr(scene, name)
+    return out
+
+
+def _split(scene, tri, lay, out, sel, n):
+    """The rows ``sel`` of ``lay`` (triangles cut ``n`` ways): their new points written into
+    ``out``; returns ``(their triangles (m n^2, 3), their twins' or None)``."""
+    r, obj, base = lay.rows[sel], lay.row_obj[sel], lay.local_first[sel]
+    weights, sub = _lattice(n)
+    corners = tri[r]  # (m, 3)
+    fresh = lay.out_start[obj][:, None] + lay.own[obj][:, None] + base[:, None] + np.arange(len(weights) - 3)[None, :]
+    index = np.concatenate([lay.moved[corners], fresh], axis=1)
+    w = weights[3:]  # (L-3, 3)
+    for name in ("points", "albedo", "emission"):
+        out[name][fresh] = np.einsum("lk,mkc->mlc", w, np.asarray(getattr(scene, name), dtype=np.float64)[corners])
+    nrm = np.einsum("lk,mkc->mlc", w, np.asarray(scene.normals, dtype=np.float64)[corners])
+    out["normals"][fresh] = nrm / np.maximum(np.linalg.norm(nrm, axis=2, keepdims=True), 1e-300)
+    two = lay.sheet[obj]
+    if not two.any():
+        return index[:, sub].reshape(-1, 3), None
+    shift = lay.twin_offset[obj[two]][:, None]
+    tw = fresh[two] + shift
+    for name in ("points", "albedo", "emission"):
+        out[name][tw] = out[name][fresh[two]]
+    out["normals"][tw] = -out["normals"][fresh[two]]
+    out["back"][tw] = True
+    twin_index = index[two] + shift  # the twins of the corners and of the new points alike
+    return index[:, sub].reshape(-1, 3), twin_index[:, sub][:, :, ::-1].reshape(-1, 3)
+
+
+def _among(triangles, others) -> np.ndarray:
+    """``(k,)`` bool: which of ``triangles (k, 3)`` have the corners of one of ``others (m, 3)``,
+    in any order (by a 64-bit hash of each sorted corner triple)."""
+    if not len(triangles) or not len(others):
+        return np.zeros(len(triangles), dtype=bool)
+
+    def key(t):
+        t = np.sort(t, axis=1).astype(np.uint64)
+        return mix64(mix64(mix64(t[:, 0]) ^ t[:, 1]) ^ t[:, 2])
+
+    return np.isin(key(triangles), key(others))
+
+
+# Light is sampled at most this many probe cells apart on every surface (see the module
+# docstring and docs/accuracy.md).
+SAMPLE_CELLS = 1.5
+
+
+def refine_for_grid(scene: SceneArrays, grid, cells=SAMPLE_CELLS) -> tuple[SceneArrays, np.ndarray]:
+    """:func:`refine` with each triangle's longest edge held to ``cells`` of the cell edge of
+    the grid at its centre (``grid``: a :class:`~cubegi_engine.grid.Grid`)."""
+    tri = np.asarray(scene.triangles, dtype=np.int64).reshape(-1, 3)
+    if not len(tri):
+        return scene, np.arange(len(scene.points))
+    centre = np.asarray(scene.points, dtype=np.float64)[tri].mean(axis=1)
+    return refine(scene, cells * grid.point_cell_edge(centre))

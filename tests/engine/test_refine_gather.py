@@ -1,0 +1,148 @@
+"""Light sampled finely enough and gathered where a vertex stands for much surface, in pure
+numpy: the refinement of long triangles, the plain ray caster, and the gather by rays."""
+
+import numpy as np
+import pytest
+
+from cubegi.cubegi_engine import gather, rays, refine, sh
+from cubegi.cubegi_engine.scene import SceneArrays, triangle_areas
+
+
+def _quad(z, size=4.0, up=True):
+    pts = np.array([[0, 0, z], [size, 0, z], [size, size, z], [0, size, z]], dtype=float)
+    tris = np.array([[0, 1, 2], [0, 2, 3]]) if up else np.array([[0, 2, 1], [0, 3, 2]])
+    return pts, tris
+
+
+def _scene(parts, sheet=()):
+    """A SceneArrays of ``parts`` (points, triangles, albedo), one object each; the objects
+    named in ``sheet`` get their back side (twins), as the scene reader gives them."""
+    pts, nrm, alb, tri, obj, back = [], [], [], [], [], []
+    n = 0
+    for k, (p, t, a) in enumerate(parts):
+        e = np.cross(p[t[0, 1]] - p[t[0, 0]], p[t[0, 2]] - p[t[0, 0]])
+        normal = np.tile(e / np.linalg.norm(e), (len(p), 1))
+        albedo = np.tile(a, (len(p), 1))
+        if k in sheet:
+            p, t = np.concatenate([p, p]), np.concatenate([t, t[:, ::-1] + len(p)])
+            normal, albedo = np.concatenate([normal, -normal]), np.concatenate([albedo, albedo])
+            b = np.r_[np.zeros(len(p) // 2, bool), np.ones(len(p) // 2, bool)]
+        else:
+            b = np.zeros(len(p), bool)
+        pts.append(p), nrm.append(normal), alb.append(albedo), tri.append(t + n), obj.append(np.full(len(p), k)), back.append(b)
+        n += len(p)
+    points = np.concatenate(pts)
+    return SceneArrays(points, np.concatenate(nrm), np.concatenate(alb), np.zeros_like(points), np.concatenate(tri),
+                       point_object=np.concatenate(obj), back=np.concatenate(back) if sheet else None,
+                       object_names=[f"o{k}" for k in range(len(parts))])
+
+
+def test_refining_keeps_every_point_the_surface_and_the_sheets_twins():
+    floor = _quad(0.0)
+    card = _quad(1.0, size=2.0)
+    scene = _scene([(*floor, (0.5, 0.5, 0.5)), (*card, (0.8, 0.2, 0.1))], sheet=(1,))
+    scene.gathered = np.zeros(len(scene.points), bool)
+    scene.gathered[0] = True
+    out, moved = refine.refine(scene, 1.0)
+    # Every old point is where it was, with what it had; the new ones lie on their triangles.
+    for name in ("points", "normals", "albedo"):
+        assert np.array_equal(getattr(out, name)[moved], getattr(scene, name))
+    assert np.array_equal(out.back[moved], scene.back) and out.gathered[moved[0]] and out.gathered.sum() == 1
+    # No triangle longer than asked; each object's front and back area as before.
+    p = out.points[out.triangles]
+    assert np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2).max() <= 1.0 + 1e-9
+    area = triangle_areas(out.points, out.triangles)
+    owner, side = out.point_object[out.triangles[:, 0]], out.back[out.triangles[:, 0]]
+    assert [area[(owner == k) & (side == b)].sum() for k, b in ((0, False), (1, False), (1, True))] == pytest.approx([16, 4, 4])
+    # The sheet's layout holds (own points, then their twins in the same order).
+    sheets = out.sheets()
+    b = np.flatnonzero(out.back)
+    assert np.allclose(out.points[sheets.twins[b]], out.points[b]) and np.allclose(out.normals[sheets.twins[b]], -out.normals[b])
+    # Triangles keep their winding (their normal along their points').
+    e = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    assert (np.einsum("ij,ij->i", e, out.normals[out.triangles[:, 0]]) > 0).all()
+
+
+def test_refining_leaves_a_scene_of_short_triangles_as_it_is():
+    scene = _scene([(*_quad(0.0, size=0.5), (0.5, 0.5, 0.5))])
+    out, moved = refine.refine(scene, 1.0)
+    assert out is scene and np.array_equal(moved, np.arange(len(scene.points)))
+
+
+def test_the_refinement_budget_holds_a_huge_low_poly_scene():
+    scene = _scene([(*_quad(0.0, size=1000.0), (0.5, 0.5, 0.5))])
+    out, _ = refine.refine(scene, 0.01)  # 100,000 cuts a side, were it not held
+    assert len(out.points) - len(scene.points) <= refine.MAX_NEW_SHARE * len(scene.points) + refine.MIN_NEW_POINTS
+
+
+def test_the_numpy_caster_finds_the_nearest_triangle_and_its_side():
+    lower, upper = _quad(0.0), _quad(1.0, up=False)
+    pts = np.concatenate([lower[0], upper[0]])
+    tri = np.concatenate([lower[1], upper[1] + 4])
+    caster = rays.NumpyRays(pts, tri)
+    origins = np.array([[1.0, 1.0, 0.5], [1.0, 1.0, 0.5], [3.0, 1.0, 2.0], [9.0, 9.0, 0.5]])
+    dirs = np.array([[0, 0, 1.0], [0, 0, -1.0], [0, 0, -1.0], [0, 0, 1.0]])
+    hits = caster.cast(origins, dirs)
+    assert hits.t[:3] == pytest.approx([0.5, 0.5, 1.0]) and np.isinf(hits.t[3]) and hits.triangle[3] == -1
+    assert hits.front.tolist()[:3] == [True, True, False]  # the upper quad faces down; the lower up
+    x = np.einsum("nk,nkc->nc", hits.bary[:3], pts[tri[hits.triangle[:3]]])
+    assert np.allclose(x, origins[:3] + hits.t[:3, None] * dirs[:3])
+    assert caster.cast(origins[:1], dirs[:1], reach=np.array([0.4])).triangle[0] == -1
+
+
+def test_a_gathered_point_under_an_open_sky_sees_it_all_and_under_a_roof_sees_the_roof():
+    """A floor alone: its corner's rays all leave (unit sky light 1, nothing hit). Under a roof
+    facing it, the same point's rays all meet the roof, whose light it takes whole."""
+    floor = _scene([(*_quad(0.0), (0.5, 0.5, 0.5))])
+    caster = rays.NumpyRays(floor.points, floor.triangles)
+    g = gather.gather(floor, np.array([0]), caster, rays=64)
+    assert g.sky[0] == pytest.approx([1.0, 1.0, 1.0]) and g.near.share[0] == pytest.approx(0.0) and len(g.near.hit_row) == 0
+    roof = _quad(0.01, size=40.0, up=False)
+    roof = (roof[0] - [18.0, 18.0, 0.0], roof[1])
+    both = _scene([(*_quad(0.0), (0.5, 0.5, 0.5)), (*roof, (0.9, 0.9, 0.9))])
+    g = gather.gather(both, np.array([0]), rays.NumpyRays(both.points, both.triangles), rays=64)
+    assert g.sky[0] == pytest.approx([0.0, 0.0, 0.0], abs=1e-12) and g.near.share[0] == pytest.approx(1.0)
+    radiance = np.zeros((len(both.points), 3))
+    radiance[4:] = [0.2, 0.4, 0.6]
+    assert g.near.gather(radiance)[0] == pytest.approx([0.2, 0.4, 0.6])
+    # The probes' light is all taken away: its basis is the point's diffuse basis.
+    assert np.allclose(g.near.open_basis[0], sh.diffuse_basis(both.normals[0]))
+
+
+def test_a_gathered_point_facing_a_sheets_back_takes_its_twins_light():
+    """A card seen from behind: its back side is its twin's front, whose light the ray takes."""
+    floor = _quad(0.0)
+    card = _quad(0.01, size=40.0)  # faces up: the floor's point sees its back
+    card = (card[0] - [18.0, 18.0, 0.0], card[1])
+    scene = _scene([(*floor, (0.5, 0.5, 0.5)), (*card, (0.9, 0.9, 0.9))], sheet=(1,))
+    caster = gather.scene_caster(scene, renderer=None)
+    g = gather.gather(scene, np.array([0]), caster, rays=32)
+    radiance = np.zeros((len(scene.points), 3))
+    radiance[scene.back] = [1.0, 2.0, 3.0]  # the card's underside
+    assert g.near.gather(radiance)[0] == pytest.approx([1.0, 2.0, 3.0])
+
+
+def test_the_sun_is_seen_from_a_gathered_point_unless_a_roof_is_in_the_way():
+    from cubegi.cubegi_engine.lights import Light
+
+    floor = _scene([(*_quad(0.0), (0.5, 0.5, 0.5))])
+    sun = Light("SUN", np.ones(3), np.zeros(3), np.array([0.0, 0.0, -1.0]))
+    g = gather.gather(floor, np.array([0, 2]), rays.NumpyRays(floor.points, floor.triangles), rays=8)
+    assert gather.light_visibility(g, rays.NumpyRays(floor.points, floor.triangles), sun) == pytest.approx([1.0, 1.0])
+    roof = _quad(1.0, size=1.0)  # over the point at the origin only
+    both = _scene([(*_quad(0.0), (0.5, 0.5, 0.5)), (*roof, (0.5, 0.5, 0.5))])
+    caster = rays.NumpyRays(both.points, both.triangles)
+    g = gather.gather(both, np.array([0, 2]), caster, rays=8)
+    assert gather.light_visibility(g, caster, sun) == pytest.approx([0.0, 1.0])
+
+
+def test_only_points_that_stand_for_much_more_surface_than_most_are_gathered():
+    big = _quad(0.0, size=10.0)
+    fine = np.stack(np.meshgrid(np.linspace(20, 21, 41), np.linspace(0, 1, 41), [0.0], indexing="ij"), -1).reshape(-1, 3)
+    idx = np.arange(41 * 41).reshape(41, 41)
+    t = np.concatenate([np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:]], -1).reshape(-1, 3),
+                        np.stack([idx[:-1, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 3)])
+    scene = _scene([(*big, (0.5, 0.5, 0.5)), (fine, t, (0.5, 0.5, 0.5))])
+    assert np.flatnonzero(gather.large_points(scene)).tolist() == [0, 1, 2, 3]
+    even = _scene([(fine, t, (0.5, 0.5, 0.5))])  # an evenly cut mesh: none stands out
+    assert not gather.large_points(even).any()

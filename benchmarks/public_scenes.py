@@ -134,6 +134,23 @@ def breakfast_room():
     return scene
 
 
+def breakfast_camera():
+    """The scene's own camera (its ``sensor``: 60 degrees across, 16:9) as the Blender scene's
+    camera, for pictures. Mitsuba's camera looks along its local +z with +y up; Blender's
+    along -z: x and z are turned round."""
+    root = ET.parse(os.path.join(_folder("breakfast-room"), "scene.xml")).getroot()
+    sensor = root.find("sensor")
+    m = np.array(_floats(sensor.find("transform/matrix").get("value"))).reshape(4, 4)
+    data = bpy.data.cameras.new("Camera")
+    data.sensor_fit = "HORIZONTAL"
+    data.angle = np.radians(float(sensor.find("float[@name='fov']").get("value")))
+    ob = bpy.data.objects.new("Camera", data)
+    ob.matrix_world = Y_UP @ Matrix(m.tolist()) @ Matrix.Diagonal((-1.0, 1.0, -1.0, 1.0))
+    bpy.context.scene.collection.objects.link(ob)
+    bpy.context.scene.camera = ob
+    return ob
+
+
 def cornell_original(cuts=16):
     """McGuire's Cornell box, each quad cut into ``cuts`` x ``cuts`` so that per-vertex light
     has vertices to land on (the file's walls are single quads)."""

@@ -32,6 +32,7 @@ from .proxy import simplify
 from .records import Progress, Stage
 from .settings import BakeSettings
 from .solve import LightSolution, area_weighted_mean, solve_steps
+from .spatial import forget_indexes
 from .working import in_background, run  # noqa: F401 (bake.run: the one driver)
 
 __all__ = ["Renderer", "BakeResult", "bake_steps", "run", "check_memory", "memory_estimate", "area_weighted_mean"]
@@ -52,7 +53,10 @@ class Renderer(Protocol):
     triangles it draws (the rest are left out), each still reported by its own index;
     ``sheet``: ``(t,)`` bool, triangles whose back faces are not drawn (two-sided objects,
     whose twins stand there: ``SceneArrays.back``). A renderer of the scene itself is made
-    with the scene's ``sheet_triangles()``.
+    with the scene's ``sheet_triangles()``; of a sheet's two twins it may draw one, reporting
+    the other where it is seen from behind. ``rays(points, triangles)`` (optional): a
+    :class:`~cubegi_engine.rays.RayCaster` over those triangles (else the engine tests every
+    ray against every triangle: small scenes).
     """
 
     def render(self, view_projs, eyes, axes, size, with_bary=True): ...
@@ -151,6 +155,13 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
     ones inside geometry, for a probe field that must light points anywhere in the grid
     (dynamic objects).
     """
+    try:
+        return (yield from _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field))
+    finally:
+        forget_indexes()  # the voxel indexes its stages shared
+
+
+def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field):
     settings = (settings or BakeSettings()).validate()
     t_start = time.perf_counter()
     timings = {}

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import cubemap, nearfield, sh
+from . import cubemap, sh, spatial
 from . import lights as lights_mod
 from .emitters import emitter_direct
 from .gather import gathered_for, light_visibility, scene_caster
@@ -314,7 +314,7 @@ def unit_sky_direct_steps(scene, renderer, transport, per_vertex=False, step=Non
         # half-enclosed points were left out).
         alone &= ~transport.near.enclosed(len(alone), SKY_ENCLOSED)
     if alone.any():  # not the underside of a block standing on the ground
-        resting = yield from in_background(nearfield.resting, _working(step, "direct light: the sky's open points"), scene.points,
+        resting = yield from in_background(spatial.resting, _working(step, "direct light: the sky's open points"), scene.points,
                                            scene.normals, scene.triangles, scene.scale, np.flatnonzero(alone), scene.twins())
         alone[alone] = ~resting
     if per_vertex:  # every vertex its probes give any sky (one under a roof has none)

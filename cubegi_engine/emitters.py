@@ -142,7 +142,9 @@ def _group_ff(points, normals, corner_ids, verts):
     edges = np.stack([corner_ids, np.roll(corner_ids, -1, axis=1)], axis=2).reshape(-1, 2).astype(np.int64)
     ends = np.stack([verts, np.roll(verts, -1, axis=1)], axis=2).reshape(-1, 2, 3)
     base = int(edges.max()) + 1
-    outline = ends[~np.isin(edges[:, 0] * base + edges[:, 1], edges[:, 1] * base + edges[:, 0])]  # (m, 2, 3)
+    single = ~np.isin(edges[:, 0] * base + edges[:, 1], edges[:, 1] * base + edges[:, 0])
+    outline = ends[single]  # (m, 2, 3)
+    loop = _loop(edges[single], outline)
     out = np.zeros(len(points))
     cut = np.zeros(len(points), dtype=bool)
     step = max(1, (1 << 22) // len(outline))
@@ -156,9 +158,32 @@ def _group_ff(points, normals, corner_ids, verts):
         if len(whole):
             out[whole] = np.clip(np.abs(_edge_sum(points[whole], normals[whole], outline)), 0.0, 1.0)
     if cut.any():
-        for tri in verts:
-            out[cut] += _two_sided_ff(points[cut], normals[cut], tri)
+        if loop is not None:  # one outline: clipped whole (a 16 x 16 panel: 64 corners, not 512 triangles)
+            out[cut] = _two_sided_ff(points[cut], normals[cut], loop)
+        else:
+            for tri in verts:
+                out[cut] += _two_sided_ff(points[cut], normals[cut], tri)
     return out
+
+
+def _loop(edges, ends):
+    """The outline's corners ``(m, 3)`` in order, where its edges ``edges (m, 2)`` (point
+    indices, each walked from its first to its second; positions ``ends (m, 2, 3)``) make one
+    closed loop; else None (holes, several pieces, a corner met twice)."""
+    after = {int(a): k for k, a in enumerate(edges[:, 0])}
+    if len(after) != len(edges):
+        return None
+    order, k = [], 0
+    for _ in range(len(edges)):
+        order.append(k)
+        k = after.get(int(edges[k, 1]), -1)
+        if k < 0:
+            return None
+        if k == 0:
+            break
+    if k != 0 or len(order) != len(edges):
+        return None
+    return ends[np.array(order), 0]
 
 
 def _edge_sum(points, normals, edges):

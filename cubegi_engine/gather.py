@@ -28,8 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import cubemap, sh
-from .nearfield import TURN_HASH, NearField, hemisphere_rays, resting
+from .nearfield import TURN_HASH, NearField, hemisphere_rays
 from .rays import RayCaster, caster_for
+from .spatial import resting
 
 __all__ = ["large_points", "Corners", "Gathered", "gather", "gathered_for", "light_visibility", "scene_caster",
            "GATHER_SHARE", "GATHER_RAYS"]

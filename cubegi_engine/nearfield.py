@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import convergence, sh
-from .spatial import COORD_SLACK, SLACK, VoxelIndex
+from .spatial import COORD_SLACK, SLACK, resting, voxel_index
 
 __all__ = ["NearField", "build", "ray_pattern", "hemisphere_rays", "NEAR_REACH", "NEAR_RAYS", "MAX_CANDIDATES", "MAX_PAIRS"]
 
@@ -50,8 +50,9 @@ NEAR_RAYS = 32
 # pairs in all than MAX_PAIRS gets no near field (each pair costs ``rays`` ray tests).
 MAX_CANDIDATES = 256
 MAX_PAIRS = 2_000_000
-# The sample that estimates a scene's pairs.
-SAMPLE = 2048
+# The sample that estimates a scene's pairs; an object with at least CROWDED_SAMPLE points
+# in it, all crowded, is crowded whole.
+SAMPLE, CROWDED_SAMPLE = 2048, 8
 GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 # Hits fade out over this last share of the reach.
 FADE = 0.25
@@ -259,7 +260,7 @@ class NearField:
 
 
 def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PAIRS, hidden=None, lit_if_open=None, which=None,
-          hidden_as_given=False, sheets=None):
+          hidden_as_given=False, sheets=None, owner=None):
     """The near field of ``points``/``normals`` ``(s, 3)`` among ``triangles (t, 3)``
     (indices into points), rays reaching ``reach`` (one length, or ``(s,)``). ``hidden``:
     ``(s,)`` bool, points covered by another object (their light is no sample of the
@@ -272,7 +273,8 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     (:class:`~cubegi_engine.scene.Sheets`): a ray meets a sheet's twin's front where it meets
     its back, so back faces of sheets are not hit, and a ray from a sheet never meets the
     sheet's own far side (a slightly bent wall's twin lies in front of its points); a sheet's
-    back side, and a covered point whose rays meet one, are never hidden."""
+    back side, and a covered point whose rays meet one, are never hidden. ``owner``: each
+    point's object (see :func:`_candidate_pairs`)."""
     t0 = time.perf_counter()
     points = np.asarray(points, dtype=np.float64)
     normals = np.asarray(normals, dtype=np.float64)
@@ -283,8 +285,9 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     if not len(asked) or not len(tri) or not np.all(np.isfinite(reach[asked])) or reach[asked].max() <= 0:
         return NearField.empty(rays, seconds=time.perf_counter() - t0)
     a, b, c = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]
-    index = VoxelIndex(a, b, c, float(reach[asked].max()), sheets)
-    found = _candidate_pairs(index, points, normals, reach, asked, sheets, max_pairs)
+    index = voxel_index(points, tri, a, b, c, float(reach[asked].max()), sheets)
+    found = _candidate_pairs(index, points, normals, reach, asked, sheets, max_pairs,
+                             None if owner is None else np.asarray(owner, dtype=np.int64))
     if isinstance(found, str):
         return NearField.empty(rays, found, time.perf_counter() - t0)
     pair_p, pair_t, crowded = found
@@ -329,23 +332,35 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
                      None if hidden is None else np.flatnonzero(hidden))
 
 
-def _candidate_pairs(index, points, normals, reach, asked, sheets, max_pairs):
+def _candidate_pairs(index, points, normals, reach, asked, sheets, max_pairs, owner=None):
     """``(pair_p, pair_t, crowded (s,) bool)``: the (point, triangle) pairs the points
     ``asked`` test their rays against, without the crowded points' (more than
     MAX_CANDIDATES pairs, or too many triangles around); or, where the pairs are more than
-    ``max_pairs`` (estimated first from a sample in a large scene), the reason in words."""
+    ``max_pairs`` (estimated first from a sample in a large scene), the reason in words.
+    In a large scene, an object (``owner (s,)``: each point's) whose every sampled point is
+    crowded is crowded whole, without asking its other points (a chair of 13K triangles,
+    a subdivided room: most of a dense scene's time went to finding that out point by point)."""
+    crowded = np.zeros(len(points), dtype=bool)
     if len(asked) > 16 * SAMPLE:  # estimate the pairs first: a dense scene's would take too long
         sample = asked[np.linspace(0, len(asked) - 1, SAMPLE).astype(np.int64)]
-        pp, _, _ = index.candidates(points[sample], normals[sample], reach[sample])
+        pp, _, some = index.candidates(points[sample], normals[sample], reach[sample])
         estimate = int(len(pp) * len(asked) / SAMPLE)
         if estimate > max_pairs:
             return f"about {estimate:,} candidate pairs of points and triangles, more than {max_pairs:,}"
+        if owner is not None:
+            some |= np.bincount(pp, minlength=len(sample)) > MAX_CANDIDATES
+            objects = int(owner.max()) + 1
+            sampled = np.bincount(owner[sample], minlength=objects)
+            dense = (sampled >= CROWDED_SAMPLE) & (np.bincount(owner[sample], some, minlength=objects) == sampled)
+            if dense.any():
+                skip = dense[owner[asked]]
+                crowded[asked[skip]] = True
+                asked = asked[~skip]
     pair_p, pair_t, some = index.candidates(points[asked], normals[asked], reach[asked])
     pair_p = asked[pair_p]
     if sheets is not None:
         near = ~sheets.other_side(pair_p, pair_t)
         pair_p, pair_t = pair_p[near], pair_t[near]
-    crowded = np.zeros(len(points), dtype=bool)
     crowded[asked] = some
     crowded |= np.bincount(pair_p, minlength=len(points)) > MAX_CANDIDATES
     if crowded.any():
@@ -393,42 +408,6 @@ def _open_basis(dirs, fade, normals):
     share = fade.mean(axis=1)
     pattern_error = sh.diffuse_basis(normals) - y.mean(axis=1)
     return np.einsum("mk,mkj->mj", fade, y) / dirs.shape[1] + share[:, None] * pattern_error, share
-
-
-def resting(points, normals, triangles, scale, which, twins=None):
-    """``(k,)`` bool: whether the points ``which (k,)`` lie on another surface facing them
-    (the underside of a block standing on the ground, a floor point under it): a triangle
-    in the point's plane, facing the other way, over the point. ``triangles`` index
-    ``points``; ``scale``: the scene's size; ``twins (s,)``: each point's twin on the other
-    side of its sheet (-1: none; ``SceneArrays.twins``), whose triangles are its own surface."""
-    points = np.asarray(points, dtype=np.float64)
-    tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
-    which = np.asarray(which, dtype=np.int64)
-    if not len(which) or not len(tri):
-        return np.zeros(len(which), dtype=bool)
-    reach = np.full(len(which), 1e-3 * scale)
-    index = _resting_index(points, tri, scale)
-    pp, tt, _ = index.candidates(points[which], np.asarray(normals, dtype=np.float64)[which], reach, touching=True)
-    if twins is not None:
-        pp = pp[~np.any(tri[tt] == np.asarray(twins)[which[pp]][:, None], axis=1)]
-    out = np.zeros(len(which), dtype=bool)
-    out[pp] = True
-    return out
-
-
-_RESTING_INDEX: list = []  # [(key, arrays held, VoxelIndex)]: the last scene's
-
-
-def _resting_index(points, tri, scale):
-    """The voxel index :func:`resting` asks, coarse (a 64th of the scene: few entries to sort,
-    and few points to ask); made once per scene (a bake asks three times: the sky's open
-    points, the near field's hidden ones, the gathered ones), the arrays held while kept."""
-    key = (points.__array_interface__["data"][0], points.shape, tri.__array_interface__["data"][0], tri.shape, float(scale))
-    if _RESTING_INDEX and _RESTING_INDEX[0][0] == key:
-        return _RESTING_INDEX[0][2]
-    index = VoxelIndex(points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]], scale / 64.0)
-    _RESTING_INDEX[:] = [(key, (points, tri), index)]
-    return index
 
 
 def _uncover(index, weight, corners, hidden, tri, reach):

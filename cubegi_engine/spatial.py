@@ -6,7 +6,8 @@ import numpy as np
 
 from .geometry import chunks, planes_of, ray_cut
 
-__all__ = ["VoxelIndex", "intersect_pairs", "over_triangles", "SLACK", "COORD_SLACK", "BARY_SLACK", "MAX_NEARBY"]
+__all__ = ["VoxelIndex", "voxel_index", "forget_indexes", "resting", "intersect_pairs",
+           "over_triangles", "SLACK", "COORD_SLACK", "BARY_SLACK", "MAX_NEARBY"]
 
 # Points whose candidate voxels are listed at a time (27 voxels and their triangles each:
 # smaller than geometry.POINT_CHUNK, which holds a few arrays per point), and (pair, ray)
@@ -178,7 +179,7 @@ class VoxelIndex:
         """(point, triangle) pairs a ray from the point into its hemisphere may hit within
         its reach (see :mod:`cubegi_engine.nearfield`), and ``(s,)`` bool: the points left out as
         crowded (their pairs are not made). ``touching``: instead, the triangles that lie in
-        a point's plane, facing the other way, over it (see :func:`cubegi_engine.nearfield.resting`)."""
+        a point's plane, facing the other way, over it (see :func:`resting`)."""
         a, b, c = self.a, self.b, self.c
         base = np.floor((points - self.origin) / self.h).astype(np.int64)
         crowded = np.zeros(len(points), dtype=bool)
@@ -224,3 +225,56 @@ class VoxelIndex:
             out_p.append(pair // len(a))
             out_t.append(pair % len(a))
         return np.concatenate(out_p), np.concatenate(out_t), crowded
+
+
+# The voxel indexes last made, at most INDEXES_KEPT: [(key, arrays held, VoxelIndex)]; a
+# bake lets them go when it ends (forget_indexes: each holds a few arrays per triangle).
+_INDEXES: list = []
+INDEXES_KEPT = 2
+
+
+def forget_indexes():
+    """Let go of the kept voxel indexes (the end of a bake)."""
+    _INDEXES.clear()
+
+
+def voxel_index(points, tri, a, b, c, voxel, sheets=None):
+    """A :class:`VoxelIndex` of ``tri`` over ``points`` (corners ``a, b, c``), made once per
+    scene and voxel size (a bake asks for the same one several times: the near field's rays
+    under covered points twice, :func:`resting` three times); the arrays are held while it is
+    kept, so their addresses name them."""
+    key = (points.__array_interface__["data"][0], points.shape, tri.__array_interface__["data"][0], tri.shape,
+           float(voxel), id(sheets))
+    for entry in _INDEXES:
+        if entry[0] == key:
+            return entry[2]
+    index = VoxelIndex(a, b, c, voxel, sheets)
+    _INDEXES[:] = [(key, (points, tri, sheets), index)] + _INDEXES[: INDEXES_KEPT - 1]
+    return index
+
+
+def resting(points, normals, triangles, scale, which, twins=None):
+    """``(k,)`` bool: whether the points ``which (k,)`` lie on another surface facing them
+    (the underside of a block standing on the ground, a floor point under it): a triangle
+    in the point's plane, facing the other way, over the point. ``triangles`` index
+    ``points``; ``scale``: the scene's size; ``twins (s,)``: each point's twin on the other
+    side of its sheet (-1: none; ``SceneArrays.twins``), whose triangles are its own surface."""
+    points = np.asarray(points, dtype=np.float64)
+    tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    which = np.asarray(which, dtype=np.int64)
+    if not len(which) or not len(tri):
+        return np.zeros(len(which), dtype=bool)
+    reach = np.full(len(which), 1e-3 * scale)
+    index = _resting_index(points, tri, scale)
+    pp, tt, _ = index.candidates(points[which], np.asarray(normals, dtype=np.float64)[which], reach, touching=True)
+    if twins is not None:
+        pp = pp[~np.any(tri[tt] == np.asarray(twins)[which[pp]][:, None], axis=1)]
+    out = np.zeros(len(which), dtype=bool)
+    out[pp] = True
+    return out
+
+
+def _resting_index(points, tri, scale):
+    """The voxel index :func:`resting` asks, coarse (a 64th of the scene: few entries to sort,
+    and few points to ask)."""
+    return voxel_index(points, tri, points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]], scale / 64.0)

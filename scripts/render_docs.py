@@ -4,7 +4,7 @@ dynamic-scene sequence, Suzanne (dynamic) moved through the Room and lit from th
 probe field at each place, side by side (Workbench, the lit colour); and the error picture,
 each vertex's indirect error against Cycles coloured, without and with the near field.
 
-Usage: python scripts/render_docs.py [OUT_DIR] [--dynamic-only | --error-only]   (default: docs/)
+Usage: python scripts/render_docs.py [OUT_DIR] [--dynamic-only | --error-only | --breakfast-only]   (default: docs/)
 """
 
 import os
@@ -155,10 +155,53 @@ def error_picture(out, samples=1024):
     _tile(paths, os.path.join(out, "room_indirect_error.png"), (480, 270))
 
 
+def breakfast_error_picture(out, samples=256):
+    """The Breakfast Room's per-vertex error of the default bake against Cycles (the
+    benchmark's cached reference, ``out/benchmark/cache``, else baked: about 2.6 s a sample
+    here), direct light left, indirect right, seen from the scene's camera: black none, red
+    the scene's mean light (of that kind) or more too bright, blue as much too dark. Credit:
+    The Breakfast Room by Wig42, converted by Benedikt Bitterli (CC BY 3.0)."""
+    import bpy
+    import numpy as np
+
+    from tools import load_extension
+
+    load_extension()
+    from benchmarks import public_scenes
+    from cubegi.cubegi_addon import attributes, reference, session
+    from tools import demo
+
+    public_scenes.breakfast_room()
+    objects = sorted((ob for ob in bpy.context.scene.objects if ob.type == "MESH"), key=lambda ob: ob.name)
+    public_scenes.breakfast_camera()
+    cache = os.path.join(ROOT, "out", "benchmark", "cache", f"breakfast_room-cycles-{samples}spp.npz")
+    if os.path.exists(cache):
+        data = np.load(cache)
+        ends = np.cumsum([len(ob.data.vertices) for ob in objects])
+        ref = {part.upper(): {ob.name: p for ob, p in zip(objects, np.split(data[part], ends[:-1]))} for part in ("direct", "indirect")}
+    else:
+        ref, _ = reference.bake_reference(bpy.context, objects, samples=samples, seed=0)
+    session.forget()
+    assert bpy.ops.cubegi.bake() == {"FINISHED"}
+    paths = []
+    for k, (part, name) in enumerate((("DIRECT", attributes.DIRECT), ("INDIRECT", attributes.INDIRECT))):
+        mean = float(np.mean(np.concatenate([ref[part][ob.name] for ob in objects])))
+        for ob in objects:
+            e = (attributes.read(ob.data, name) - ref[part][ob.name]).mean(axis=1) / mean
+            colour = np.zeros((len(e), 3))
+            colour[:, 0], colour[:, 2] = np.clip(e, 0, 1), np.clip(-e, 0, 1)
+            attributes.put(ob.data, "CubeGI_error", colour)
+        paths.append(os.path.join(out, f"_error_{k}.png"))
+        demo.render_png(paths[-1], attribute="CubeGI_error", resolution=(640, 360))
+    _tile(paths, os.path.join(out, "public-scenes", "breakfast_room_error.png"), (640, 360))
+
+
 if __name__ == "__main__":
     args = [a for a in sys.argv[1:] if not a.startswith("--")]
     folder = os.path.abspath(args[0] if args else os.path.join(ROOT, "docs"))
-    if "--error-only" in sys.argv:
+    if "--breakfast-only" in sys.argv:
+        breakfast_error_picture(folder)
+    elif "--error-only" in sys.argv:
         error_picture(folder)
     else:
         if "--dynamic-only" not in sys.argv:

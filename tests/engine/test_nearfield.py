@@ -246,10 +246,10 @@ def test_resting_finds_a_face_lying_on_another_surface():
     pts = np.concatenate([ground[0], underside])
     normals = np.concatenate([np.tile([0.0, 0.0, 1.0], (4, 1)), [[0, 0, -1.0], [0, 0, -1.0], [0, 0, -1.0], [0, 0, 1.0]]])
     which = np.arange(4, 8)
-    got = nearfield.resting(pts, normals, ground[1], 2.0, which)
+    got = spatial.resting(pts, normals, ground[1], 2.0, which)
     # 4: on the ground, facing down: rests. 5: the same. 6: past the ground's edge. 7: facing up (same way), 1 mm above.
     assert got.tolist() == [True, True, False, False]
-    assert not nearfield.resting(pts, normals, ground[1], 2.0, np.arange(4)).any()  # the ground's own points
+    assert not spatial.resting(pts, normals, ground[1], 2.0, np.arange(4)).any()  # the ground's own points
 
 
 def test_a_hit_in_a_gap_takes_only_what_the_gap_lets_in(monkeypatch):

@@ -146,3 +146,27 @@ def test_only_points_that_stand_for_much_more_surface_than_most_are_gathered():
     assert np.flatnonzero(gather.large_points(scene)).tolist() == [0, 1, 2, 3]
     even = _scene([(fine, t, (0.5, 0.5, 0.5))])  # an evenly cut mesh: none stands out
     assert not gather.large_points(even).any()
+
+
+def test_a_cut_panels_form_factor_is_its_outlines_for_receivers_whose_plane_crosses_it():
+    """A flat emitter cut 4 x 4: for receivers whose tangent plane crosses it (clipped to
+    their hemispheres), its outline clipped whole gives the sum of its 32 triangles' form
+    factors."""
+    from cubegi.cubegi_engine import emitters
+
+    n = 4
+    g = np.linspace(0.0, 1.0, n + 1)
+    verts = np.array([(x, y, 1.0) for y in g for x in g])
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    tris = np.concatenate([np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:]], -1).reshape(-1, 3),
+                           np.stack([idx[:-1, :-1], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 3)])
+    rng = np.random.default_rng(0)
+    points = np.column_stack([rng.uniform(-1, 2, 200), rng.uniform(-1, 2, 200), rng.uniform(0.0, 2.0, 200)])
+    normals = rng.normal(size=(200, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    whole = emitters._group_ff(points, normals, tris, verts[tris])
+    by_triangle = sum(emitters._two_sided_ff(points, normals, verts[t]) for t in tris)
+    height = normals @ verts.T - np.einsum("sc,sc->s", normals, points)[:, None]
+    crossed = (height.min(axis=1) < 0) & (height.max(axis=1) > 0)
+    assert crossed.sum() > 50
+    assert whole == pytest.approx(np.clip(by_triangle, 0, None), abs=1e-9)

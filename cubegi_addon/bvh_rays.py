@@ -6,30 +6,46 @@ from mathutils.bvhtree import BVHTree
 
 from ..cubegi_engine.rays import Hits, hits_from_distances
 
+# Resident memory of Blender's BVH tree per triangle (measured: about 160 MB for a million).
+TREE_BYTES = 160
+
 
 class BvhRays:
     """Each ray's nearest hit among ``triangles (k, 3)`` over ``points (s, 3)`` (both sides of
-    a triangle are met; :class:`~cubegi_engine.rays.Hits` says which)."""
+    a triangle are met; :class:`~cubegi_engine.rays.Hits` says which).
+
+    The tree works in float32: it holds the points less the centre of their box, and rays
+    start less it too, so a scene a kilometre from the origin keeps the precision of one at
+    it (a ray lifted a millionth of the scene's size off its surface, there, met that surface
+    again 987 times in 1024)."""
 
     def __init__(self, points, triangles):
         self.points = np.asarray(points, dtype=np.float64)
         self.triangles = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
         used = np.unique(self.triangles)  # the tree holds only the points its triangles use
         local = np.searchsorted(used, self.triangles)
-        self.tree = BVHTree.FromPolygons(self.points[used].tolist(), local.tolist(), all_triangles=True)
+        kept = self.points[used]
+        self.centre = 0.5 * (kept.min(axis=0) + kept.max(axis=0)) if len(kept) else np.zeros(3)
+        self.tree = BVHTree.FromPolygons((kept - self.centre).tolist(), local.tolist(), all_triangles=True)
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held: its triangles and the tree (about TREE_BYTES a triangle, measured)."""
+        return int(self.triangles.nbytes + TREE_BYTES * len(self.triangles))
 
     def cast(self, origins, dirs, reach=None) -> Hits:
         origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
         dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
         n = len(origins)
+        local = origins - self.centre
         t = np.full(n, np.inf)
         which = np.full(n, -1, dtype=np.int64)
         cast = self.tree.ray_cast
         if reach is None:
-            found = [cast(o, d) for o, d in zip(origins.tolist(), dirs.tolist())]
+            found = [cast(o, d) for o, d in zip(local.tolist(), dirs.tolist())]
         else:
             limit = np.broadcast_to(np.asarray(reach, dtype=np.float64), (n,)).tolist()
-            found = [cast(o, d, r) for o, d, r in zip(origins.tolist(), dirs.tolist(), limit)]
+            found = [cast(o, d, r) for o, d, r in zip(local.tolist(), dirs.tolist(), limit)]
         for k, (_, _, index, distance) in enumerate(found):
             if index is not None:
                 t[k], which[k] = distance, index

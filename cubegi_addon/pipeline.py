@@ -316,7 +316,7 @@ def _report(settings, lit, grid, grid_source, collected, result, timings, refere
         warnings=[w for w in (solution.tail_report.warning,) if w], reference=reference_report,
         capture_reused=result.capture_reused, probes_recaptured=result.probes_recaptured,
         left_out=list(result.direct_parts.left_out) + _left_out_of_capture(result.capture, grid, result.placement),
-        capture_geometry=_capture_geometry(result.capture.proxy), near_field=_near_field(result.capture.transport.near),
+        capture_geometry=_capture_geometry(result.capture.proxy), near_field=_near_field(result.capture.transport.own_near),
     )
 
 

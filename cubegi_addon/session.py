@@ -21,6 +21,7 @@ import bpy
 import numpy as np
 
 from ..cubegi_engine.bake import physical_memory
+from ..cubegi_engine.gather import kept_nbytes
 from . import interrupts
 from .attributes import LitMode
 
@@ -102,6 +103,7 @@ class Kept:
         arrays = (a.points, a.normals, a.albedo, a.emission, a.triangles)
         light = [bake.result.solution.direct, *bake.result.solution.bounces, *bake.result.direct_parts.parts.values()]
         extra = self.live.light.op.nbytes if self.live.light is not None else 0
+        extra += kept_nbytes(a)  # the gathered vertices' ray caster and rays
         if self.live.field is not field:
             extra += self.live.field.coeffs.nbytes
         return bake.result.capture.nbytes + field.nbytes + extra + sum(x.nbytes for x in (*arrays, *light))

@@ -203,7 +203,7 @@ def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field):
         gathered = yield from in_background(gathered_for, working(Stage.CAPTURE, 0)("rays from the vertices that stand for much "
                                                                                    "surface"), scene, renderer)
         transport.take_gathered(gathered)
-        timings["gather"] = gathered.seconds
+        timings["gather"] = gathered.seconds if gathered is not None else 0.0
 
     yield Progress(Stage.DIRECT, 1, total, f"direct light from {len(scene.lights)} lights")
     t = time.perf_counter()

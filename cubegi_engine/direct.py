@@ -242,7 +242,10 @@ def light_direct_steps(scene, renderer, settings, light, shadows=None, step=None
     unshadowed = value[gathered.rows] if gathered is not None else None
     value[lit] *= seen[:, None]
     if gathered is not None:  # their own rays towards the light, from each corner
-        value[gathered.rows] = unshadowed * light_visibility(gathered, scene_caster(scene, renderer), light, shadow.eyes)[:, None]
+        vis = yield from in_background(light_visibility, _working(step, f"direct light: {light.name or 'a light'}'s shadows "
+                                                                        "at the gathered vertices"),
+                                       gathered, scene_caster(scene, renderer), light, shadow.eyes)
+        value[gathered.rows] = unshadowed * vis[:, None]
     return value
 
 
@@ -315,7 +318,7 @@ def unit_sky_direct_steps(scene, renderer, transport, per_vertex=False, step=Non
         alone &= ~transport.near.enclosed(len(alone), SKY_ENCLOSED)
     if alone.any():  # not the underside of a block standing on the ground
         resting = yield from in_background(spatial.resting, _working(step, "direct light: the sky's open points"), scene.points,
-                                           scene.normals, scene.triangles, scene.scale, np.flatnonzero(alone), scene.twins())
+                                           scene.normals, scene.triangles, scene.scale, np.flatnonzero(alone), scene.sheets())
         alone[alone] = ~resting
     if per_vertex:  # every vertex its probes give any sky (one under a roof has none)
         alone |= ~transport.covered & (light.max(axis=1) > 0)

@@ -32,7 +32,7 @@ from .nearfield import TURN_HASH, NearField, hemisphere_rays
 from .rays import RayCaster, caster_for
 from .spatial import resting
 
-__all__ = ["large_points", "Corners", "Gathered", "gather", "gathered_for", "light_visibility", "scene_caster",
+__all__ = ["large_points", "Corners", "Gathered", "gather", "gathered_for", "kept_nbytes", "light_visibility", "scene_caster",
            "GATHER_SHARE", "GATHER_RAYS"]
 
 # A point whose area is at least GATHER_SHARE of the scene's (front) surface, and at least
@@ -79,9 +79,16 @@ class Corners:
     origin: np.ndarray
     normal: np.ndarray
     weight: np.ndarray
+    inset: np.ndarray  # (c, 3): the corner nudged into its triangle, on its plane (before the lift)
 
     def __len__(self) -> int:
         return len(self.row)
+
+    def kept(self, keep) -> "Corners":
+        """The corners ``keep (c,)`` bool, each point's weight shared among its own that are left."""
+        row = self.row[keep]
+        count = np.bincount(row, minlength=int(self.row.max(initial=-1)) + 1)
+        return Corners(row, self.origin[keep], self.normal[keep], 1.0 / np.maximum(count[row], 1), self.inset[keep])
 
 
 def corners(scene, rows) -> Corners:
@@ -102,12 +109,13 @@ def corners(scene, rows) -> Corners:
     face = np.cross(corners_[:, 1] - corners_[:, 0], corners_[:, 2] - corners_[:, 0])
     face /= np.maximum(np.linalg.norm(face, axis=1, keepdims=True), 1e-300)
     scale = scene.scale
-    origin = at + INSET * scale * to_centre + LIFT * scale * face
+    inset = at + INSET * scale * to_centre
+    origin = inset + LIFT * scale * face
     order = np.argsort(row, kind="stable")
-    row, origin = row[order], origin[order]
+    row, origin, inset = row[order], origin[order], inset[order]
     count = np.bincount(row, minlength=len(rows))
     normal = np.asarray(scene.normals, dtype=np.float64)[rows][row]
-    return Corners(row, origin, normal, 1.0 / np.maximum(count[row], 1))
+    return Corners(row, origin, normal, 1.0 / np.maximum(count[row], 1), inset)
 
 
 @dataclass
@@ -128,6 +136,12 @@ class Gathered:
     def count(self) -> int:
         return len(self.rows)
 
+    @property
+    def nbytes(self) -> int:
+        n = self.near
+        return int(sum(a.nbytes for a in (self.rows, self.sky, n.hit_row, n.hit_corner, n.hit_weight, n.open_basis,
+                                          self.corners.origin, self.corners.inset)))
+
 
 def _sky_pattern(scene, dirs):
     sky_map = getattr(scene, "sky_map", None)
@@ -141,10 +155,21 @@ def gather(scene, rows, caster: RayCaster, rays=GATHER_RAYS) -> Gathered:
     ``caster``: over the scene's triangles but the back sides' (:func:`scene_caster`)."""
     t0 = time.perf_counter()
     rows = np.asarray(rows, dtype=np.int64)
-    # A point resting on another surface (a block's underside on the ground) is covered: Cycles
-    # gives such a corner no light, and a ray lifted off it would leave under the ground.
-    rows = rows[~resting(scene.points, scene.normals, scene.triangles, scene.scale, rows, scene.twins())]
     at = corners(scene, rows)
+    # A corner resting on another surface (a block's underside on the ground) is covered:
+    # Cycles gives it no light, and a ray lifted off it would leave under the ground. It is
+    # asked where it stands nudged into its face (a wall that only touches the vertex along
+    # an edge does not cover it); a point all of whose corners are covered keeps the probes'
+    # treatment.
+    covered = resting(scene.points, scene.normals, scene.triangles, scene.scale, rows[at.row], scene.sheets(), at=at.inset)
+    lit = np.unique(at.row[~covered])
+    place = np.full(len(rows), -1, dtype=np.int64)
+    place[lit] = np.arange(len(lit))
+    at = at.kept(~covered)
+    at = Corners(place[at.row], at.origin, at.normal, at.weight, at.inset)
+    rows = rows[lit]
+    if not len(rows):
+        return Gathered(rows, NearField.empty(rays), np.zeros((0, 3)), at, rays, time.perf_counter() - t0)
     front_tri = _front_triangles(scene)
     turn = 2.0 * np.pi * ((at.origin / scene.scale * 1e3) @ TURN_HASH % 1.0)
     dirs = hemisphere_rays(at.normal, rays, turn)  # (c, rays, 3)
@@ -173,7 +198,7 @@ def gather(scene, rows, caster: RayCaster, rays=GATHER_RAYS) -> Gathered:
     hit, tri = hit[sends], tri[sends]
     weight = hits.bary[hit] * w[hit, None]
     normals = np.asarray(scene.normals, dtype=np.float64)[rows]
-    near = NearField(rows, sh.diffuse_basis(normals), row[hit], tri, weight, rays * max(1, int(np.max(np.bincount(at.row)))),
+    near = NearField(rows, sh.diffuse_basis(normals), row[hit], tri, weight, rays * max(1, int(np.max(np.bincount(at.row), initial=1))),
                      share=share)
     return Gathered(rows, near, sky, at, rays, time.perf_counter() - t0)
 
@@ -195,6 +220,17 @@ def scene_caster(scene, renderer) -> RayCaster:
     return cached[1]
 
 
+def kept_nbytes(scene) -> int:
+    """Memory ``scene`` holds for its gathered points: its ray caster and their rays."""
+    total = 0
+    for key in ("_caster", "_gathered"):
+        cached = scene.__dict__.get(key)
+        if cached is not None:
+            value = cached[1]
+            total += int(getattr(value, "nbytes", 0) or 0)
+    return total
+
+
 def gathered_for(scene, renderer) -> Gathered | None:
     """The gathered points of ``scene`` (its ``gathered`` mask; None where it has none), their
     rays cast once per snapshot."""
@@ -206,7 +242,7 @@ def gathered_for(scene, renderer) -> Gathered | None:
     if cached is None or cached[0] != key:
         cached = (key, gather(scene, np.flatnonzero(mask), scene_caster(scene, renderer)))
         scene.__dict__["_gathered"] = cached
-    return cached[1]
+    return cached[1] if cached[1].count else None  # every one resting on another surface: none
 
 
 def light_visibility(gathered: Gathered, caster: RayCaster, light, eyes=None) -> np.ndarray:

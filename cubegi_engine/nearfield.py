@@ -394,7 +394,7 @@ def _hidden(covered, openness, lit_if_open, sheets, hit_point, corners, points, 
     ask = np.flatnonzero(hidden & open_)
     if len(ask):
         scale = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
-        hidden[ask] = resting(points, normals, tri, scale, ask, None if sheets is None else sheets.twins)
+        hidden[ask] = resting(points, normals, tri, scale, ask, sheets)
     return hidden
 
 

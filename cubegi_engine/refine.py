@@ -94,7 +94,10 @@ def refine(scene: SceneArrays, max_edge) -> tuple[SceneArrays, np.ndarray]:
         return scene, identity
     back_pt = np.zeros(s, dtype=bool) if scene.back is None else np.asarray(scene.back, dtype=bool)
     counts = split_counts(scene.points, tri, max_edge)
-    refine_tri = (counts > 1) & ~back_pt[tri[:, 0]]
+    # An emitter's own light is exact from its triangles (cubegi_engine.emitters), whose flat
+    # panels are clipped by their outlines: it is left as it is.
+    emits = np.any(np.asarray(scene.emission) > 0, axis=1)[tri].all(axis=1)
+    refine_tri = (counts > 1) & ~back_pt[tri[:, 0]] & ~emits
     if refine_tri.any():
         counts = _budgeted(counts, refine_tri, s)
         refine_tri &= counts > 1

@@ -253,12 +253,14 @@ def voxel_index(points, tri, a, b, c, voxel, sheets=None):
     return index
 
 
-def resting(points, normals, triangles, scale, which, twins=None):
+def resting(points, normals, triangles, scale, which, sheets=None, at=None):
     """``(k,)`` bool: whether the points ``which (k,)`` lie on another surface facing them
     (the underside of a block standing on the ground, a floor point under it): a triangle
     in the point's plane, facing the other way, over the point. ``triangles`` index
-    ``points``; ``scale``: the scene's size; ``twins (s,)``: each point's twin on the other
-    side of its sheet (-1: none; ``SceneArrays.twins``), whose triangles are its own surface."""
+    ``points``; ``scale``: the scene's size; ``sheets``: the scene's two-sided objects
+    (:class:`~cubegi_engine.scene.Sheets`), whose own other side is not another surface;
+    ``at (k, 3)``: where to ask instead of the points themselves (a vertex's corner nudged
+    into its face: a corner where a wall merely touches the vertex is not covered)."""
     points = np.asarray(points, dtype=np.float64)
     tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
     which = np.asarray(which, dtype=np.int64)
@@ -266,9 +268,10 @@ def resting(points, normals, triangles, scale, which, twins=None):
         return np.zeros(len(which), dtype=bool)
     reach = np.full(len(which), 1e-3 * scale)
     index = _resting_index(points, tri, scale)
-    pp, tt, _ = index.candidates(points[which], np.asarray(normals, dtype=np.float64)[which], reach, touching=True)
-    if twins is not None:
-        pp = pp[~np.any(tri[tt] == np.asarray(twins)[which[pp]][:, None], axis=1)]
+    where = points[which] if at is None else np.asarray(at, dtype=np.float64)
+    pp, tt, _ = index.candidates(where, np.asarray(normals, dtype=np.float64)[which], reach, touching=True)
+    if sheets is not None:  # a sheet's own other side (its twin's triangles, wherever its points were cut)
+        pp = pp[~sheets.other_side(which[pp], tt)]
     out = np.zeros(len(which), dtype=bool)
     out[pp] = True
     return out

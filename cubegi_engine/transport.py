@@ -168,6 +168,7 @@ class Transport:
         # The near field (a final gather of each point's short-range surroundings), or None.
         self.near = None
         self.gathered = None  # the points gathered by rays over their whole view (take_gathered)
+        self.own_near = None  # the near field of its own (what a report says of it), without them
         if near_field:
             reach = NEAR_REACH * grid.point_cell_edge(scene.points)
             lit_if_open = None
@@ -180,12 +181,15 @@ class Transport:
             self._light_from_behind(spare, basis, len(scene.points))
         if self.near is not None and visibility and self.covered.any():
             self._light_under(scene, grid, index, trilinear_weight, basis, positions)
+        self.own_near = self.near
 
     def take_gathered(self, gathered):
         """Light the points of ``gathered`` (a :class:`~cubegi_engine.gather.Gathered`) by their
         own rays from now on: their rows join the near field in place of any they had (every
         probe light of theirs taken away). Once per Gathered."""
         if gathered is None or gathered is self.gathered:
+            return
+        if not gathered.count:
             return
         near = _same_side(gathered.near, self.covered)
         self.near = near if self.near is None or not self.near.count else self.near.replaced_rows(near)

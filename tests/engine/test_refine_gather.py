@@ -170,3 +170,32 @@ def test_a_cut_panels_form_factor_is_its_outlines_for_receivers_whose_plane_cros
     crossed = (height.min(axis=1) < 0) & (height.max(axis=1) > 0)
     assert crossed.sum() > 50
     assert whole == pytest.approx(np.clip(by_triangle, 0, None), abs=1e-9)
+
+
+def test_a_cut_sheets_points_do_not_rest_on_its_own_other_side():
+    """A sheet cut finely has points on its triangles' edges that are not its twins' own:
+    none of them counts as lying on another surface (its back side is its own)."""
+    from cubegi.cubegi_engine import spatial
+
+    scene = _scene([(*_quad(0.0), (0.5, 0.5, 0.5))], sheet=(0,))
+    out, _ = refine.refine(scene, 0.3)
+    front = np.flatnonzero(~out.back)
+    assert len(front) > 80
+    assert not spatial.resting(out.points, out.normals, out.triangles, out.scale, front, out.sheets()).any()
+
+
+def test_a_vertex_covered_by_what_it_rests_on_is_not_gathered_and_one_only_touched_is():
+    """A floor whose every corner lies under a slab facing it (a plinth's footprint): no
+    point is gathered, and nothing fails. A floor corner that another surface, facing the
+    other way in the same plane, only touches along an edge is gathered (its corners,
+    nudged into its face, are open)."""
+    floor = _quad(0.0)
+    slab = _quad(0.0, up=False)  # the same square, facing down: over every floor corner
+    scene = _scene([(*floor, (0.5, 0.5, 0.5)), (*slab, (0.5, 0.5, 0.5))])
+    g = gather.gather(scene, np.arange(4), rays.NumpyRays(scene.points, scene.triangles), rays=8)
+    assert g.count == 0 and g.sky.shape == (0, 3)
+    beside = _quad(0.0, up=False)
+    beside = (beside[0] + [4.0, 0.0, 0.0], beside[1])  # shares the floor's edge x = 4
+    scene = _scene([(*floor, (0.5, 0.5, 0.5)), (*beside, (0.5, 0.5, 0.5))])
+    g = gather.gather(scene, np.array([1]), rays.NumpyRays(scene.points, scene.triangles), rays=8)
+    assert g.rows.tolist() == [1] and g.sky[0] == pytest.approx([1.0, 1.0, 1.0])

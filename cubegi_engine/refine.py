@@ -119,8 +119,19 @@ def refine(scene: SceneArrays, max_edge) -> tuple[SceneArrays, np.ndarray]:
     refined = SceneArrays(out["points"], out["normals"], out["albedo"], out["emission"], triangles, sky=scene.sky,
                           lights=scene.lights, point_object=out["point_object"] if scene.point_object is not None else None,
                           dark=out.get("dark"), object_names=list(scene.object_names), sky_map=scene.sky_map,
-                          back=out["back"] if scene.back is not None else None, gathered=out.get("gathered"))
+                          back=out["back"] if scene.back is not None else None, gathered=out.get("gathered"),
+                          sampled_triangles=_added(scene, lay, counts))
     return refined, lay.moved
+
+
+def _added(scene, lay, counts) -> np.ndarray:
+    """Per object, the front triangles the cut added (``n^2 - 1`` a triangle cut ``n`` ways),
+    with those an earlier cut added."""
+    objects = len(lay.out_sizes)
+    added = np.bincount(lay.row_obj, counts[lay.rows].astype(np.int64) ** 2 - 1, minlength=objects).astype(np.int64)
+    if scene.sampled_triangles is not None:
+        added[: len(scene.sampled_triangles)] += np.asarray(scene.sampled_triangles, dtype=np.int64)
+    return added
 
 
 @dataclass(frozen=True)
@@ -223,16 +234,25 @@ def _among(triangles, others) -> np.ndarray:
     return np.isin(key(triangles), key(others))
 
 
-# Light is sampled at most this many probe cells apart on every surface (see the module
-# docstring and docs/accuracy.md).
-SAMPLE_CELLS = 1.5
+# Light is sampled at most SAMPLE_CELLS probe cells apart on every surface (see the module
+# docstring and docs/accuracy.md), and GATHERED_CELLS apart on a triangle with a gathered
+# corner (:mod:`cubegi_engine.gather`): half of such a corner's rays meet the surfaces at its
+# feet within centimetres (a wall's foot on the floor), and take their light as it is sampled
+# there. Breakfast Room, default bake, indirect rel. RMSE against Cycles: 44.6% at 1.5 cells,
+# 39.6% at 0.5 (its walls' corners at the floor were 3x too bright, from a sunlit floor
+# sample 3 m away).
+SAMPLE_CELLS, GATHERED_CELLS = 1.5, 0.5
 
 
-def refine_for_grid(scene: SceneArrays, grid, cells=SAMPLE_CELLS) -> tuple[SceneArrays, np.ndarray]:
+def refine_for_grid(scene: SceneArrays, grid, cells=SAMPLE_CELLS, gathered_cells=GATHERED_CELLS) -> tuple[SceneArrays, np.ndarray]:
     """:func:`refine` with each triangle's longest edge held to ``cells`` of the cell edge of
-    the grid at its centre (``grid``: a :class:`~cubegi_engine.grid.Grid`)."""
+    the grid at its centre (``grid``: a :class:`~cubegi_engine.grid.Grid`), ``gathered_cells``
+    where a corner is one of the scene's gathered points."""
     tri = np.asarray(scene.triangles, dtype=np.int64).reshape(-1, 3)
     if not len(tri):
         return scene, np.arange(len(scene.points))
     centre = np.asarray(scene.points, dtype=np.float64)[tri].mean(axis=1)
-    return refine(scene, cells * grid.point_cell_edge(centre))
+    share = np.full(len(tri), float(cells))
+    if scene.gathered is not None:
+        share[np.asarray(scene.gathered, dtype=bool)[tri].any(axis=1)] = gathered_cells
+    return refine(scene, share * grid.point_cell_edge(centre))

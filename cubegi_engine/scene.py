@@ -72,6 +72,10 @@ class SceneArrays:
     # (s,) bool: points that stand for a large share of the surface, whose light is gathered
     # by rays at the point itself (:mod:`cubegi_engine.gather`); None: none.
     gathered: np.ndarray | None = None
+    # (objects,) int: per object, the front triangles that cutting long ones for the bake
+    # added (:mod:`cubegi_engine.refine`): the probes' triangle budget is of the scene as
+    # modelled (:func:`cubegi_engine.proxy.simplify`). None: none added.
+    sampled_triangles: np.ndarray | None = None
 
     def zero_dark_points_inplace(self, light: np.ndarray) -> np.ndarray:
         """``light (s, 3)`` with the dark points' rows set to zero, in place; returned."""

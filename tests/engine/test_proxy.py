@@ -149,3 +149,22 @@ def test_near_any_triangle_is_conservative():
     assert got[d <= r - step].all()  # everything truly near is found
     assert not got[d > 3 * r + step].any()  # nothing far is
     assert got.any() and not got.all()
+
+
+def test_triangles_a_cut_added_neither_shrink_the_budget_nor_unkeep_a_whole_object():
+    """A floor of two triangles cut into 800 for the bake (its light sampled finely) is still
+    kept whole, and the rest of the scene is simplified as much as it was before the cut."""
+    dense = _plane((0, 0, 1.0), (1.0, 0, 0), (0, 1.0, 0), 40)  # 3,200 triangles
+    as_modelled = _scene([(0, dense), (1, _plane((-2.0, -2.0, 0), (4.0, 0, 0), (0, 4.0, 0), 1))])
+    cut = _scene([(0, dense), (1, _plane((-2.0, -2.0, 0), (4.0, 0, 0), (0, 4.0, 0), 20))])  # the floor cut 20 x 20
+    before = simplify(as_modelled, 1000)
+    assert before is not None and before.cell[1] == 0
+    # Counted as modelled, the cut floor (800 triangles, over KEEP_WHOLE) would be simplified,
+    # and would take 800 of the budget's triangles from the dense object.
+    unmarked = simplify(cut, 1000)
+    assert unmarked.cell[1] > 0
+    cut.sampled_triangles = np.array([0, 798])
+    after = simplify(cut, 1000)
+    assert after.cell[1] == 0 and (after.triangle_object == 1).sum() == 800
+    assert (after.triangle_object == 0).sum() == (before.triangle_object == 0).sum()
+    assert after.cell[0] == pytest.approx(before.cell[0])

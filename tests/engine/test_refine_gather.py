@@ -199,3 +199,28 @@ def test_a_vertex_covered_by_what_it_rests_on_is_not_gathered_and_one_only_touch
     scene = _scene([(*floor, (0.5, 0.5, 0.5)), (*beside, (0.5, 0.5, 0.5))])
     g = gather.gather(scene, np.array([1]), rays.NumpyRays(scene.points, scene.triangles), rays=8)
     assert g.rows.tolist() == [1] and g.sky[0] == pytest.approx([1.0, 1.0, 1.0])
+
+
+def test_triangles_at_a_gathered_point_are_cut_finer_and_their_count_is_kept():
+    """A triangle with a gathered corner is cut GATHERED_CELLS of a cell apart (half its
+    corner's rays meet the surfaces at its feet), the others SAMPLE_CELLS; the front
+    triangles each object gained are kept for the probes' budget."""
+    from cubegi.cubegi_engine.grid import ProbeGrid
+
+    floor = _quad(0.0, size=12.0)
+    wall = _quad(1.0, size=12.0)
+    scene = _scene([(*floor, (0.5, 0.5, 0.5)), (*wall, (0.5, 0.5, 0.5))], sheet=(1,))
+    grid = ProbeGrid((-1.0, -1.0, -1.0), (13.0, 13.0, 13.0), (8, 8, 8))  # cells of 2 m
+    cell = float(grid.point_cell_edge(np.zeros((1, 3)))[0])
+    plain, _ = refine.refine_for_grid(scene, grid)
+    scene.gathered = np.zeros(len(scene.points), bool)
+    scene.gathered[0] = True  # a floor corner
+    out, moved = refine.refine_for_grid(scene, grid)
+    p = out.points[out.triangles]
+    edge = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2).max(axis=1)
+    owner = out.point_object[out.triangles[:, 0]]
+    assert edge[owner == 0].max() <= refine.GATHERED_CELLS * cell + 1e-9
+    assert refine.GATHERED_CELLS * cell < edge[owner == 1].max() <= refine.SAMPLE_CELLS * cell + 1e-9
+    assert plain.sampled_triangles[0] < out.sampled_triangles[0]
+    front = ~out.back[out.triangles[:, 0]]
+    assert np.array_equal(out.sampled_triangles, np.bincount(owner[front], minlength=2) - [2, 2])

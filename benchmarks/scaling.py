@@ -10,12 +10,11 @@ reset after the scene is built) is its own. Writes ``scaling.json`` and ``scalin
 import json
 import os
 import platform
-import subprocess
-import sys
 import time
 
 import numpy as np
 
+from benchmarks import in_child
 from cubegi.cubegi_engine import __version__
 
 # (cuts, probes) of each sweep: vertices at about 200 probes, probes at about 95K vertices,
@@ -117,18 +116,7 @@ def _peak():
 
 
 def _child(cuts, probes, timeout):
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    code = (
-        "import json, sys; sys.path.insert(0, %r)\n"
-        "from tools import load_extension; load_extension()\n"
-        "from benchmarks import scaling\n"
-        "print('SCALING ' + json.dumps(scaling.one(%d, %d)))\n" % (root, cuts, probes)
-    )
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout)
-    for line in done.stdout.splitlines():
-        if line.startswith("SCALING "):
-            return json.loads(line[len("SCALING "):])
-    raise RuntimeError(f"the scaling bake ({cuts} cuts, {probes} probes) failed:\n{done.stderr[-2000:]}")
+    return in_child("scaling", "one(%d, %d)" % (cuts, probes), timeout)
 
 
 def slope(xs, ys):

@@ -154,3 +154,39 @@ def thin_wall():
     add_light("POINT", (-1.93, 0.37, 1.71), 200.0, shadow_soft_size=0.05)
     set_world((0.0, 0.0, 0.0))
     return scene
+
+
+# The hall's lamps: (x, y) of each 1.2 x 0.5 m panel 10 cm under the 5 m ceiling, two rows
+# of six down the hall and one over the stairs; with one lamp, the middle one, as bright as
+# all thirteen.
+HALL_LAMPS = tuple((x, y) for y in (-1.6, 1.6) for x in (-8.3, -5.1, -1.7, 1.9, 5.3, 8.6)) + ((0.3, 3.1),)
+
+
+def hall(lamps=13):
+    """A 20 x 8 x 5 m hall lit only by ``lamps`` area lights under its ceiling (see
+    HALL_LAMPS), with four pillars, a long table and a floating staircase of twelve steps
+    along its back wall (each step a slab, 15 cm under the next one's edge: the contact
+    shadows under them)."""
+    scene = _empty()
+    white = material("Plaster", (0.78, 0.76, 0.72))
+    wood = material("Wood", (0.45, 0.28, 0.15))
+    stone = material("Stone", (0.5, 0.5, 0.52))
+    v, f = box((-10.0, -4.0, 0.0), (10.0, 4.0, 5.0), (120, 48, 30), inward=True)
+    mesh_object("Hall", v, f, white)
+    for k, (x, y) in enumerate(((-6.1, -2.2), (-2.3, 2.1), (2.7, -2.2), (6.4, 2.1))):
+        v, f = box((x - 0.3, y - 0.3, 0.0), (x + 0.3, y + 0.3, 5.0), (3, 3, 30))
+        mesh_object(f"Pillar {k}", v, f, stone)
+    v, f = box((-3.1, -1.13, 0.73), (3.3, 0.07, 0.79), (32, 6, 1))
+    mesh_object("Table top", v, f, wood)
+    for k, (x, y) in enumerate(((-2.9, -1.0), (3.1, -1.0), (-2.9, -0.06), (3.1, -0.06))):
+        v, f = box((x - 0.04, y - 0.04, 0.0), (x + 0.04, y + 0.04, 0.73), (1, 1, 2))
+        mesh_object(f"Table leg {k}", v, f, wood)
+    for k in range(12):
+        x, z = -4.7 + 0.71 * k, 0.37 * (k + 1)
+        v, f = box((x, 2.9, z - 0.06), (x + 0.8, 3.97, z), (8, 10, 1))
+        mesh_object(f"Step {k}", v, f, wood)
+    set_world((0.0, 0.0, 0.0))
+    where = HALL_LAMPS if lamps > 1 else ((0.3, -0.1),)
+    for x, y in where[:lamps]:
+        add_light("AREA", (x, y, 4.9), 260.0 * len(HALL_LAMPS) / min(lamps, len(where)), shape="RECTANGLE", size=1.2, size_y=0.5)
+    return scene

@@ -19,8 +19,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import cubemap, sh, spatial
+from . import eyes as eyes_mod
 from . import lights as lights_mod
 from .emitters import emitter_direct
+from .eyes import SOFT_SAMPLES, soft, soft_count
 from .gather import gathered_for, light_visibility, scene_caster
 from .transport import CubeCapture, clip_planes
 from .working import CAPTURE_DRAWS_PER_STEP, in_background, in_batches, run, start, wait
@@ -42,16 +44,6 @@ LIGHT_LEFT_OUT = 1e-4
 # Area light shadow eyes sit this share of the scene's size off the light's plane, so the
 # light's own geometry (if any) and surfaces it rests on do not shadow it.
 AREA_EYE_LIFT = 1e-4
-# A point or spot light whose radius is at least this share of its median distance to the
-# scene's points casts soft shadows: its visibility is averaged over depth cube maps drawn
-# from SOFT_SAMPLES points on its sphere (each at half the sharp map's edge, and no smaller
-# than an area light's). Smaller ones keep one sharp map from the centre (a 1 cm bulb).
-SOFT_RADIUS_SHARE = 0.02
-SOFT_SAMPLES = 32
-# Every sample draws the whole scene six times: past this many triangles the samples drop in
-# proportion (to no fewer than MIN_SOFT_SAMPLES), so a heavy scene's soft light costs about
-# what a light scene's does (on a GPU the drawing is cheap and this could go).
-SOFT_TRIANGLES, MIN_SOFT_SAMPLES = 100_000, 8
 # An area light shadowed from at least SHARED_EYES points draws its maps at half the Area
 # Shadow Size (no smaller than MIN_SHARED_EDGE): each map's aliasing averages out over the
 # points, because every point's cube map is turned its own way (cubemap.turns). The Cornell
@@ -79,6 +71,7 @@ class DirectLight:
     light_seconds: float = 0.0
     probe_seconds: float = 0.0
     left_out: list = field(default_factory=list)  # LeftOut: lights skipped, each with why
+    eyes: dict = field(default_factory=dict)  # Light.shadow_key -> the eyes a soft light was drawn from (eyes.shadow_eyes)
 
     def total(self, scene) -> np.ndarray:
         """Every source summed, dark points zeroed: ``(s, 3)``."""
@@ -118,10 +111,12 @@ class Shadow:
         return int(sum(a.nbytes for a in arrays) + (self.sun_map.nbytes if self.sun_map is not None else 0))
 
 
-def draw_shadow(scene, renderer, settings, light, size=None) -> Shadow:
+def draw_shadow(scene, renderer, settings, light, size=None, eyes=None) -> Shadow:
     """Draw ``light``'s depth maps of ``scene`` (see :class:`Shadow`); ``size``: the maps'
-    edge (default: the light's own ``shadow_size``, else the settings' for its kind)."""
-    return run(draw_shadow_steps(scene, renderer, settings, light, size))
+    edge (default: the light's own ``shadow_size``, else the settings' for its kind);
+    ``eyes``: how many points a soft light is drawn from (see :func:`~cubegi_engine.eyes.shadow_eyes`; None: all
+    of its own)."""
+    return run(draw_shadow_steps(scene, renderer, settings, light, size, eyes=eyes))
 
 
 def _cubes_in_batches(scene, renderer, eyes, edge, near, far, turns, step):
@@ -140,7 +135,7 @@ def _cubes_in_batches(scene, renderer, eyes, edge, near, far, turns, step):
     return CubeCapture(tid.reshape(shape), bary.reshape(shape + (3,)), dist.reshape(shape), back.reshape(shape))
 
 
-def draw_shadow_steps(scene, renderer, settings, light, size=None, step=None):
+def draw_shadow_steps(scene, renderer, settings, light, size=None, step=None, eyes=None):
     """:func:`draw_shadow` as a generator: a light's many cube maps (an area light's sample
     points, a soft light's) drawn in batches."""
     size = size or light.shadow_size or None
@@ -159,13 +154,13 @@ def draw_shadow_steps(scene, renderer, settings, light, size=None, step=None):
                                                 _working(step, f"direct light: {light.name or 'a light'}'s shadow maps"))
     near, far = clip_planes(scene.scale, nearest)
     if light.kind == "AREA":
-        samples = light.samples if light.samples is not None and len(light.samples) else light.position[None]
+        samples = eyes_mod.fewer_samples(light.samples, eyes) if light.samples is not None and len(light.samples) else light.position[None]
         shadow.eyes = samples + light.direction * (AREA_EYE_LIFT * scene.scale)
         edge = size or (max(settings.area_shadow_size // 2, MIN_SHARED_EDGE) if len(samples) >= SHARED_EYES else settings.area_shadow_size)
         shadow.turns = cubemap.turns(len(shadow.eyes)) if len(shadow.eyes) > 1 else None
         shadow.cubes = yield from _cubes_in_batches(scene, renderer, shadow.eyes, edge, near, far, shadow.turns, step)
-    elif is_soft:
-        count = int(np.clip(SOFT_SAMPLES * SOFT_TRIANGLES / max(len(scene.triangles), 1), MIN_SOFT_SAMPLES, SOFT_SAMPLES))
+    elif is_soft and (eyes is None or eyes > 1):
+        count = min(soft_count(scene), eyes or SOFT_SAMPLES)
         shadow.eyes = light.position + light.radius * sh.fibonacci_sphere(count)
         edge = size or max(settings.area_shadow_size, settings.shadow_size // 2)
         shadow.turns = cubemap.turns(count)
@@ -174,13 +169,6 @@ def draw_shadow_steps(scene, renderer, settings, light, size=None, step=None):
         shadow.eyes = light.position[None]
         shadow.cubes = yield from _cubes_in_batches(scene, renderer, shadow.eyes, size or settings.shadow_size, near, far, None, step)
     return shadow
-
-
-def soft(light, points) -> bool:
-    """Whether a point or spot light's radius makes its shadows soft (see SOFT_RADIUS_SHARE)."""
-    if light.kind not in ("POINT", "SPOT") or light.radius <= 0.0 or not len(points):
-        return False
-    return light.radius >= SOFT_RADIUS_SHARE * float(np.median(np.linalg.norm(points - light.position, axis=1)))
 
 
 def _nearest_distance(points, eye):
@@ -218,13 +206,14 @@ def visibility(shadow, pts, nrm, ids) -> np.ndarray:
     return num / den
 
 
-def light_direct(scene, renderer, settings, light, shadows=None) -> np.ndarray:
+def light_direct(scene, renderer, settings, light, shadows=None, eyes=None) -> np.ndarray:
     """Diffuse light ``(s, 3)`` from one light, with shadows from depth maps. ``shadows``: a
-    dict that keeps the light's :class:`Shadow` under its name, if given."""
-    return run(light_direct_steps(scene, renderer, settings, light, shadows))
+    dict that keeps the light's :class:`Shadow` under its name, if given; ``eyes``: as for
+    :func:`draw_shadow`."""
+    return run(light_direct_steps(scene, renderer, settings, light, shadows, eyes=eyes))
 
 
-def light_direct_steps(scene, renderer, settings, light, shadows=None, step=None):
+def light_direct_steps(scene, renderer, settings, light, shadows=None, step=None, eyes=None):
     """:func:`light_direct` as a generator: the shadow maps drawn (the GPU's, here), the
     shadow test of every point run in a thread while it hands control back."""
     value = yield from in_background(lights_mod.unshadowed, _working(step, f"direct light: {light.name or 'a light'}"), light,
@@ -232,7 +221,7 @@ def light_direct_steps(scene, renderer, settings, light, shadows=None, step=None
     lit = np.any(value > 0, axis=1)
     if not light.casts_shadow or not lit.any():
         return value
-    shadow = yield from draw_shadow_steps(scene, renderer, settings, light, step=step)
+    shadow = yield from draw_shadow_steps(scene, renderer, settings, light, step=step, eyes=eyes)
     if shadows is not None:
         shadows[light.shadow_key] = shadow
     ids = np.arange(len(scene.points))[lit]
@@ -269,17 +258,16 @@ def direct_light_steps(scene, renderer, settings, transport, landing=None, shado
     step = step or (lambda message: Progress(Stage.DIRECT, 1, 1, message, working=True))
     t = time.perf_counter()
     parts, left_out = {}, []
-    reach = yield from in_background(
-        lambda: [float(lights_mod.unshadowed(light, scene.points, scene.normals).max(initial=0.0)) for light in scene.lights],
-        step("direct light: where each light reaches"))
+    reach, distances = yield from in_background(lambda: eyes_mod.reach(scene), step("direct light: where each light reaches"))
     brightest = max(reach, default=0.0)
+    eyes = eyes_mod.shadow_eyes(scene, scene.lights, distances)
     for k, (key, light) in enumerate(zip(lights_mod.light_keys(scene.lights), scene.lights)):
         if reach[k] <= LIGHT_LEFT_OUT * brightest:  # no shadow map drawn for it
             why = "reaches no surface" if reach[k] <= 0.0 else f"below {LIGHT_LEFT_OUT:g} of the brightest light everywhere"
             name = light.name or str(k)
             left_out.append(LeftOut(LeftOutKind.LIGHT, f"{name}: {why}", names=(name,)))
             continue
-        parts[key] = yield from light_direct_steps(scene, renderer, settings, light, shadows, step)
+        parts[key] = yield from light_direct_steps(scene, renderer, settings, light, shadows, step, eyes[k])
         yield step(f"direct light: {k + 1} of {len(scene.lights)} lights")
     light_seconds = time.perf_counter() - t
     t = time.perf_counter()
@@ -293,7 +281,8 @@ def direct_light_steps(scene, renderer, settings, transport, landing=None, shado
     if np.any(scene.sky > 0):
         coeffs = coeffs + transport.sky_coefficients(scene.sky)  # what the probes see of it (the field)
         parts[SKY] = scene.sky[None, :] * (yield from unit_sky_direct_steps(scene, renderer, transport, settings.sky_per_vertex, step))
-    return DirectLight(parts, coeffs, factor, light_seconds, time.perf_counter() - t, left_out)
+    counts = {light.shadow_key: n for light, n in zip(scene.lights, eyes) if n is not None}
+    return DirectLight(parts, coeffs, factor, light_seconds, time.perf_counter() - t, left_out, counts)
 
 
 def unit_sky_direct(scene, renderer, transport, per_vertex=False) -> np.ndarray:

@@ -459,8 +459,10 @@ def solved_light(result, scene, settings, renderer, shadows=None):
     from .direct import light_direct, unit_sky_direct
     from .emitters import emitter_direct
 
-    def draw(light):
-        return light_direct(scene, renderer(), settings, light, shadows)
+    eyes = dict(result.direct_parts.eyes)
+
+    def draw(light):  # a light the bake drew keeps its eyes' count (a new one: all its own)
+        return light_direct(scene, renderer(), settings, light, shadows, eyes=eyes.get(light.shadow_key))
 
     def emitters(emission):
         return emitter_direct(replace(scene, emission=emission), renderer(), settings.area_shadow_size)

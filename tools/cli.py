@@ -22,6 +22,11 @@ def _parsers(sub):
         help="instead: bake the Room subdivided to 6K-1M vertices and with 50-2,000 probes, each in its own process, and "
         "write scaling.json and scaling.png (time per stage, peak memory)",
     )
+    m.add_argument(
+        "--lights", action="store_true",
+        help="instead: bake a hall lit by one area lamp and by thirteen (default quality, each in its own process, against "
+        "Cycles) and write lights.json and lights.md (what many lights cost)",
+    )
 
 
 def cmd_demo(args):
@@ -57,6 +62,12 @@ def cmd_benchmark(args):
     def log(message):
         print(f"cubegi: {message}", flush=True)
 
+    if args.lights:
+        from benchmarks import lights
+
+        lights.run(args.out, log=log)
+        print(f"cubegi: wrote {os.path.join(args.out, 'lights.json')}, {os.path.join(args.out, 'lights.md')}")
+        return
     if args.scaling:
         from benchmarks import scaling
 

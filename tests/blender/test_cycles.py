@@ -370,3 +370,19 @@ def test_the_reference_report_leaves_black_vertices_out(empty_scene, cubegi):
     got = report.reference.errors["indirect"]
     assert got["rel_rmse"] == pytest.approx(kept["rel_rmse"], rel=1e-6)
     assert everything["rel_rmse"] > got["rel_rmse"] + 0.01, (everything, got)
+
+
+def test_thirteen_area_lamps_share_their_shadow_eyes_and_match_cycles(empty_scene, cubegi):
+    """Thirteen 0.3 m lamps under the box's ceiling: each would take 64 shadow eyes (832
+    cube maps); they share the scene's budget (cubegi_engine.eyes.SHADOW_EYES), 4 each.
+    Measured against Cycles at 128 samples: direct rel. RMSE 2.1% (1.6% with 64 each)."""
+    obs = cornell_box()
+    places = [(x, y) for x in (-0.62, -0.21, 0.19, 0.61) for y in (-0.58, -0.19, 0.22)] + [(0.03, 0.63)]
+    for x, y in places:
+        scenes.add_light("AREA", (x, y, 1.97), 80.0 / len(places), shape="SQUARE", size=0.3)
+    err = _bake_both(cubegi, obs, ("DIRECT",), samples=128)["DIRECT"]
+    eyes = cubegi.cubegi_addon.session.kept(bpy.context.scene).bake.result.direct_parts.eyes
+    print(err, eyes)
+    assert len(eyes) == len(places) and sum(eyes.values()) <= cubegi.cubegi_engine.eyes.SHADOW_EYES, eyes
+    assert abs(err["rel_bias"]) < DIRECT_BIAS_TOL, err
+    assert err["rel_rmse"] < DIRECT_RMSE_TOL, err

@@ -433,3 +433,34 @@ def test_undo_and_redo_keep_live_working_and_an_undone_bake_is_not_updated(room)
     scene = bpy.context.scene
     assert session.kept(scene) is None and scene.cubegi.live
     assert scene.cubegi.last_update.startswith("Live is waiting: undo or redo went back to light another bake made")
+
+
+@pytest.fixture
+def lamp_room(empty_scene, cubegi):
+    """The closed room and red block lit by four 0.8 m square area lamps under the ceiling:
+    more eyes than the scene's budget, so they share it (cubegi_engine.eyes.shadow_eyes)."""
+    v, f = scenes.box_mesh((-2, -2, 0), (2, 2, 2.5), (6, 6, 4), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    bv, bf = scenes.box_mesh((-0.5, 0.3, 0.0), (0.4, 1.1, 0.9), (2, 2, 2), inward=False)
+    scenes.mesh_object("Block", bv, bf, scenes.material("Red", (0.7, 0.1, 0.1)))
+    for k, (x, y) in enumerate([(-1.1, -1.0), (1.0, -1.1), (-0.9, 1.1), (1.1, 0.9)]):
+        scenes.add_light("AREA", (x, y, 2.45), 60.0, shape="SQUARE", size=0.8).name = f"Lamp {k}"
+    return cubegi
+
+
+@pytest.mark.parametrize("edit", ["power", "move one"])
+def test_lamps_sharing_their_shadow_eyes_update_as_a_full_bake(lamp_room, edit):
+    """Four lamps that would each take 64 shadow eyes share the budget (16 each); a power
+    edit keeps every lamp's maps and a moved lamp is drawn again from as many eyes as it
+    had, and each equals a full bake of the edited scene."""
+    eyes_mod = lamp_room.cubegi_engine.eyes
+    assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
+    eyes = lamp_room.cubegi_addon.session.kept(bpy.context.scene).bake.result.direct_parts.eyes
+    assert len(eyes) == 4 and sum(eyes.values()) <= eyes_mod.SHADOW_EYES and set(eyes.values()) == {16}, eyes
+    if edit == "power":
+        bpy.data.objects["Lamp 0"].data.energy = 180.0
+    else:
+        bpy.data.objects["Lamp 2"].location = (-0.3, 1.4, 2.4)
+    report = _update(lamp_room)
+    assert report.route == ("weights" if edit == "power" else "lights"), report
+    _assert_same(_light(), _full_bake(lamp_room))

@@ -4,7 +4,7 @@ numpy; must not import bpy."""
 
 import numpy as np
 
-__all__ = ["triangle_planes", "planes_of", "ray_cut", "cut_planes", "cut_triangles", "near_any_triangle", "edge_neighbours",
+__all__ = ["sorted_unique", "triangle_planes", "planes_of", "ray_cut", "cut_planes", "cut_triangles", "near_any_triangle", "edge_neighbours",
            "chunks", "POINT_CHUNK", "GRAZING", "twin_triangles", "mix64", "position_hash"]
 
 # Per-point tests that make several (s, 9, 3) float64 arrays run this many points at a time:
@@ -26,6 +26,14 @@ def chunks(count, size=POINT_CHUNK):
 # 0), counts a cut within BARY_SLACK outside the triangle's edges, and a front face before a
 # back face as near (spatial.TIE).
 GRAZING = 1e-3
+
+
+def sorted_unique(keys):
+    """``np.unique`` of an int array, by a stable sort (timsort takes the sorted runs that
+    (point, triangle) keys come in; numpy 2's hashed unique is tens of times slower on
+    millions of keys)."""
+    keys = np.sort(keys, kind="stable")
+    return keys[np.concatenate([[True], keys[1:] != keys[:-1]])] if len(keys) else keys
 
 
 def triangle_planes(triangles, vertices):
@@ -61,8 +69,14 @@ def cut_triangles(origins, u, tid, triangles, vertices):
     """:func:`cut_planes` for triangles given by corners: the planes of ``tid`` alone are
     made (for a few rays against many triangles)."""
     tid = np.asarray(tid)
-    planes = triangle_planes(triangles[np.maximum(tid, 0)], vertices).reshape(tid.shape + (4, 3))
-    return _cut(origins, u, tid, planes)
+    safe = np.maximum(tid, 0)
+    if 8 * safe.size < len(triangles):
+        return _cut(origins, u, tid, triangle_planes(triangles[safe], vertices).reshape(tid.shape + (4, 3)))
+    # Many rays: each triangle's plane made once (a shadow map's receivers share few).
+    listed = np.zeros(len(triangles), dtype=bool)
+    listed[safe] = True
+    local = np.cumsum(listed) - 1
+    return _cut(origins, u, tid, triangle_planes(triangles[listed], vertices)[local[safe]])
 
 
 def ray_cut(origins, u, planes, present=True, grazing=GRAZING):

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import sh
+from .geometry import sorted_unique
 from .spatial import VoxelIndex
 from .transport import INSIDE_BACKFACE_SHARE as INSIDE_SHARE  # the capture's own test, asked first
 
@@ -72,7 +73,7 @@ def trace(positions, index, cell, dirs=None):
     # Two half-spaces make the whole sphere of candidates.
     up = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (p, 3))
     pairs = [index.candidates(positions, n, reach)[:2] for n in (up, -up)]
-    pair = np.unique(np.concatenate([pp * len(index.a) + tt for pp, tt in pairs]))
+    pair = sorted_unique(np.concatenate([pp * len(index.a) + tt for pp, tt in pairs]))
     pair_p, pair_t = pair // len(index.a), pair % len(index.a)
     rays = np.broadcast_to(dirs, (p,) + dirs.shape)
     t, tri, _, front = index.trace(positions, up, rays, reach, np.zeros(p), pair_p, pair_t)

@@ -4,7 +4,7 @@ placement (:mod:`cubegi_engine.placement`). Pure numpy; must not import bpy."""
 
 import numpy as np
 
-from .geometry import chunks, planes_of, ray_cut
+from .geometry import chunks, planes_of, ray_cut, sorted_unique
 
 __all__ = ["VoxelIndex", "voxel_index", "forget_indexes", "resting", "intersect_pairs",
            "over_triangles", "SLACK", "COORD_SLACK", "BARY_SLACK", "MAX_NEARBY"]
@@ -168,7 +168,7 @@ class VoxelIndex:
             pp, tt = self._listed(pt, slot)
             pp += at
             keep = np.all((lo[pp] <= self.hi[tt]) & (hi[pp] >= self.lo[tt]), axis=1)
-            pair = np.unique(pp[keep] * len(self.a) + tt[keep])  # a triangle in several voxels, once
+            pair = sorted_unique(pp[keep] * len(self.a) + tt[keep])  # a triangle in several voxels, once
             out_p.append(pair // len(self.a))
             out_t.append(pair % len(self.a))
         if not out_p:
@@ -221,7 +221,7 @@ class VoxelIndex:
                     np.einsum("ij,ij->i", self.unit[tt], nx) < -0.5) & over_triangles(x, a[tt], b[tt], c[tt], self.unit[tt])
             else:
                 keep = front > slack
-            pair = np.unique(pp[keep] * len(a) + tt[keep])  # a triangle listed in several voxels, once
+            pair = sorted_unique(pp[keep] * len(a) + tt[keep])  # a triangle listed in several voxels, once
             out_p.append(pair // len(a))
             out_t.append(pair % len(a))
         return np.concatenate(out_p), np.concatenate(out_t), crowded

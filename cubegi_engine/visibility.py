@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import cubemap
-from .geometry import POINT_CHUNK, chunks, cut_planes, edge_neighbours, triangle_planes
+from .geometry import POINT_CHUNK, chunks, cut_planes, edge_neighbours, sorted_unique, triangle_planes
 
 __all__ = ["visibility_weights", "probes_in_front", "Cover", "Probes", "PointProbes", "ProbeWeights", "BEHIND"]
 
@@ -259,7 +259,7 @@ def _ring_search(cover, seen, eye, u, depth):
     The (ray, triangle) pairs are kept flat, as keys ``ray * t + triangle``."""
     count = np.int64(len(cover.planes))
     rows, cols = np.nonzero(seen >= 0)
-    tried = _sorted_unique(rows * count + seen[rows, cols])
+    tried = sorted_unique(rows * count + seen[rows, cols])
     frontier = tried
     found = np.zeros(len(seen), dtype=bool)
     for _ in range(COVER_RINGS):
@@ -267,14 +267,14 @@ def _ring_search(cover, seen, eye, u, depth):
         ring = cover.neighbours[parent]  # (f, 3)
         keep = (ring >= 0) & (cover.triangle_object[np.maximum(ring, 0)] == cover.triangle_object[parent][:, None])
         keep &= ~found[ray][:, None]
-        keys = _sorted_unique(ray[:, None].repeat(3, axis=1)[keep] * count + ring[keep])
+        keys = sorted_unique(ray[:, None].repeat(3, axis=1)[keep] * count + ring[keep])
         keys = keys[~_in_sorted(keys, tried)]
         if not len(keys):
             break
         ray, tid = np.divmod(keys, count)
         t, inside = cut_planes(eye[ray], u[ray], tid, cover.planes)
         found[ray[inside & (t > 0) & (t < depth[ray])]] = True
-        tried = _sorted_unique(np.concatenate([tried, keys]))
+        tried = sorted_unique(np.concatenate([tried, keys]))
         frontier = keys
     return found
 
@@ -283,10 +283,3 @@ def _in_sorted(keys, sorted_keys):
     """Whether each of ``keys`` is in the sorted array ``sorted_keys``."""
     at = np.minimum(np.searchsorted(sorted_keys, keys), max(len(sorted_keys) - 1, 0))
     return sorted_keys[at] == keys if len(sorted_keys) else np.zeros(len(keys), dtype=bool)
-
-
-def _sorted_unique(keys):
-    """``np.unique`` of an int array by sorting (numpy's hashed unique is many times slower
-    on millions of keys)."""
-    keys = np.sort(keys, kind="stable")  # timsort: the keys come in sorted runs
-    return keys[np.concatenate([[True], keys[1:] != keys[:-1]])] if len(keys) else keys

@@ -325,13 +325,32 @@ def test_the_cover_ring_search_finds_the_crossed_triangle_up_to_two_edges_away()
 
 
 def test_sorted_unique_and_membership():
-    from cubegi.cubegi_engine.visibility import _in_sorted, _sorted_unique
+    from cubegi.cubegi_engine.geometry import sorted_unique
+    from cubegi.cubegi_engine.visibility import _in_sorted
 
     keys = np.array([9, 3, 3, 7, 9, 1], dtype=np.int64)
-    assert _sorted_unique(keys).tolist() == [1, 3, 7, 9]
-    assert _sorted_unique(keys[:0]).tolist() == []
+    assert sorted_unique(keys).tolist() == [1, 3, 7, 9]
+    assert sorted_unique(keys[:0]).tolist() == []
+    runs = np.random.default_rng(3).integers(0, 50, 2000) + 100 * np.repeat(np.arange(40), 50)  # sorted runs, as pairs come
+    assert np.array_equal(sorted_unique(runs), np.unique(runs))
     assert _in_sorted(np.array([0, 3, 8, 9, 10]), np.array([1, 3, 7, 9])).tolist() == [False, True, False, True, False]
     assert _in_sorted(np.array([2]), np.array([], dtype=np.int64)).tolist() == [False]
+
+
+def test_cutting_many_rays_makes_each_triangles_plane_once_with_the_same_answer():
+    from cubegi.cubegi_engine import geometry
+
+    rng = np.random.default_rng(5)
+    vertices = rng.random((50, 3))
+    triangles = rng.integers(0, 50, (40, 3))
+    origins, u = rng.random((30, 1, 3)), rng.normal(size=(30, 1, 3))
+    u /= np.linalg.norm(u, axis=-1, keepdims=True)
+    for tid in (rng.integers(-1, 40, (30, 9)), rng.integers(-1, 40, (3, 1))):  # many rays (shared planes), and few
+        n = len(tid)
+        t, inside = geometry.cut_triangles(origins[:n], u[:n], tid, triangles, vertices)
+        want_t, want_inside = geometry.cut_planes(origins[:n], u[:n], tid, geometry.triangle_planes(triangles, vertices))
+        assert np.array_equal(np.isnan(t), np.isnan(want_t)) and np.allclose(np.nan_to_num(t), np.nan_to_num(want_t), rtol=1e-12)
+        assert np.array_equal(inside, want_inside) and np.isnan(t[tid < 0]).all()
 
 
 def test_an_emitter_with_few_triangles_spreads_its_shadow_points_inside_them():

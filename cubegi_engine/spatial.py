@@ -12,7 +12,7 @@ __all__ = ["VoxelIndex", "voxel_index", "forget_indexes", "resting", "intersect_
 # Points whose candidate voxels are listed at a time (27 voxels and their triangles each:
 # smaller than geometry.POINT_CHUNK, which holds a few arrays per point), and (pair, ray)
 # tests at a time.
-VOXEL_CHUNK = 4096
+VOXEL_CHUNK = 512
 TEST_CHUNK = 1 << 21
 # A point with more triangles than this listed in the voxels around it is left out as
 # crowded (dense, folded geometry), before its pairs are made.
@@ -81,6 +81,10 @@ class VoxelIndex:
         key, self.tri = key[order], tri[order]
         self.keys, self.start = np.unique(key, return_index=True)
         self.end = np.append(self.start[1:], len(key))
+        # Per occupied voxel, the box of its triangles (a voxel whose triangles all lie in a
+        # point's own plane is passed over whole: see candidates).
+        self.content_lo = np.minimum.reduceat(lo[self.tri], self.start, axis=0) if len(key) else np.zeros((0, 3))
+        self.content_hi = np.maximum.reduceat(hi[self.tri], self.start, axis=0) if len(key) else np.zeros((0, 3))
 
     def trace(self, points, normals, dirs, reach, slack, pair_p, pair_t):
         """The nearest hit of every ray ``points + slack normals + t dirs`` (``dirs (s, k, 3)``)
@@ -204,11 +208,22 @@ class VoxelIndex:
             # before their pairs are made (dense, folded geometry).
             many = np.bincount(pt, count, minlength=len(idx)) > MAX_NEARBY
             crowded[sl] = many
-            pp, tt = self._listed(pt[~many[pt]], slot[~many[pt]])
+            pt, slot = pt[~many[pt]], slot[~many[pt]]
+            # The voxels' own boxes first (the same tests as the triangles' boxes below, each
+            # passed by every triangle the voxel holds that passes them).
+            x, r = points[lo + pt], reach[lo + pt][:, None]
+            fits = np.all((x >= self.content_lo[slot] - r) & (x <= self.content_hi[slot] + r), axis=1)
+            if not touching:
+                fits &= _box_front(normals[lo + pt], self.content_lo[slot] - x, self.content_hi[slot] - x, x, r[:, 0])
+            pp, tt = self._listed(pt[fits], slot[fits])
             pp += lo
-            # Cheapest tests first: the boxes, then the plane, then a corner in front.
-            x, r = points[pp], reach[pp][:, None]
-            keep = np.all((x >= self.lo[tt] - r) & (x <= self.hi[tt] + r), axis=1)
+            # Cheapest tests first: the boxes (within reach, and a corner of the box in front:
+            # a wall's own triangles around its points are not, where it lies along an axis),
+            # then the plane, then a corner of the triangle in front.
+            x, r, box_lo, box_hi = points[pp], reach[pp][:, None], self.lo[tt], self.hi[tt]
+            keep = np.all((x >= box_lo - r) & (x <= box_hi + r), axis=1)
+            if not touching:
+                keep &= _box_front(normals[pp], box_lo - x, box_hi - x, x, r[:, 0])
             pp, tt, x, r = pp[keep], tt[keep], x[keep], r[keep, 0]
             keep = np.abs(np.einsum("ij,ij->i", x, self.unit[tt]) - self.offset[tt]) <= r
             pp, tt, x, r = pp[keep], tt[keep], x[keep], r[keep]
@@ -225,6 +240,14 @@ class VoxelIndex:
             out_p.append(pair // len(a))
             out_t.append(pair % len(a))
         return np.concatenate(out_p), np.concatenate(out_t), crowded
+
+
+def _box_front(normals, to_lo, to_hi, x, reach):
+    """Whether a box (its corners ``lo``, ``hi`` less the points ``x``) has a corner in front of
+    each point's tangent plane by more than its ray's slack: true of every triangle in it that
+    has one (a wall's own triangles, where it lies along an axis, have none)."""
+    height = np.maximum(normals * to_lo, normals * to_hi).sum(axis=1)
+    return height > SLACK * reach + COORD_SLACK * np.abs(x).max(axis=1)
 
 
 # The voxel indexes last made, at most INDEXES_KEPT: [(key, arrays held, VoxelIndex)]; a

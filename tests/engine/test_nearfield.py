@@ -302,6 +302,45 @@ def test_the_segment_search_finds_every_triangle_whose_box_meets_the_segment():
     assert got == want and len(want) > 50
 
 
+def test_the_hemisphere_search_finds_every_triangle_in_reach_and_in_front_and_skips_a_walls_own():
+    """Points on a wall along an axis (its own triangles, all in its plane, are no candidates,
+    and the voxels holding only them are passed over whole) among random triangles: the
+    pairs are exactly those a brute-force test of every triangle gives."""
+    rng = np.random.default_rng(7)
+    g = np.linspace(0.0, 4.0, 41)
+    x, y = np.meshgrid(g[:-1], g[:-1])
+    x, y = x.ravel(), y.ravel()
+    d = g[1] - g[0]
+    wall = [np.stack([x, y, np.zeros_like(x)], 1), np.stack([x + d, y, np.zeros_like(x)], 1), np.stack([x, y + d, np.zeros_like(x)], 1)]
+    centres = rng.random((300, 3)) * [4.0, 4.0, 0.6]
+    loose = [centres + rng.normal(scale=0.1, size=(300, 3)) for _ in range(3)]
+    a, b, c = (np.concatenate([w, r]) for w, r in zip(wall, loose))
+    index = spatial.VoxelIndex(a, b, c, 0.3)
+    points = np.concatenate([rng.random((200, 3)) * [4.0, 4.0, 0.0], rng.random((100, 3)) * [4.0, 4.0, 0.6]])
+    normals = np.concatenate([np.tile([0.0, 0.0, 1.0], (200, 1)), rng.normal(size=(100, 3))])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    reach = np.full(len(points), 0.3)
+    pp, tt, crowded = index.candidates(points, normals, reach)
+    assert not crowded.any()
+    got = set(zip(pp.tolist(), tt.tolist()))
+    # Brute force: the box within reach, the plane within reach, a corner in front by more than the slack.
+    lo, hi = np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
+    box = np.all((points[:, None] >= lo[None] - 0.3) & (points[:, None] <= hi[None] + 0.3), axis=2)
+    unit = np.cross(b - a, c - a)
+    unit /= np.linalg.norm(unit, axis=1, keepdims=True)
+    plane = np.abs(points @ unit.T - np.einsum("ij,ij->i", unit, a)[None]) <= 0.3
+    front = np.max(np.stack([np.einsum("ptc,pc->pt", v[None] - points[:, None], normals) for v in (a, b, c)]), axis=0)
+    slack = spatial.SLACK * 0.3 + spatial.COORD_SLACK * np.abs(points).max(axis=1)
+    passes = box & plane & (front > slack[:, None])
+    assert got <= set(zip(*[v.tolist() for v in np.nonzero(passes)]))
+    # Every triangle whose centre lies within the reach, in front, is there.
+    to_centre = index.centre[None] - points[:, None]
+    close = (np.linalg.norm(to_centre, axis=2) <= 0.3) & (np.einsum("ptc,pc->pt", to_centre, normals) > 0)
+    want = set(zip(*[v.tolist() for v in np.nonzero(passes & close)]))
+    assert want <= got and len(want) > 100
+    assert not any(t < len(x) for p, t in got if p < 200)  # a wall point: none of the wall's own triangles
+
+
 def test_longer_rays_for_some_points_replace_their_rows():
     """Two points under a plate 0.3 high: with a reach of 0.1 neither meets it; rays of 1.0
     cast by the second alone (``which``) find it, and replacing the rows gives that point

@@ -9,10 +9,10 @@ from .geometry import chunks, planes_of, ray_cut, sorted_unique
 __all__ = ["VoxelIndex", "voxel_index", "forget_indexes", "resting", "intersect_pairs",
            "over_triangles", "SLACK", "COORD_SLACK", "BARY_SLACK", "MAX_NEARBY"]
 
-# Points whose candidate voxels are listed at a time (27 voxels and their triangles each:
-# smaller than geometry.POINT_CHUNK, which holds a few arrays per point), and (pair, ray)
-# tests at a time.
-VOXEL_CHUNK = 512
+# Segments whose voxels are listed at a time, points whose candidate voxels are (27 voxels
+# and their triangles each: temporaries that stay in cache), and (pair, ray) tests at a time.
+VOXEL_CHUNK = 4096
+CANDIDATE_CHUNK = 512
 TEST_CHUNK = 1 << 21
 # A point with more triangles than this listed in the voxels around it is left out as
 # crowded (dense, folded geometry), before its pairs are made.
@@ -189,7 +189,7 @@ class VoxelIndex:
         crowded = np.zeros(len(points), dtype=bool)
         offsets = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
         out_p, out_t = [], []
-        for sl in chunks(len(points), VOXEL_CHUNK):
+        for sl in chunks(len(points), CANDIDATE_CHUNK):
             lo = sl.start
             idx = base[sl, None, :] + offsets[None]  # (m, 27, 3)
             # Only the voxels within reach with a part in front of the point's tangent plane.
@@ -246,8 +246,12 @@ def _box_front(normals, to_lo, to_hi, x, reach):
     """Whether a box (its corners ``lo``, ``hi`` less the points ``x``) has a corner in front of
     each point's tangent plane by more than its ray's slack: true of every triangle in it that
     has one (a wall's own triangles, where it lies along an axis, have none)."""
-    height = np.maximum(normals * to_lo, normals * to_hi).sum(axis=1)
-    return height > SLACK * reach + COORD_SLACK * np.abs(x).max(axis=1)
+    near_lo, near_hi = normals * to_lo, normals * to_hi
+    height = np.maximum(near_lo, near_hi).sum(axis=1)
+    # The exact test sums its terms in another order: a hair of rounding room, which grows
+    # with a larger box (a voxel's box keeps every triangle its own box keeps).
+    rounding = 1e-12 * np.maximum(np.abs(near_lo), np.abs(near_hi)).sum(axis=1)
+    return height + rounding > SLACK * reach + COORD_SLACK * np.abs(x).max(axis=1)
 
 
 # The voxel indexes last made, at most INDEXES_KEPT: [(key, arrays held, VoxelIndex)]; a

@@ -341,6 +341,19 @@ def test_the_hemisphere_search_finds_every_triangle_in_reach_and_in_front_and_sk
     assert not any(t < len(x) for p, t in got if p < 200)  # a wall point: none of the wall's own triangles
 
 
+def test_a_triangle_in_front_by_a_hair_over_the_slack_stays_a_candidate():
+    """Its front height (6.0000000000008e-6) tops the ray's slack (6e-6) by less than the
+    rounding of the box tests, which sum the same terms in another order: they must not
+    drop what the exact test keeps."""
+    a = np.array([[0.5734587395483763, 0.5992276899478435, -0.028348147998352394]])
+    b = np.array([[0.5, 0.3, -0.029348147998352395]])
+    c = np.array([[0.3, 0.5, -0.030348147998352393]])
+    point = np.array([[0.25, 0.25, 0.0]])
+    normal = np.array([[0.05713338417787122, 0.028108684469556604, 0.997970780268528]])
+    pp, tt, _ = spatial.VoxelIndex(a, b, c, 0.25).candidates(point, normal, np.array([0.5]))
+    assert pp.tolist() == [0] and tt.tolist() == [0]
+
+
 def test_longer_rays_for_some_points_replace_their_rows():
     """Two points under a plate 0.3 high: with a reach of 0.1 neither meets it; rays of 1.0
     cast by the second alone (``which``) find it, and replacing the rows gives that point

@@ -45,14 +45,22 @@ def soft(light, points) -> bool:
 
 def fewer_samples(samples, count):
     """An area light's stratified ``samples`` ``(m^2, 3)`` (an m x m grid, as
-    :func:`~cubegi_engine.lights.area_samples` lays them) as at most ``count`` points: the
-    means of square blocks of them, a side that divides m (the stratified points of a
-    coarser grid). Samples that are not such a grid are kept."""
+    :func:`~cubegi_engine.lights.area_samples` lays them) as at most ``count`` points, one per
+    square block of them, a side that divides m: on a square or rectangle (a grid even in
+    both directions) the blocks' means, the stratified points of a coarser grid; on a disk
+    or ellipse (rings and angles: a block's mean would sit inside its ring, the eyes drawn
+    together) each block's middle sample, and one eye at the centre. Samples that are not such a grid are kept."""
     m = int(round(np.sqrt(len(samples))))
     if count is None or m * m != len(samples) or count >= len(samples):
         return samples
     side = max(k for k in range(1, m + 1) if m % k == 0 and k * k <= max(int(count), 1))
-    return samples.reshape(side, m // side, side, m // side, 3).mean(axis=(1, 3)).reshape(-1, 3)
+    grid = samples.reshape(m, m, 3)
+    blocks = grid.reshape(side, m // side, side, m // side, 3)
+    even = m < 3 or (np.allclose(np.diff(grid, 2, axis=0), 0.0, atol=1e-9 * np.ptp(samples))
+                     and np.allclose(np.diff(grid, 2, axis=1), 0.0, atol=1e-9 * np.ptp(samples)))
+    if even or side == 1:  # (one eye: the light's centre)
+        return blocks.mean(axis=(1, 3)).reshape(-1, 3)
+    return blocks[:, (m // side) // 2, :, (m // side) // 2].reshape(-1, 3)
 
 
 def soft_count(scene):

@@ -35,6 +35,19 @@ def test_fewer_samples_are_the_coarser_grids_stratified_points():
     assert fewer_samples(odd, 4) is odd
 
 
+def test_fewer_samples_of_a_disk_keep_their_spread_over_it():
+    """A disk's samples lie in rings and angles: its fewer eyes are spread as its own (a
+    block's mean would draw them to the middle: 4 eyes at 0.42 of the radius, against 0.67
+    for the whole disk), and one eye is its centre."""
+    fine = area_samples("DISK", 1.0, 1.0, 8)
+    spread = np.linalg.norm(fine, axis=1).mean()
+    for count in (4, 16):
+        fewer = fewer_samples(fine, count)
+        assert len(fewer) == count and abs(np.linalg.norm(fewer, axis=1).mean() - spread) < 0.2 * spread, count
+        assert np.all(np.linalg.norm(fewer, axis=1) <= 0.5)  # on the disk
+    np.testing.assert_allclose(fewer_samples(fine, 1)[0], fine.mean(axis=0), atol=1e-12)
+
+
 def test_a_light_gets_the_eyes_its_size_needs_from_what_it_lights():
     large = _panel((0.0, 0.0, 4.9), 1.2, 0.5)  # 1.3 m seen from 2.5 m: all 64
     small = _panel((0.0, 0.0, 4.9), 0.1, 0.1)  # 14 cm from 5 m: one

@@ -27,7 +27,9 @@ SOFT_TRIANGLES, MIN_SOFT_SAMPLES = 100_000, 8
 # them at FULL_SOFT_ANGLE (radians) or more, a coarser square below it (a 10 cm panel across
 # a hall: one); and a scene's soft lights share SHADOW_EYES between them equally, none more
 # than it needs (not by their power: a power edit then keeps every light's maps, as an
-# update does). Measured against Cycles, the benchmark's Cornell box lit by one square area
+# update does). An update that moves a light draws it again from the eyes the bake gave it
+# (relight.solved_light): where the move takes its need past a grid's count (1, 4, 16, 64),
+# a fresh bake would share them otherwise, until the next full bake. Measured against Cycles, the benchmark's Cornell box lit by one square area
 # light, direct rel. RMSE with 1 / 4 / 16 / 64 eyes: a 0.6 m light 13.6 / 5.1 / 2.4 / 1.6%,
 # 0.25 m 8.9 / 4.4 / 1.9 / 1.6%, 0.08 m 2.0 / 2.5 / 2.1 / 3.2% (given 64, 64 and 16). A hall
 # lit by thirteen 1.2 x 0.5 m lamps (benchmark --lights): 4 eyes each instead of 64, its

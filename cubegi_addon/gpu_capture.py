@@ -20,6 +20,7 @@ from gpu_extras.batch import batch_for_shader
 
 from ..cubegi_engine import geometry
 from ..cubegi_engine.errors import BakeError
+from ..cubegi_engine.transport import no_barycentrics
 from ..cubegi_engine.working import in_background, run
 from . import compat
 from .bvh_rays import BvhRays
@@ -245,8 +246,6 @@ class GpuRenderer:
         prepared = yield from in_background(_prepared, working, points, triangles, None, sheet)
         renderer = cls.__new__(cls)
         yield from renderer._uploaded(prepared, working)
-        yield working
-        renderer.depth_batch = yield from _batch_steps(_id_shader(False), renderer._depth_columns(), working)
         return renderer
 
     def _uploaded(self, prepared, working=None):
@@ -330,11 +329,13 @@ class GpuRenderer:
     def render(self, view_projs, eyes, axes, size, with_bary=True):
         v = len(view_projs)
         tid = np.empty((v, size, size), dtype=np.int32)
-        bary = np.zeros((v, size, size, 3), dtype=np.float32)
+        bary = np.zeros((v, size, size, 3), dtype=np.float32) if with_bary else no_barycentrics((v, size, size, 3))
         dist = np.empty((v, size, size), dtype=np.float32)
         back = np.empty((v, size, size), dtype=bool)
+        # The depth-only shader takes the same vertices (its inputs are the id shader's, at
+        # the same locations): one batch, uploaded once, serves both.
         shader = self.id_shader if with_bary else _id_shader(False)
-        batch = self.id_batch if with_bary else self._depth_batch()
+        batch = self.id_batch
         local = [self._local(vp) for vp in view_projs]
         ranges = self._ranges(local)
         shader.bind()
@@ -364,16 +365,6 @@ class GpuRenderer:
                 np.multiply(tiles[..., -1], np.float32(self.unit), out=d)
             d[tid[sl] < 0] = np.inf  # nothing drawn: the clear value, not a distance
         return tid, bary, dist, back
-
-    def _depth_batch(self):
-        """The triangles for the depth-only shader (the same vertex layout, its own batch)."""
-        if getattr(self, "depth_batch", None) is None:
-            self.depth_batch = run(_batch_steps(_id_shader(False), self._depth_columns()))
-        return self.depth_batch
-
-    def _depth_columns(self):
-        zeros = np.zeros((len(self.corner_pos), 2), dtype=np.float32)
-        return {"pos": self.corner_pos, "tid": self.tid, "bary": zeros, "twin": self.twin, "twin_bary": zeros}
 
     def render_colour(self, view_projs, size, point_radiance):
         if self._colour_shader is None:

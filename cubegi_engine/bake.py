@@ -43,8 +43,9 @@ class Renderer(Protocol):
 
     ``render(view_projs (v, 4, 4), eyes (v, 3), axes (v, 3) or None, size, with_bary=True)``
     draws the scene's triangles into ``v`` square views and returns per texel the triangle
-    index (int32, -1 for nothing), barycentric weights ``(v, n, n, 3)`` (zeros without
-    ``with_bary``: depth maps for shadows), distance (radial from the eye, or along ``axes``
+    index (int32, -1 for nothing), barycentric weights ``(v, n, n, 3)`` (without
+    ``with_bary``, for shadows' depth maps: zeros that take no memory,
+    :func:`~cubegi_engine.transport.no_barycentrics`), distance (radial from the eye, or along ``axes``
     for orthographic views; inf for nothing) and a back-face flag.
     ``render_colour(view_projs, size, point_radiance (s, 3))`` draws the scene coloured by
     per-point radiance (back faces black) and returns ``(v, n, n, 3)``.
@@ -205,6 +206,7 @@ def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field):
         transport.take_gathered(gathered)
         timings["gather"] = gathered.seconds if gathered is not None else 0.0
 
+    forget_indexes()  # nothing after this point asks for the triangles' voxel indexes (each holds several arrays a triangle)
     yield Progress(Stage.DIRECT, 1, total, f"direct light from {len(scene.lights)} lights")
     t = time.perf_counter()
     landing = (yield from in_background(transport.landing_share, working(Stage.DIRECT, 1)("the share of each point's view that is "

@@ -24,7 +24,7 @@ from . import lights as lights_mod
 from .emitters import emitter_direct
 from .eyes import SOFT_SAMPLES, soft, soft_count
 from .gather import gathered_for, light_visibility, scene_caster
-from .transport import CubeCapture, clip_planes
+from .transport import CubeCapture, clip_planes, no_barycentrics
 from .working import CAPTURE_DRAWS_PER_STEP, in_background, in_batches, run, start, wait
 
 __all__ = ["DirectLight", "Shadow", "draw_shadow", "visibility", "light_direct", "direct_light", "EMISSION", "SKY"]
@@ -107,7 +107,7 @@ class Shadow:
 
     @property
     def nbytes(self):
-        arrays = [self.cubes.tid, self.cubes.bary, self.cubes.dist, self.cubes.backface] if self.cubes is not None else []
+        arrays = [self.cubes.tid, self.cubes.dist, self.cubes.backface] if self.cubes is not None else []  # no barycentrics
         return int(sum(a.nbytes for a in arrays) + (self.sun_map.nbytes if self.sun_map is not None else 0))
 
 
@@ -130,9 +130,9 @@ def _cubes_in_batches(scene, renderer, eyes, edge, near, far, turns, step):
     batches = yield from in_batches(
         len(vps), per, lambda a, b: renderer.render(vps[a:b], face_eyes[a:b], None, edge, with_bary=False),
         lambda done: _working(step, f"direct light: shadow maps, {done // 6} of {len(eyes)}"))
-    tid, bary, dist, back = (np.concatenate([batch[f] for batch in batches]) for f in range(4))
+    tid, dist, back = (np.concatenate([batch[f] for batch in batches]) for f in (0, 2, 3))
     shape = (len(eyes), 6, edge, edge)
-    return CubeCapture(tid.reshape(shape), bary.reshape(shape + (3,)), dist.reshape(shape), back.reshape(shape))
+    return CubeCapture(tid.reshape(shape), no_barycentrics(shape + (3,)), dist.reshape(shape), back.reshape(shape))
 
 
 def draw_shadow_steps(scene, renderer, settings, light, size=None, step=None, eyes=None):

@@ -28,7 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import cubemap, sh
-from .nearfield import TURN_HASH, NearField, hemisphere_rays
+from .hemisphere import TURN_HASH, hemisphere_rays
+from .nearfield import NearField
 from .rays import RayCaster, caster_for
 from .spatial import resting
 

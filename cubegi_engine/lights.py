@@ -137,6 +137,8 @@ def polygon_form_factor(points, normals, polygon):
     side. Returns ``(s,)`` in [0, 1]: the cosine-weighted fraction of the hemisphere the
     polygon covers (Lambert's formula ``1/(2 pi) sum_i theta_i n . g_i``).
     """
+    if len(points) > POINT_CHUNK:  # its (s, 2k, 3) temporaries, a chunk of points at a time
+        return np.concatenate([polygon_form_factor(points[sl], normals[sl], polygon) for sl in chunks(len(points))])
     s, k = len(points), len(polygon)
     rel = polygon[None, :, :] - points[:, None, :]  # (s, k, 3)
     h = np.einsum("skc,sc->sk", rel, normals)  # height above the receiver's tangent plane

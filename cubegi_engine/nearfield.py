@@ -37,9 +37,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import convergence, sh
+from .geometry import chunks
+from .hemisphere import TURN_HASH, hemisphere_rays
 from .spatial import COORD_SLACK, SLACK, resting, voxel_index
 
-__all__ = ["NearField", "build", "ray_pattern", "hemisphere_rays", "NEAR_REACH", "NEAR_RAYS", "MAX_CANDIDATES", "MAX_PAIRS"]
+__all__ = ["NearField", "build", "NEAR_REACH", "NEAR_RAYS", "MAX_CANDIDATES", "MAX_PAIRS"]
 
 # Reach of the rays, as a share of the point's cell edge (measured on the benchmark's Cornell
 # box when it was chosen: 16.2% indirect error without, 10.1% at 0.25, 9.9% at 0.5 and 1.0,
@@ -53,7 +55,8 @@ MAX_PAIRS = 2_000_000
 # The sample that estimates a scene's pairs; an object with at least CROWDED_SAMPLE points
 # in it, all crowded, is crowded whole.
 SAMPLE, CROWDED_SAMPLE = 2048, 8
-GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
+# Points whose rays are cast at a time (their per-ray arrays: about 200 bytes a ray).
+POINTS_AT_ONCE = 1 << 15
 # Hits fade out over this last share of the reach.
 FADE = 0.25
 # A covered point counts as hidden from the near field's hits (its light stands for no
@@ -69,32 +72,6 @@ OPENNESS_RAYS, OPENNESS_CLOSED, OPENNESS_OPEN, OPENNESS_FLOOR = 16, 0.3, 0.6, 0.
 # test (the rays of neighbouring points land close together: the Breakfast Room's 5.6K hits
 # in gaps lie on 74 triangles).
 OPENNESS_CELL = 0.05
-# Per point, the ray pattern's turn: 2 pi frac(position / reach . TURN_HASH).
-TURN_HASH = np.array([7.548776662, 5.698402910, 4.370125427])
-
-
-def ray_pattern(k, turn=None):
-    """``k`` cosine-weighted directions about +z, ``(k, 3)`` (or ``(m, k, 3)``, turned about
-    z by ``turn (m,)`` per row): a Fibonacci spiral on the unit disk lifted to the
-    hemisphere (Malley's method), so every ray stands for the same share of the light."""
-    i = np.arange(k) + 0.5
-    r = np.sqrt(i / k)
-    phi = np.arange(k) * GOLDEN_ANGLE
-    if turn is not None:
-        phi = phi[None, :] + np.asarray(turn, dtype=np.float64)[:, None]
-        r = np.broadcast_to(r, phi.shape)
-    z = np.sqrt(np.maximum(1.0 - r * r, 0.0))
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
-
-
-def hemisphere_rays(normals, rays, turn):
-    """Each point's rays in world space, ``(m, rays, 3)``."""
-    helper = np.where(np.abs(normals[:, 2:3]) < 0.9, np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))
-    t1 = np.cross(helper, normals)
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    t2 = np.cross(normals, t1)
-    local = ray_pattern(rays, turn)
-    return local[..., 0:1] * t1[:, None] + local[..., 1:2] * t2[:, None] + local[..., 2:3] * normals[:, None]
 
 
 @dataclass
@@ -298,42 +275,82 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     # Each point's pattern is turned by an angle hashed from its position (not its index:
     # the same scene in another object order bakes the same), decorrelating neighbours.
     # Only the points with candidates cast rays; their arrays are theirs alone (a million
-    # points with a few thousand near surfaces do not make (s, rays) arrays).
+    # points with a few thousand near surfaces do not make (s, rays) arrays), and their
+    # per-ray arrays are made POINTS_AT_ONCE points at a time: what is kept of them is their
+    # hits.
     cast, pair_local = np.unique(pair_p, return_inverse=True)
     pair_local = pair_local.ravel()
+    order = np.argsort(pair_local, kind="stable")  # each point's pairs together, in their order
+    pair_local, pair_t = pair_local[order], pair_t[order]
     at, nrm, rch = points[cast], normals[cast], reach[cast]
     turn = 2.0 * np.pi * ((at / np.maximum(rch, 1e-300)[:, None]) @ TURN_HASH % 1.0)
-    dirs = hemisphere_rays(nrm, rays, turn)  # (c, rays, 3)
     # Rays start this far off their surface, and a surface within twice that of a ray's start
     # counts as met there: float32 meshes put points that lie on another surface up to a
     # few 1e-7 of their coordinates off it, at any scale.
     slack = SLACK * rch + COORD_SLACK * np.abs(at).max(axis=1)
-    best, hit_tri, hit_uv, hit_front = index.trace(at, nrm, dirs, rch, slack, pair_local, pair_t)
-    point, ray = np.nonzero(hit_tri >= 0)  # local
+    hits = _Rays.joined([_cast_rays(index, at, nrm, rch, slack, turn, rays, pair_local, pair_t, sl)
+                         for sl in chunks(max(len(cast), 1), POINTS_AT_ONCE)])
+    openness = np.ones(s)
+    openness[cast] = hits.openness
+    point = hits.point  # local
     local_rows, hit_row = np.unique(point, return_inverse=True)
     rows = cast[local_rows]
-    uv = np.clip(hit_uv[point, ray], 0.0, 1.0)
+    uv = np.clip(hits.uv, 0.0, 1.0)
     weight = np.stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], axis=1)
-    corners = tri[hit_tri[point, ray]]
-    # Hits fade out over the last FADE of the reach (their direction goes back to the
-    # probes by as much): no step in the light where a surface passes out of reach.
-    fade = np.clip((rch[:, None] - best) / (FADE * rch[:, None]), 0.0, 1.0)  # (c, rays); 0 where no hit
-    openness = np.ones(s)
-    openness[cast] = 1.0 - fade.mean(axis=1)
+    corners = tri[hits.triangle]
     if hidden is not None:
         hidden = np.asarray(hidden, dtype=bool).copy()
         if not hidden_as_given:
             hidden = _hidden(hidden, openness, lit_if_open, sheets, cast[point], corners, points, normals, tri)
-        weight = _uncover(index, weight, corners, hidden, hit_tri[point, ray], rch[point])
+        weight = _uncover(index, weight, corners, hidden, hits.triangle, rch[point])
     if OPENNESS_RAYS:
-        hit_at = at[point] + best[point, ray][:, None] * dirs[point, ray]
-        weight = _gap_darkening(index, weight, corners, openness, hit_at, hit_tri[point, ray], hit_front[point, ray],
-                                rch[point], turn[point])
-    weight *= (hit_front[point, ray] * fade[point, ray])[:, None] / rays  # a back face occludes and sends nothing
-    open_basis, share = _open_basis(dirs[local_rows], fade[local_rows], normals[rows])
+        weight = _gap_darkening(index, weight, corners, openness, hits.at, hits.triangle, hits.front, rch[point], turn[point])
+    weight *= (hits.front * hits.fade)[:, None] / rays  # a back face occludes and sends nothing
+    open_basis, share = hits.open_basis, hits.share
     return NearField(rows.astype(np.int64), open_basis, hit_row.astype(np.int64).ravel(), corners, weight,
                      rays, float(reach.max()), len(pair_p), int(crowded.sum()), "", time.perf_counter() - t0, share,
                      None if hidden is None else np.flatnonzero(hidden))
+
+
+@dataclass(frozen=True)
+class _Rays:
+    """The hits of some points' rays, one row each: ``point`` (the caster's index),
+    ``triangle``, ``uv`` (its barycentrics), ``front``, ``fade`` (its weight by distance),
+    ``at`` (where it lies); per point with a hit, in order, ``open_basis`` and ``share``
+    (:func:`_open_basis`); per point, ``openness`` (the share of its rays that meet nothing
+    within reach, faded)."""
+
+    point: np.ndarray
+    triangle: np.ndarray
+    uv: np.ndarray
+    front: np.ndarray
+    fade: np.ndarray
+    at: np.ndarray
+    open_basis: np.ndarray
+    share: np.ndarray
+    openness: np.ndarray
+
+    @classmethod
+    def joined(cls, parts):
+        return cls(*(np.concatenate([getattr(part, f) for part in parts]) for f in cls.__dataclass_fields__))
+
+
+def _cast_rays(index, at, nrm, rch, slack, turn, rays, pair_local, pair_t, sl):
+    """The hits of the rays of the points ``sl`` (a slice) of ``at`` (``pair_local``: the
+    pairs' points, sorted): a :class:`_Rays`, its ``point`` counted as ``at``'s."""
+    first, end = np.searchsorted(pair_local, [sl.start, sl.stop])
+    at, nrm, rch, slack, turn = at[sl], nrm[sl], rch[sl], slack[sl], turn[sl]
+    dirs = hemisphere_rays(nrm, rays, turn)  # (c, rays, 3)
+    best, hit_tri, hit_uv, hit_front = index.trace(at, nrm, dirs, rch, slack, pair_local[first:end] - sl.start, pair_t[first:end])
+    point, ray = np.nonzero(hit_tri >= 0)
+    # Hits fade out over the last FADE of the reach (their direction goes back to the
+    # probes by as much): no step in the light where a surface passes out of reach.
+    fade = np.clip((rch[:, None] - best) / (FADE * rch[:, None]), 0.0, 1.0)  # (c, rays); 0 where no hit
+    with_hits = np.unique(point)
+    open_basis, share = _open_basis(dirs[with_hits], fade[with_hits], nrm[with_hits])
+    t = best[point, ray]
+    return _Rays(point + sl.start, hit_tri[point, ray], hit_uv[point, ray], hit_front[point, ray], fade[point, ray],
+                 at[point] + t[:, None] * dirs[point, ray], open_basis, share, 1.0 - fade.mean(axis=1))
 
 
 def _candidate_pairs(index, points, normals, reach, asked, sheets, max_pairs, owner=None):

@@ -61,6 +61,11 @@ class CubeCapture:
         return self.tid.shape[-1]
 
 
+def no_barycentrics(shape) -> np.ndarray:
+    """Zero barycentric weights of ``shape`` that take no memory (read-only): a depth map's."""
+    return np.broadcast_to(np.zeros((), dtype=np.float32), shape)
+
+
 def capture_cubes(renderer, eyes, size, near, far, with_bary=True, turns=None):
     """Render cube maps at ``eyes`` ``(k, 3)`` with ``renderer`` and return a CubeCapture.
     ``near``: one distance, or one per eye ``(k,)``. ``with_bary=False``: depth maps alone
@@ -73,7 +78,8 @@ def capture_cubes(renderer, eyes, size, near, far, with_bary=True, turns=None):
     else:
         tid, bary, dist, back = renderer.render(vps, np.repeat(eyes, 6, axis=0), None, size, with_bary=False)
     shape = (len(eyes), 6, size, size)
-    return CubeCapture(tid.reshape(shape), bary.reshape(shape + (3,)), dist.reshape(shape), back.reshape(shape))
+    bary = bary.reshape(shape + (3,)) if with_bary else no_barycentrics(shape + (3,))
+    return CubeCapture(tid.reshape(shape), bary, dist.reshape(shape), back.reshape(shape))
 
 
 # Near planes: a ten-thousandth of the scene's size, or less where the geometry that matters

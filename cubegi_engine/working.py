@@ -10,9 +10,12 @@ the main thread's), numpy-only work run in a thread of its own while the generat
 thread runs leaves the thread to finish in the background; its result is dropped.
 """
 
+import ctypes
+import ctypes.util
 import threading
 
-__all__ = ["WORKING_SECONDS", "CAPTURE_DRAWS_PER_STEP", "run", "in_background", "in_batches", "start", "wait"]
+__all__ = ["WORKING_SECONDS", "CAPTURE_DRAWS_PER_STEP", "run", "in_background", "in_batches", "start", "wait",
+           "give_back_memory"]
 
 # Seconds between the steps a long piece of work hands back.
 WORKING_SECONDS = 0.1
@@ -52,9 +55,33 @@ def wait(job, working):
         if not job.thread.is_alive():
             break
         yield working
+    give_back_memory()
     if "error" in job.out:
         raise job.out["error"]
     return job.out["value"]
+
+
+def _trim():
+    """glibc's ``malloc_trim``, or None where the C library has none (macOS, Windows, musl)."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        trim = libc.malloc_trim
+    except (OSError, AttributeError, TypeError):
+        return None
+    trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
+    return trim
+
+
+_MALLOC_TRIM = _trim()
+
+
+def give_back_memory():
+    """Hand the memory a finished step freed back to the system (glibc only; elsewhere
+    nothing). Each step runs in a thread of its own, and glibc gives each thread an arena
+    of its own, which keeps what the thread freed: at a million vertices 0.2-0.5 GB of
+    freed arrays stayed in the process between stages."""
+    if _MALLOC_TRIM is not None:
+        _MALLOC_TRIM(0)
 
 
 def in_background(fn, working, *args, **kwargs):

@@ -4,7 +4,7 @@ brute-force ray caster."""
 import numpy as np
 import pytest
 
-from cubegi.cubegi_engine import nearfield, sh, spatial
+from cubegi.cubegi_engine import hemisphere, nearfield, sh, spatial
 from cubegi.cubegi_engine.geometry import planes_of
 
 
@@ -27,7 +27,7 @@ def _scene(*parts):
 
 
 def test_the_ray_pattern_is_cosine_weighted():
-    d = nearfield.ray_pattern(256)
+    d = hemisphere.ray_pattern(256)
     assert np.allclose(np.linalg.norm(d, axis=1), 1.0) and (d[:, 2] > 0).all()
     # For cosine-weighted directions the mean of cos(theta) is 2/3 and of cos^2 is 1/2.
     assert abs(d[:, 2].mean() - 2 / 3) < 2e-3 and abs((d[:, 2] ** 2).mean() - 0.5) < 2e-3
@@ -99,8 +99,8 @@ def test_where_a_wall_meets_the_floor_half_the_light_is_the_walls():
 def _brute_force_hits(points, normals, reach, vertices, triangles, rays):
     """Per point and ray, the nearest triangle hit within reach (-1 for none), testing every
     triangle with the same rays as the near field."""
-    turn = 2.0 * np.pi * ((points / reach) @ nearfield.TURN_HASH % 1.0)
-    dirs = nearfield.hemisphere_rays(normals, rays, turn)
+    turn = 2.0 * np.pi * ((points / reach) @ hemisphere.TURN_HASH % 1.0)
+    dirs = hemisphere.hemisphere_rays(normals, rays, turn)
     slack = spatial.SLACK * reach + spatial.COORD_SLACK * np.abs(points).max(axis=1)
     out = np.full((len(points), rays), -1)
     a, b, c = (vertices[triangles[:, i]] for i in range(3))
@@ -165,6 +165,28 @@ def test_the_near_field_does_not_depend_on_the_order_of_points_or_the_scale():
     order = np.random.default_rng(1).permutation(len(pts))
     for scale in (1.0, 1e-3, 1e3):
         np.testing.assert_allclose(light(order, scale), base, atol=1e-9)
+
+
+def test_rays_cast_a_few_points_at_a_time_give_the_same_near_field(monkeypatch):
+    """The per-ray arrays are made POINTS_AT_ONCE points at a time (a million points' would
+    not fit); what is kept of them is the same however the points are split: a plate over a
+    floor, points under it, beside it and in a gap, and a covered corner."""
+    pts, tris = _scene(_grid(-1, 1, 0.0, 6), _quad(-0.4, 0.6, 0.08, up=False))
+    normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    normals[-4:] = [0.0, 0.0, -1.0]
+    hidden = np.zeros(len(pts), dtype=bool)
+    hidden[np.flatnonzero(np.all(np.abs(pts[:, :2] - 0.1) < 0.3, axis=1) & (pts[:, 2] == 0))] = True
+
+    def build(at_once):
+        monkeypatch.setattr(nearfield, "POINTS_AT_ONCE", at_once)
+        return nearfield.build(pts, normals, 0.5, tris, hidden=hidden)
+
+    whole = build(1 << 20)
+    assert whole.count > 10 and len(whole.hit_row) > 100
+    for at_once in (1, 3, 7):
+        split = build(at_once)
+        for name in ("rows", "open_basis", "hit_row", "hit_corner", "hit_weight", "share", "hidden"):
+            np.testing.assert_array_equal(getattr(split, name), getattr(whole, name), err_msg=f"{name} at {at_once}")
 
 
 def test_crowded_points_and_scenes_over_the_budget_are_left_out_and_counted():

@@ -2,6 +2,8 @@
 against them: the near field's rays (:mod:`cubegi_engine.nearfield`) and the probes'
 placement (:mod:`cubegi_engine.placement`). Pure numpy; must not import bpy."""
 
+import functools
+
 import numpy as np
 
 from .geometry import chunks, planes_of, ray_cut, sorted_unique
@@ -60,31 +62,68 @@ class VoxelIndex:
         self.a, self.b, self.c = a, b, c
         self.sheets = sheets
         self.centre = (a + b + c) / 3.0
-        self.radius = np.sqrt(np.max(np.stack([np.sum((v - self.centre) ** 2, axis=1) for v in (a, b, c)]), axis=0))
-        normal = np.cross(b - a, c - a)
-        self.unit = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
-        self.offset = np.einsum("ij,ij->i", self.unit, a)
-        self.planes = planes_of(a, b, c)
         self.lo = lo = np.minimum(np.minimum(a, b), c)
         self.hi = hi = np.maximum(np.maximum(a, b), c)
         self.origin = lo.min(axis=0) - voxel
         self.h = max(voxel, float(np.max(hi.max(axis=0) - lo.min(axis=0))) / 256.0, 1e-12)
         self.dims = np.floor((hi.max(axis=0) - self.origin) / self.h).astype(np.int64) + 3
+        self._listing = None  # (tri, keys, start, end, content_lo, content_hi): made when first asked
+        self._centre_keys = None  # each voxel's count of the triangles whose centres lie in it
+
+    # What the exact tests ask of each triangle, made when first asked (a scene whose every
+    # point is crowded never does).
+    @functools.cached_property
+    def radius(self):
+        """``(t,)`` each triangle's bounding sphere about its centre."""
+        return np.sqrt(np.max(np.stack([np.sum((v - self.centre) ** 2, axis=1) for v in (self.a, self.b, self.c)]), axis=0))
+
+    @functools.cached_property
+    def unit(self):
+        """``(t, 3)`` each triangle's unit normal."""
+        normal = np.cross(self.b - self.a, self.c - self.a)
+        return normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+
+    @functools.cached_property
+    def offset(self):
+        """``(t,)`` each triangle's plane's offset along :attr:`unit`."""
+        return np.einsum("ij,ij->i", self.unit, self.a)
+
+    @functools.cached_property
+    def planes(self):
+        """``(t, 4, 3)``: :func:`~.geometry.planes_of` each triangle."""
+        return planes_of(self.a, self.b, self.c)
+
+    def _list(self):
+        """List each triangle in the voxels its box overlaps (once)."""
+        if self._listing is not None:
+            return
+        lo, hi = self.lo, self.hi
         box_lo = np.floor((lo - self.origin) / self.h).astype(np.int64)
         span = np.floor((hi - self.origin) / self.h).astype(np.int64) - box_lo + 1
         count = np.prod(span, axis=1)
-        tri = np.repeat(np.arange(len(a)), count)
+        tri = np.repeat(np.arange(len(lo)), count)
         k = np.arange(len(tri)) - np.repeat(np.cumsum(count) - count, count)
         sx, sy = span[tri, 0], span[tri, 1]
         key = self._key(box_lo[tri, 0] + k % sx, box_lo[tri, 1] + (k // sx) % sy, box_lo[tri, 2] + k // (sx * sy))
         order = np.argsort(key, kind="stable")
         key, self.tri = key[order], tri[order]
-        self.keys, self.start = np.unique(key, return_index=True)
+        self.start = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]])) if len(key) else np.zeros(0, dtype=np.int64)
+        self.keys = key[self.start]
         self.end = np.append(self.start[1:], len(key))
         # Per occupied voxel, the box of its triangles (a voxel whose triangles all lie in a
         # point's own plane is passed over whole: see candidates).
         self.content_lo = np.minimum.reduceat(lo[self.tri], self.start, axis=0) if len(key) else np.zeros((0, 3))
         self.content_hi = np.maximum.reduceat(hi[self.tri], self.start, axis=0) if len(key) else np.zeros((0, 3))
+        self._listing = True
+
+    def _centre_count(self, key):
+        """How many triangles have their centre in each voxel ``key``: no more than the
+        triangles listed there (a triangle's box holds its centre, clipped into it), and made
+        without listing them."""
+        if self._centre_keys is None:
+            at = np.floor((np.clip(self.centre, self.lo, self.hi) - self.origin) / self.h).astype(np.int64)
+            self._centre_keys = np.sort(self._key(at[:, 0], at[:, 1], at[:, 2]))
+        return np.searchsorted(self._centre_keys, key, side="right") - np.searchsorted(self._centre_keys, key, side="left")
 
     def trace(self, points, normals, dirs, reach, slack, pair_p, pair_t):
         """The nearest hit of every ray ``points + slack normals + t dirs`` (``dirs (s, k, 3)``)
@@ -139,6 +178,7 @@ class VoxelIndex:
     def _voxels(self, pt, key):
         """The points ``pt`` and the slots (indices into :attr:`keys`) of their voxel ``key``s
         that hold triangles; empty voxels dropped."""
+        self._list()
         slot = np.minimum(np.searchsorted(self.keys, key), len(self.keys) - 1)
         found = self.keys[slot] == key
         return pt[found], slot[found]
@@ -202,11 +242,17 @@ class VoxelIndex:
             new = key >= 0
             new[:, 1:] &= key[:, 1:] != key[:, :-1]
             pt, col = np.nonzero(new)
+            # Points with more triangles than MAX_NEARBY listed around them are left out
+            # before their pairs are made (dense, folded geometry): first those with more
+            # triangles' centres around them than that, without listing the triangles.
+            many = np.bincount(pt, self._centre_count(key[pt, col]), minlength=len(idx)) > MAX_NEARBY
+            pt, col = pt[~many[pt]], col[~many[pt]]
+            if not len(pt):
+                crowded[sl] = many
+                continue
             pt, slot = self._voxels(pt, key[pt, col])
             count = self.end[slot] - self.start[slot]
-            # Points with more triangles than MAX_NEARBY listed around them are left out
-            # before their pairs are made (dense, folded geometry).
-            many = np.bincount(pt, count, minlength=len(idx)) > MAX_NEARBY
+            many |= np.bincount(pt, count, minlength=len(idx)) > MAX_NEARBY
             crowded[sl] = many
             pt, slot = pt[~many[pt]], slot[~many[pt]]
             # The voxels' own boxes first (the same tests as the triangles' boxes below, each
@@ -239,7 +285,8 @@ class VoxelIndex:
             pair = sorted_unique(pp[keep] * len(a) + tt[keep])  # a triangle listed in several voxels, once
             out_p.append(pair // len(a))
             out_t.append(pair % len(a))
-        return np.concatenate(out_p), np.concatenate(out_t), crowded
+        none = [np.zeros(0, dtype=np.int64)]
+        return np.concatenate(out_p or none), np.concatenate(out_t or none), crowded
 
 
 def _box_front(normals, to_lo, to_hi, x, reach):

@@ -205,6 +205,41 @@ def test_crowded_points_and_scenes_over_the_budget_are_left_out_and_counted():
     assert near.count == 0 and "more than 10" in near.skipped
 
 
+@pytest.mark.parametrize("touching", [False, True])
+def test_points_crowded_by_the_triangles_centres_are_the_ones_the_listing_finds(monkeypatch, touching):
+    """Points with more triangles' centres around them than MAX_NEARBY are left out before
+    any triangle is listed in its voxels (a million-vertex scene's near field was seconds of
+    listing to find every point crowded); the points left out, and every other point's
+    pairs, are what listing them all finds: clumps of small triangles of every density over
+    a floor, points on the floor and in the clumps."""
+    rng = np.random.default_rng(5)
+    parts, points = [_grid(-2, 2, 0.0, 8)], []
+    for k, count in enumerate((40, 300, 900, 1500, 4000)):
+        centre = np.array([-1.6 + 0.8 * k, 0.3 * (-1) ** k, 0.15])
+        c = centre + rng.uniform(-0.12, 0.12, (count, 3))
+        verts = np.concatenate([c, c + rng.normal(0, 0.01, (count, 3)), c + rng.normal(0, 0.01, (count, 3))])
+        parts.append((verts, np.stack([np.arange(count), np.arange(count) + count, np.arange(count) + 2 * count], axis=1)))
+        points.append(centre + [0.0, 0.0, -0.15])  # on the floor under the clump
+    pts, tris = _scene(*parts)
+    pts = np.concatenate([pts, np.array(points)])
+    normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    if touching:
+        normals[len(pts) - len(points):] = [0.0, 0.0, -1.0]
+    a, b, c = pts[tris[:, 0]], pts[tris[:, 1]], pts[tris[:, 2]]
+    reach = np.full(len(pts), 0.3)
+
+    def found():
+        index = spatial.VoxelIndex(a, b, c, 0.3)
+        return index.candidates(pts, normals, reach, touching=touching)
+
+    fast = found()
+    monkeypatch.setattr(spatial.VoxelIndex, "_centre_count", lambda self, key: np.zeros(len(key), dtype=np.int64))
+    listed = found()
+    assert 0 < fast[2].sum() < len(pts) and (~fast[2]).sum() > 50
+    for mine, theirs in zip(fast, listed):
+        np.testing.assert_array_equal(mine, theirs)
+
+
 @pytest.mark.parametrize("reach", [0.05, 0.2])
 def test_a_surface_passing_out_of_reach_fades(reach):
     """A plate facing a point at a distance near the reach: its light falls continuously to

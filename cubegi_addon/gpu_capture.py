@@ -248,12 +248,15 @@ class GpuRenderer:
         yield from renderer._uploaded(prepared, working)
         return renderer
 
+    # The vertex columns, kept only until they are uploaded (a million-vertex scene's are
+    # hundreds of MB; the GPU keeps its own copy).
+    UPLOADED = ("pos", "bary", "tid", "twin", "twin_bary")
+
     def _uploaded(self, prepared, working=None):
+        columns = {name: prepared.pop(name) for name in self.UPLOADED}
         self.__dict__.update(prepared)
-        bary = self.__dict__.pop("bary")
         self.id_shader = _id_shader()
-        self.id_batch = yield from _batch_steps(self.id_shader, {"pos": self.corner_pos, "bary": bary, "tid": self.tid,
-                                                                 "twin": self.twin, "twin_bary": self.twin_bary}, working)
+        self.id_batch = yield from _batch_steps(self.id_shader, columns, working)
         self._colour_shader = None
 
     def rays(self, points, triangles):
@@ -280,7 +283,7 @@ class GpuRenderer:
         if self.chunk_boxes is None:
             return None
         seen = _boxes_in_frusta(self.chunk_boxes, local_vps)  # (v, c)
-        t = len(self.drawn)
+        t = self.drawn_count
         out = []
         for row in seen:
             edges = np.diff(np.concatenate([[False], row, [False]]).astype(np.int8))
@@ -370,9 +373,10 @@ class GpuRenderer:
         if self._colour_shader is None:
             self._colour_shader = _colour_shader()
         shader = self._colour_shader
-        colour = np.asarray(point_radiance, dtype=np.float32)[self.all_drawn].reshape(-1, 3)
-        batch = batch_for_shader(shader, "TRIS", {"pos": self.all_corner_pos, "colour": colour,
-                                                  "sheet": np.repeat(self.all_sheet.astype(np.float32), 3)})
+        corners = self.triangles[self.all_drawn]  # every triangle, both twins of a sheet
+        colour = np.asarray(point_radiance, dtype=np.float32)[corners].reshape(-1, 3)
+        batch = batch_for_shader(shader, "TRIS", {"pos": self.unit_points[corners].reshape(-1, 3), "colour": colour,
+                                                  "sheet": np.repeat(self.sheet_all[self.all_drawn].astype(np.float32), 3)})
         out = np.empty((len(view_projs), size, size, 3), dtype=np.float32)
         local = [self._local(vp) for vp in view_projs]
         ranges = None  # every triangle, both twins of a sheet (a check in the tests, not a bake's path)
@@ -400,21 +404,18 @@ def _prepared(points, triangles, drawn, sheet):
     unit_pts = ((pts - out["centre"]) / out["unit"]).astype(np.float32)
     drawn = np.arange(len(triangles)) if drawn is None else np.asarray(drawn, dtype=np.int64)
     sheet = np.zeros(len(triangles), dtype=bool) if sheet is None else np.asarray(sheet, dtype=bool)
-    out["all_drawn"], out["all_sheet"] = triangles[drawn], sheet[drawn]
-    out["all_corner_pos"] = unit_pts[out["all_drawn"]].reshape(-1, 3)
+    out["all_drawn"], out["sheet_all"], out["unit_points"] = drawn, sheet, unit_pts  # for render_colour
     twin, twin_bary = geometry.twin_triangles(unit_pts, triangles, sheet & np.isin(np.arange(len(triangles)), drawn))
     drawn = drawn[~(twin[drawn] >= 0) | (twin[drawn] > drawn)]  # a pair drawn once, as its first
     t = len(drawn)
     # Drawn in spatial order; each vertex carries its triangle's own index, so what a
     # texel reports does not depend on the order (nor on triangles left out).
     order = drawn[_spatial_order(unit_pts[triangles[drawn]].mean(axis=1))] if t > CULL_CHUNK else drawn
-    out["order"] = order
-    out["drawn"] = triangles[order]
-    out["corner_pos"] = unit_pts[out["drawn"]].reshape(-1, 3)
-    out["chunk_boxes"] = _chunk_boxes(out["corner_pos"].reshape(-1, 3, 3), CULL_CHUNK) if t > CULL_CHUNK else None
+    out["drawn_count"] = t
+    out["pos"] = unit_pts[triangles[order]].reshape(-1, 3)
+    out["chunk_boxes"] = _chunk_boxes(out["pos"].reshape(-1, 3, 3), CULL_CHUNK) if t > CULL_CHUNK else None
     out["bary"] = np.tile(np.array([[0, 0], [1, 0], [0, 1]], dtype=np.float32), (t, 1))
-    out["sheet"] = sheet[order]
-    lone = out["sheet"] & (twin[order] < 0)  # a sheet's triangle with no twin here: its back face is not drawn
+    lone = sheet[order] & (twin[order] < 0)  # a sheet's triangle with no twin here: its back face is not drawn
     out["tid"] = np.repeat(np.where(lone, -(order + 1.0), order).astype(np.float32), 3)
     out["twin"] = np.repeat(twin[order].astype(np.float32), 3)
     out["twin_bary"] = twin_bary[order].reshape(-1, 2)

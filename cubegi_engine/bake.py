@@ -206,7 +206,6 @@ def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field):
         transport.take_gathered(gathered)
         timings["gather"] = gathered.seconds if gathered is not None else 0.0
 
-    forget_indexes()  # nothing after this point asks for the triangles' voxel indexes (each holds several arrays a triangle)
     yield Progress(Stage.DIRECT, 1, total, f"direct light from {len(scene.lights)} lights")
     t = time.perf_counter()
     landing = (yield from in_background(transport.landing_share, working(Stage.DIRECT, 1)("the share of each point's view that is "

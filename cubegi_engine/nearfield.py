@@ -241,7 +241,7 @@ class NearField:
 
 
 def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PAIRS, hidden=None, lit_if_open=None, which=None,
-          hidden_as_given=False, sheets=None, owner=None):
+          hidden_as_given=False, sheets=None, owner=None, keep_index=True):
     """The near field of ``points``/``normals`` ``(s, 3)`` among ``triangles (t, 3)``
     (indices into points), rays reaching ``reach`` (one length, or ``(s,)``). ``hidden``:
     ``(s,)`` bool, points covered by another object (their light is no sample of the
@@ -255,7 +255,7 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     its back, so back faces of sheets are not hit, and a ray from a sheet never meets the
     sheet's own far side (a slightly bent wall's twin lies in front of its points); a sheet's
     back side, and a covered point whose rays meet one, are never hidden. ``owner``: each
-    point's object (see :func:`_candidate_pairs`)."""
+    point's object (see :func:`_candidate_pairs`); ``keep_index``: see :func:`~.spatial.voxel_index`."""
     t0 = time.perf_counter()
     points = np.asarray(points, dtype=np.float64)
     normals = np.asarray(normals, dtype=np.float64)
@@ -266,7 +266,7 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     if not len(asked) or not len(tri) or not np.all(np.isfinite(reach[asked])) or reach[asked].max() <= 0:
         return NearField.empty(rays, seconds=time.perf_counter() - t0)
     a, b, c = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]
-    index = voxel_index(points, tri, a, b, c, float(reach[asked].max()), sheets)
+    index = voxel_index(points, tri, a, b, c, float(reach[asked].max()), sheets, keep_index)
     found = _candidate_pairs(index, points, normals, reach, asked, sheets, max_pairs,
                              None if owner is None else np.asarray(owner, dtype=np.int64))
     if isinstance(found, str):

@@ -312,18 +312,20 @@ def forget_indexes():
     _INDEXES.clear()
 
 
-def voxel_index(points, tri, a, b, c, voxel, sheets=None):
+def voxel_index(points, tri, a, b, c, voxel, sheets=None, keep=True):
     """A :class:`VoxelIndex` of ``tri`` over ``points`` (corners ``a, b, c``), made once per
     scene and voxel size (a bake asks for the same one several times: the near field's rays
     under covered points twice, :func:`resting` three times); the arrays are held while it is
-    kept, so their addresses name them."""
+    kept, so their addresses name them. ``keep=False``: one no later step asks for (the
+    near field's own), not kept."""
     key = (points.__array_interface__["data"][0], points.shape, tri.__array_interface__["data"][0], tri.shape,
            float(voxel), id(sheets))
     for entry in _INDEXES:
         if entry[0] == key:
             return entry[2]
     index = VoxelIndex(a, b, c, voxel, sheets)
-    _INDEXES[:] = [(key, (points, tri, sheets), index)] + _INDEXES[: INDEXES_KEPT - 1]
+    if keep:
+        _INDEXES[:] = [(key, (points, tri, sheets), index)] + _INDEXES[: INDEXES_KEPT - 1]
     return index
 
 

@@ -182,7 +182,7 @@ class Transport:
                 lit_if_open = np.zeros(len(scene.points), dtype=bool)
                 lit_if_open[spare[0]] = True
             self.near = nearfield.build(scene.points, scene.normals, reach, scene.triangles, hidden=self.covered, owner=scene.point_object,
-                                        lit_if_open=lit_if_open, sheets=scene.sheets())
+                                        lit_if_open=lit_if_open, sheets=scene.sheets(), keep_index=False)
         if spare is not None:
             self._light_from_behind(spare, basis, len(scene.points))
         if self.near is not None and visibility and self.covered.any():

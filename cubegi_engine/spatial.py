@@ -67,8 +67,8 @@ class VoxelIndex:
         self.origin = lo.min(axis=0) - voxel
         self.h = max(voxel, float(np.max(hi.max(axis=0) - lo.min(axis=0))) / 256.0, 1e-12)
         self.dims = np.floor((hi.max(axis=0) - self.origin) / self.h).astype(np.int64) + 3
-        self._listing = None  # (tri, keys, start, end, content_lo, content_hi): made when first asked
-        self._centre_keys = None  # each voxel's count of the triangles whose centres lie in it
+        self._listing = None  # True once tri, keys, start, end, content_lo, content_hi are made (_list)
+        self._centre_keys = None  # the sorted voxel keys of the triangles' centres (_centre_count)
 
     # What the exact tests ask of each triangle, made when first asked (a scene whose every
     # point is crowded never does).

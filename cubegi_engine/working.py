@@ -11,7 +11,6 @@ thread runs leaves the thread to finish in the background; its result is dropped
 """
 
 import ctypes
-import ctypes.util
 import threading
 
 __all__ = ["WORKING_SECONDS", "CAPTURE_DRAWS_PER_STEP", "run", "in_background", "in_batches", "start", "wait",
@@ -62,10 +61,10 @@ def wait(job, working):
 
 
 def _trim():
-    """glibc's ``malloc_trim``, or None where the C library has none (macOS, Windows, musl)."""
+    """glibc's ``malloc_trim`` among the process's own symbols, or None where there is none
+    (macOS, Windows, musl)."""
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        trim = libc.malloc_trim
+        trim = ctypes.CDLL(None).malloc_trim
     except (OSError, AttributeError, TypeError):
         return None
     trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
@@ -76,10 +75,12 @@ _MALLOC_TRIM = _trim()
 
 
 def give_back_memory():
-    """Hand the memory a finished step freed back to the system (glibc only; elsewhere
-    nothing). Each step runs in a thread of its own, and glibc gives each thread an arena
-    of its own, which keeps what the thread freed: at a million vertices 0.2-0.5 GB of
-    freed arrays stayed in the process between stages."""
+    """Hand the memory a finished step freed back to the system (glibc's allocator only;
+    elsewhere nothing). Each step runs in a thread of its own, and glibc gives each thread
+    an arena of its own, which keeps what the thread freed: at a million vertices 0.2-0.5 GB
+    of freed arrays stayed in the process between stages (the ``bpy`` module from PyPI, which
+    allocates with glibc; a Blender build that links jemalloc returns memory by its own
+    rules, and the call changes nothing there)."""
     if _MALLOC_TRIM is not None:
         _MALLOC_TRIM(0)
 

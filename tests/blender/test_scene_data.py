@@ -299,7 +299,7 @@ def test_a_large_scene_is_read_in_steps_and_gives_the_arrays_of_one_read(empty_s
         except StopIteration as stop:
             renderer = stop.value
             break
-    assert uploads >= 4  # the id batch's three columns and the depth batch's, a step apiece
+    assert uploads >= 4  # the one batch's five columns, a step between each (both shaders draw it)
     once = gc.GpuRenderer(arrays.points, arrays.triangles, sheet=arrays.sheet_triangles())
     eye = np.array([[0.3, -0.2, 2.5]])
     vps = cubemap.cube_view_projections_many(eye, 0.01, 10.0, None)

@@ -67,8 +67,7 @@ class VoxelIndex:
         self.origin = lo.min(axis=0) - voxel
         self.h = max(voxel, float(np.max(hi.max(axis=0) - lo.min(axis=0))) / 256.0, 1e-12)
         self.dims = np.floor((hi.max(axis=0) - self.origin) / self.h).astype(np.int64) + 3
-        self._listing = None  # True once tri, keys, start, end, content_lo, content_hi are made (_list)
-        self._centre_keys = None  # the sorted voxel keys of the triangles' centres (_centre_count)
+        self._made_list = False  # tri, keys, start, end, content_lo, content_hi made (_list)
 
     # What the exact tests ask of each triangle, made when first asked (a scene whose every
     # point is crowded never does).
@@ -95,7 +94,7 @@ class VoxelIndex:
 
     def _list(self):
         """List each triangle in the voxels its box overlaps (once)."""
-        if self._listing is not None:
+        if self._made_list:
             return
         lo, hi = self.lo, self.hi
         box_lo = np.floor((lo - self.origin) / self.h).astype(np.int64)
@@ -114,15 +113,18 @@ class VoxelIndex:
         # point's own plane is passed over whole: see candidates).
         self.content_lo = np.minimum.reduceat(lo[self.tri], self.start, axis=0) if len(key) else np.zeros((0, 3))
         self.content_hi = np.maximum.reduceat(hi[self.tri], self.start, axis=0) if len(key) else np.zeros((0, 3))
-        self._listing = True
+        self._made_list = True
+
+    @functools.cached_property
+    def _centre_keys(self):
+        """The sorted voxel keys of the triangles' centres, each clipped into its box."""
+        at = np.floor((np.clip(self.centre, self.lo, self.hi) - self.origin) / self.h).astype(np.int64)
+        return np.sort(self._key(at[:, 0], at[:, 1], at[:, 2]))
 
     def _centre_count(self, key):
         """How many triangles have their centre in each voxel ``key``: no more than the
-        triangles listed there (a triangle's box holds its centre, clipped into it), and made
-        without listing them."""
-        if self._centre_keys is None:
-            at = np.floor((np.clip(self.centre, self.lo, self.hi) - self.origin) / self.h).astype(np.int64)
-            self._centre_keys = np.sort(self._key(at[:, 0], at[:, 1], at[:, 2]))
+        triangles listed there (a triangle's box holds its centre), and made without listing
+        them."""
         return np.searchsorted(self._centre_keys, key, side="right") - np.searchsorted(self._centre_keys, key, side="left")
 
     def trace(self, points, normals, dirs, reach, slack, pair_p, pair_t):

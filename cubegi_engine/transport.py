@@ -73,10 +73,7 @@ def capture_cubes(renderer, eyes, size, near, far, with_bary=True, turns=None):
     cube's rotation ``(k, 3, 3)`` (see :func:`cubemap.turns`)."""
     eyes = np.asarray(eyes, dtype=np.float64).reshape(-1, 3)
     vps = cubemap.cube_view_projections_many(eyes, near, far, turns)
-    if with_bary:
-        tid, bary, dist, back = renderer.render(vps, np.repeat(eyes, 6, axis=0), None, size)
-    else:
-        tid, bary, dist, back = renderer.render(vps, np.repeat(eyes, 6, axis=0), None, size, with_bary=False)
+    tid, bary, dist, back = renderer.render(vps, np.repeat(eyes, 6, axis=0), None, size, with_bary=with_bary)
     shape = (len(eyes), 6, size, size)
     bary = bary.reshape(shape + (3,)) if with_bary else no_barycentrics(shape + (3,))
     return CubeCapture(tid.reshape(shape), bary, dist.reshape(shape), back.reshape(shape))

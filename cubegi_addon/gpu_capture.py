@@ -259,9 +259,11 @@ class GpuRenderer:
         self.id_batch = yield from _batch_steps(self.id_shader, columns, working)
         self._colour_shader = None
 
-    def rays(self, points, triangles):
+    @staticmethod
+    def rays(points, triangles):
         """A ray caster over ``triangles (k, 3)`` of ``points`` (the engine's
-        :class:`~cubegi_engine.rays.RayCaster`): Blender's BVH tree."""
+        :class:`~cubegi_engine.rays.RayCaster`): Blender's BVH tree. Static: what holds it
+        holds no renderer."""
         return BvhRays(points, triangles)
 
     def with_geometry(self, points, triangles, drawn=None, sheet=None):

@@ -15,6 +15,8 @@ be a weighted sum, and a moved light be recomputed alone.
 """
 
 from dataclasses import dataclass, field
+from functools import partial
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -139,7 +141,7 @@ def draw_shadow_steps(scene, renderer, settings, light, size=None, step=None, ey
     """:func:`draw_shadow` as a generator: a light's many cube maps (an area light's sample
     points, a soft light's) drawn in batches."""
     size = size or light.shadow_size or None
-    shadow = Shadow(light, scene_occluders(scene))
+    shadow = Shadow(light, scene_occluders(scene, renderer))
     if light.kind == "SUN":
         lo, hi = scene.bounds()
         centre, radius = 0.5 * (lo + hi), 0.5 * scene.scale * SUN_BOX_MARGIN
@@ -176,9 +178,14 @@ def _nearest_distance(points, eye):
     return float(np.sqrt(np.min(np.einsum("sc,sc->s", points - eye, points - eye)))) if len(points) else 1.0
 
 
-def scene_occluders(scene) -> lights_mod.Occluders:
-    """Every triangle of ``scene`` as shadow maps' occluders."""
-    return lights_mod.Occluders(scene.triangles, scene.points, scene.scale, scene.sides())
+def scene_occluders(scene, renderer=None) -> lights_mod.Occluders:
+    """Every triangle of ``scene`` as shadow maps' occluders, with the ``renderer``'s ray
+    caster over them where it has one (asked where a map cannot decide; made when first
+    asked). The occluders hold the caster's maker, not the renderer (a kept shadow must not
+    keep the GPU's copy of the scene)."""
+    make = getattr(renderer, "rays", None)
+    rays = None if make is None else partial(scene_caster, scene, SimpleNamespace(rays=make))
+    return lights_mod.Occluders(scene.triangles, scene.points, scene.scale, scene.sides(), rays)
 
 
 def visibility(shadow, pts, nrm, ids) -> np.ndarray:

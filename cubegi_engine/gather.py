@@ -212,8 +212,8 @@ def _front_triangles(scene) -> np.ndarray:
 
 def scene_caster(scene, renderer) -> RayCaster:
     """The host's ray caster over ``scene``'s triangles but the back sides', made once per
-    snapshot (and renderer)."""
-    key = (id(scene.points), id(scene.triangles), id(renderer))
+    snapshot (and caster: ``renderer.rays``, or none)."""
+    key = (id(scene.points), id(scene.triangles), getattr(renderer, "rays", None))
     cached = scene.__dict__.get("_caster")
     if cached is None or cached[0] != key:
         cached = (key, caster_for(renderer, scene.points, np.asarray(scene.triangles)[_front_triangles(scene)]))

@@ -248,6 +248,9 @@ class Occluders:
     vertices: np.ndarray
     scale: float
     sides: tuple | None = None
+    # A callable giving the host's ray caster over the same surfaces (made when first
+    # needed), or None: a receiver the map cannot decide is asked by one ray (see _occluded).
+    rays: object = None
 
 
 @dataclass(frozen=True)
@@ -283,7 +286,8 @@ def shadow_visibility(receivers: Receivers, occluders: Occluders, eye, depth: De
     own only); ``turn``: ``(3, 3)`` the cube map's rotation, if it was drawn turned.
 
     The receiver is lifted off its surface by a quarter of a texel's footprint and looked up
-    in the map (see :func:`_occluded`). Returns ``(s,)`` float64 in {0, 1}.
+    in the map (see :func:`_occluded`); where the map cannot vouch for it, one ray decides
+    (``occluders.rays``; :func:`_doubtful`). Returns ``(s,)`` float64 in {0, 1}.
     """
     if len(receivers) > POINT_CHUNK:
         return np.concatenate([shadow_visibility(receivers[sl], occluders, eye, depth, reach, turn) for sl in chunks(len(receivers))])
@@ -300,9 +304,9 @@ def shadow_visibility(receivers: Receivers, occluders: Occluders, eye, depth: De
     face, row, col, _, _ = cubemap.direction_to_texel(np.where(d2[:, None] > 0, local, 1.0), n)
     cos = np.abs(np.einsum("sc,sc->s", normals, rel / np.maximum(d, 1e-300)[:, None]))
     lookup = _Lookup(face, row, col, np.broadcast_to(eye, u.shape), u, d2, cos, footprint)
-    return (~_occluded(depth, lookup, receivers.ids, occluders, reach)).astype(np.float64)
-
-
+    occluded, doubt = _occluded(depth, lookup, receivers.ids, occluders, reach)
+    _ask_rays(occluded, doubt, receivers, occluders, -rel / np.maximum(d, 1e-300)[:, None], d)
+    return (~occluded).astype(np.float64)
 
 
 def _occluded(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occluders, reach=1):
@@ -323,6 +327,10 @@ def _occluded(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occlud
       from behind sees another surface; up to the receiver's depth that surface shadows it
       (a wall's edge under a ceiling, a floor's edge under a wall the light is behind), as
       it does a ray leaving that point.
+
+    Returns ``(occluded, doubt)``, both ``(s,)`` bool: ``doubt`` marks the receivers the map
+    cannot vouch for, where the occluders have a ray caster (:func:`_doubtful`; a shadow cast
+    by a plane beside its triangle); none without one.
     """
     face, row, col, footprint, cos = lookup.face, lookup.row, lookup.col, lookup.footprint, lookup.cos
     triangles, sides = occluders.triangles, occluders.sides
@@ -343,7 +351,7 @@ def _occluded(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occlud
         ts = tri_side[np.maximum(tid, 0)]
         ps = np.where(point_ids >= 0, point_side[np.maximum(point_ids, 0)], 0)[:, None]
         back = back | ((tid >= 0) & (ts > 0) & ((ts == 2) != (ps == 2)))
-    plane, _ = cut_triangles(lookup.origins[:, None, :], lookup.u[:, None, :], tid, triangles, occluders.vertices)
+    plane, on = cut_triangles(lookup.origins[:, None, :], lookup.u[:, None, :], tid, triangles, occluders.vertices)
     own = np.any(triangles[np.maximum(tid, 0)] == point_ids[:, None, None], axis=2)
     depth = lookup.depth[:, None]
     # ``nearer`` and ``depth`` are exact (float64 plane cuts): their margin is a tenth of a
@@ -357,7 +365,53 @@ def _occluded(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occlud
     centre = np.all(offsets == 0, axis=1)[None, :]
     front_occ = centre & ~back & (nearer < depth - bias) & (seen < depth + slope)
     back_occ = back & (nearer < depth + bias)
-    return np.any((tid >= 0) & ~own & (front_occ | back_occ), axis=1)
+    occluding = (tid >= 0) & ~own & (front_occ | back_occ)
+    occluded = np.any(occluding, axis=1)
+    if occluders.rays is None:
+        return occluded, np.zeros(len(occluded), dtype=bool)
+    # A front face shadows by its plane; where the receiver's ray cuts that plane beside the
+    # triangle (a shadow's edge within the texel) the map cannot vouch for the shadow either.
+    sure = np.any(occluding & (back_occ | on), axis=1)
+    return occluded, _doubtful(depth_map, lookup, point_ids, occluders, occluded) | (occluded & ~sure)
+
+
+def _nearest_around(depth_map: DepthMap) -> np.ndarray:
+    """``(f, n, n)``: the nearest front face's distance in each texel and the 8 around it on
+    its face (inf where none); made once per map."""
+    cached = depth_map.__dict__.get("_nearest_around")
+    if cached is None:
+        seen = np.where((depth_map.tid >= 0) & ~depth_map.back, depth_map.dist, np.inf).astype(np.float32)
+        padded = np.pad(seen, ((0, 0), (1, 1), (1, 1)), constant_values=np.inf)
+        n = seen.shape[-1]
+        cached = seen.copy()
+        for dr in range(3):
+            for dc in range(3):
+                np.minimum(cached, padded[:, dr:dr + n, dc:dc + n], out=cached)
+        depth_map.__dict__["_nearest_around"] = cached
+    return cached
+
+
+def _doubtful(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occluders, occluded):
+    """``(s,)`` bool: the receivers the map leaves lit but cannot vouch for: a front face in
+    their texel or one of the 8 around it lies before them by more than the bias, and its
+    plane does not pass through them (it is no part of their own surface): a fold's rim or
+    a slat smaller than a texel, a shadow's edge. A ray decides them (:func:`_ask_rays`)."""
+    bias = BIAS_FOOTPRINTS * lookup.footprint / np.maximum(lookup.cos, MIN_COS) + BIAS_OF_DEPTH * lookup.depth
+    ask = np.flatnonzero(~occluded & (_nearest_around(depth_map)[lookup.face, lookup.row, lookup.col] < lookup.depth - bias))
+    doubt = np.zeros(len(occluded), dtype=bool)
+    if not len(ask):
+        return doubt
+    n = depth_map.size
+    r = np.clip(lookup.row[ask, None] + np.repeat([-1, 0, 1], 3)[None, :], 0, n - 1)
+    c = np.clip(lookup.col[ask, None] + np.tile([-1, 0, 1], 3)[None, :], 0, n - 1)
+    f = lookup.face[ask, None]
+    tid, depth, b = depth_map.tid[f, r, c], lookup.depth[ask, None], bias[ask, None]
+    near = (tid >= 0) & ~depth_map.back[f, r, c] & (depth_map.dist[f, r, c] < depth - b)
+    near &= ~np.any(occluders.triangles[np.maximum(tid, 0)] == point_ids[ask, None, None], axis=2)
+    plane, _ = cut_triangles(lookup.origins[ask, None, :], lookup.u[ask, None, :], tid, occluders.triangles, occluders.vertices)
+    with np.errstate(invalid="ignore"):
+        doubt[ask] = np.any(near & ~(np.abs(plane - depth) < b), axis=1)
+    return doubt
 
 
 def ortho_visibility(receivers: Receivers, occluders: Occluders, view: OrthoView, depth: DepthMap):
@@ -376,5 +430,26 @@ def ortho_visibility(receivers: Receivers, occluders: Occluders, view: OrthoView
     inside = (np.abs(ndc) <= 1.0).all(axis=1)
     lookup = _Lookup(np.zeros(len(points), dtype=np.int64), row, col, lifted - distance[:, None] * axis,
                      np.broadcast_to(axis, lifted.shape), distance, np.abs(normals @ axis), footprint)
-    occluded = _occluded(depth, lookup, receivers.ids, occluders)
+    occluded, doubt = _occluded(depth, lookup, receivers.ids, occluders)
+    _ask_rays(occluded, doubt & inside, receivers, occluders, np.broadcast_to(-axis, points.shape), None)
     return (~occluded | ~inside).astype(np.float64)
+
+
+# A ray asked where the map cannot decide starts this share of the scene's size off its
+# receiver's surface and as far along itself (the map's lift, a quarter of a texel, could
+# carry it out of the fold it lies in; a surface through the receiver itself, a wall standing
+# on the floor where it lies, must not shadow it).
+RAY_LIFT = 1e-5
+
+
+def _ask_rays(occluded, doubt, receivers, occluders, towards, reach):
+    """Decide the ``doubt`` receivers (``(s,)`` bool) by a ray each along ``towards (s, 3)``
+    (unit, to the light; ``reach (s,)`` or None: unbounded), through ``occluders.rays``, in
+    place into ``occluded``; nothing where there is no caster."""
+    ask = np.flatnonzero(doubt)
+    if occluders.rays is None or not len(ask):
+        return
+    lift = RAY_LIFT * occluders.scale
+    start = receivers.points[ask] + lift * (receivers.normals[ask] + towards[ask])
+    hits = occluders.rays().cast(start, towards[ask], None if reach is None else reach[ask] * (1.0 - 1e-6) - lift)
+    occluded[ask] = hits.hit

@@ -98,3 +98,36 @@ def test_the_floor_under_a_rug_gets_no_probe_light(empty_scene, cubegi):
     # The floor around the carpet keeps its probe light.
     around = floor & ((np.abs(pts[:, 0]) > 1.6) | (pts[:, 1] < -3.1) | (pts[:, 1] > 2.1))
     assert (weights[around] > 0).mean() > 0.99
+
+
+@pytest.mark.parametrize("kind", ["POINT", "AREA", "SUN"])
+def test_a_shadow_edge_finer_than_a_texel_falls_where_the_plate_puts_it(empty_scene, cubegi, kind):
+    """A plate 10 cm over a floor strip cut every 5 mm, under a light 2 m above it, its maps
+    16 texels a side (a texel: 25 cm on the floor, 9 cm for the sun's). A texel's centre
+    decided a receiver whose texel held the plate's edge, and the receiver was lifted a
+    quarter of a texel towards the plate: light reached 8 rows of vertices under the plate's
+    edge (24 of the strip's 303 vertices; 18 under the sun). The receivers the map cannot
+    vouch for are now asked by rays (lights._doubtful), and the edge falls where the
+    geometry puts it, to a vertex."""
+    verts, faces = scenes.grid_patch((0.3, -0.05, 0.0), (0.5, 0.0, 0.0), (0.0, 0.1, 0.0), 100, 2)
+    scenes.mesh_object("Strip", verts, faces, scenes.material("grey", (0.5, 0.5, 0.5)))
+    verts, faces = scenes.grid_patch((-0.5, -0.5, 0.1), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), 1, 1)
+    scenes.mesh_object("Plate", verts, faces, scenes.material("grey", (0.5, 0.5, 0.5)))
+    edge = 0.5
+    if kind == "SUN":
+        scenes.add_light("SUN", (0.0, 0.0, 2.0), 3.0, angle=0.0)
+    elif kind == "POINT":
+        scenes.add_light("POINT", (0.0, 0.0, 2.0), 100.0, shadow_soft_size=0.0)
+        edge = 0.5 * 2.0 / 1.9  # the plate's edge seen from the light, on the floor
+    else:
+        scenes.add_light("AREA", (0.0, 0.0, 2.0), 100.0, shape="SQUARE", size=0.002)
+        edge = 0.5 * 2.0 / 1.9
+    assert bpy.ops.cubegi.bake(grid=(2, 2, 2), cube_size=8, bounces=0, shadow_size=16, area_shadow_size=16,
+                               sun_shadow_size=16) == {"FINISHED"}
+    co, _, light = _light(cubegi, "Strip", "CubeGI_direct")
+    x = co[:, 0]
+    lit = light > 0.5 * light[x > edge + 0.01].mean()
+    assert light[x > 0.7].min() > 0
+    wrong = lit != (x > edge)
+    near = np.abs(x - edge) < 0.006  # the vertex either side of the edge may go either way
+    assert not np.any(wrong & ~near), np.round(x[wrong & ~near], 3)

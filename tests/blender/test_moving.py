@@ -125,3 +125,19 @@ def test_a_dynamic_object_keeps_a_renamed_lights_shadows_and_the_bake_keeps_its_
     lamp.location.x += 0.3
     assert live.update(bpy.context).route == "lights"
     assert kept.bake.result.shadows[key] is baked_maps and kept.live.shadows[key] is not baked_maps
+
+
+def test_the_kept_shadows_keep_no_renderer(red_room):
+    """The shadows a bake keeps for its dynamic objects ask the host's rays where a map
+    cannot decide; they hold the caster's maker, not the renderer that drew them (its GPU
+    copy of the scene is freed when the bake ends)."""
+    import gc
+
+    from cubegi.cubegi_addon import session
+    from cubegi.cubegi_addon.gpu_capture import GpuRenderer
+
+    assert bpy.ops.cubegi.bake(grid=(3, 3, 2), cube_size=8, bounces=1) == {"FINISHED"}
+    shadows = session.kept(bpy.context.scene).bake.result.shadows
+    assert shadows and all(s.occluders.rays is not None for s in shadows.values())
+    gc.collect()
+    assert not [o for o in gc.get_objects() if isinstance(o, GpuRenderer)]

@@ -40,13 +40,22 @@ class BvhRays:
         local = origins - self.centre
         t = np.full(n, np.inf)
         which = np.full(n, -1, dtype=np.int64)
-        cast = self.tree.ray_cast
-        if reach is None:
-            found = [cast(o, d) for o, d in zip(local.tolist(), dirs.tolist())]
-        else:
-            limit = np.broadcast_to(np.asarray(reach, dtype=np.float64), (n,)).tolist()
-            found = [cast(o, d, r) for o, d, r in zip(local.tolist(), dirs.tolist(), limit)]
-        for k, (_, _, index, distance) in enumerate(found):
+        for k, (_, _, index, distance) in enumerate(self._found(local, dirs, reach)):
             if index is not None:
                 t[k], which[k] = distance, index
         return hits_from_distances(self.points, self.triangles, origins, dirs, t, which)
+
+    def blocked(self, origins, dirs, reach=None) -> np.ndarray:
+        """``(n,)`` bool: whether each ray meets a triangle within its reach (a shadow ray:
+        no more asked of the hit)."""
+        local = np.asarray(origins, dtype=np.float64).reshape(-1, 3) - self.centre
+        found = self._found(local, np.asarray(dirs, dtype=np.float64).reshape(-1, 3), reach)
+        return np.fromiter((f[2] is not None for f in found), dtype=bool, count=len(local))
+
+    def _found(self, local, dirs, reach):
+        """The tree's answers for rays from ``local`` (tree frame) along ``dirs``."""
+        cast = self.tree.ray_cast
+        if reach is None:
+            return list(map(cast, local.tolist(), dirs.tolist()))
+        limit = np.broadcast_to(np.asarray(reach, dtype=np.float64), (len(local),)).tolist()
+        return list(map(cast, local.tolist(), dirs.tolist(), limit))

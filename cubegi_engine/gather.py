@@ -258,8 +258,7 @@ def light_visibility(gathered: Gathered, caster: RayCaster, light, eyes=None) ->
     if light.kind == "SUN":
         to_sun = -np.asarray(light.direction, dtype=np.float64)
         to_sun = to_sun / np.linalg.norm(to_sun)
-        hits = caster.cast(at.origin, np.broadcast_to(to_sun, at.origin.shape))
-        seen = (~hits.hit).astype(np.float64)
+        seen = (~caster.blocked(at.origin, np.broadcast_to(to_sun, at.origin.shape))).astype(np.float64)
         return np.bincount(at.row, at.weight * seen, minlength=g)
     eyes = np.asarray(light.position, dtype=np.float64)[None] if eyes is None or not len(eyes) else np.asarray(eyes, dtype=np.float64)
     if len(eyes) > LIGHT_EYES:
@@ -270,7 +269,7 @@ def light_visibility(gathered: Gathered, caster: RayCaster, light, eyes=None) ->
     cos_r = np.maximum(np.einsum("ckx,cx->ck", u, at.normal), 0.0)
     cos_l = np.maximum(-(u @ np.asarray(light.direction, dtype=np.float64)), 0.0) if light.kind == "AREA" else 1.0
     w = cos_r * cos_l / np.maximum(dist * dist, 1e-300) + 1e-12
-    hits = caster.cast(np.repeat(at.origin, len(eyes), axis=0), u.reshape(-1, 3), (dist * (1.0 - 1e-6)).ravel())
-    seen = (~hits.hit).reshape(len(at), len(eyes))
+    seen = ~caster.blocked(np.repeat(at.origin, len(eyes), axis=0), u.reshape(-1, 3), (dist * (1.0 - 1e-6)).ravel())
+    seen = seen.reshape(len(at), len(eyes))
     vis = (w * seen).sum(axis=1) / w.sum(axis=1)
     return np.bincount(at.row, at.weight * vis, minlength=g)

@@ -370,15 +370,21 @@ def _occluded(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occlud
     if occluders.rays is None:
         return occluded, np.zeros(len(occluded), dtype=bool)
     # A front face shadows by its plane; where the receiver's ray cuts that plane beside the
-    # triangle (a shadow's edge within the texel) the map cannot vouch for the shadow either.
+    # triangle and a texel around sees past the receiver (a shadow's edge within the texel)
+    # the map cannot vouch for the shadow either. (A dense mesh's ray passes beside the
+    # small triangle its texel saw, through the next one of the same surface: the texels
+    # around all see that surface before the receiver.)
     sure = np.any(occluding & (back_occ | on), axis=1)
+    sure |= _around(depth_map, np.maximum)[face, row, col] < lookup.depth - bias[:, 0]
     return occluded, _doubtful(depth_map, lookup, point_ids, occluders, occluded) | (occluded & ~sure)
 
 
-def _nearest_around(depth_map: DepthMap) -> np.ndarray:
-    """``(f, n, n)``: the nearest front face's distance in each texel and the 8 around it on
-    its face (inf where none); made once per map."""
-    cached = depth_map.__dict__.get("_nearest_around")
+def _around(depth_map: DepthMap, pick) -> np.ndarray:
+    """``(f, n, n)``: the nearest (``pick``: ``np.minimum``) or farthest (``np.maximum``)
+    front face's distance in each texel and the 8 around it on its face (a texel that sees
+    no front face: infinitely far); made once per map."""
+    key = "_around_" + pick.__name__
+    cached = depth_map.__dict__.get(key)
     if cached is None:
         seen = np.where((depth_map.tid >= 0) & ~depth_map.back, depth_map.dist, np.inf).astype(np.float32)
         padded = np.pad(seen, ((0, 0), (1, 1), (1, 1)), constant_values=np.inf)
@@ -386,8 +392,8 @@ def _nearest_around(depth_map: DepthMap) -> np.ndarray:
         cached = seen.copy()
         for dr in range(3):
             for dc in range(3):
-                np.minimum(cached, padded[:, dr:dr + n, dc:dc + n], out=cached)
-        depth_map.__dict__["_nearest_around"] = cached
+                pick(cached, padded[:, dr:dr + n, dc:dc + n], out=cached)
+        depth_map.__dict__[key] = cached
     return cached
 
 
@@ -397,7 +403,7 @@ def _doubtful(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occlud
     plane does not pass through them (it is no part of their own surface): a fold's rim or
     a slat smaller than a texel, a shadow's edge. A ray decides them (:func:`_ask_rays`)."""
     bias = BIAS_FOOTPRINTS * lookup.footprint / np.maximum(lookup.cos, MIN_COS) + BIAS_OF_DEPTH * lookup.depth
-    ask = np.flatnonzero(~occluded & (_nearest_around(depth_map)[lookup.face, lookup.row, lookup.col] < lookup.depth - bias))
+    ask = np.flatnonzero(~occluded & (_around(depth_map, np.minimum)[lookup.face, lookup.row, lookup.col] < lookup.depth - bias))
     doubt = np.zeros(len(occluded), dtype=bool)
     if not len(ask):
         return doubt
@@ -408,9 +414,11 @@ def _doubtful(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occlud
     tid, depth, b = depth_map.tid[f, r, c], lookup.depth[ask, None], bias[ask, None]
     near = (tid >= 0) & ~depth_map.back[f, r, c] & (depth_map.dist[f, r, c] < depth - b)
     near &= ~np.any(occluders.triangles[np.maximum(tid, 0)] == point_ids[ask, None, None], axis=2)
-    plane, _ = cut_triangles(lookup.origins[ask, None, :], lookup.u[ask, None, :], tid, occluders.triangles, occluders.vertices)
+    k, j = np.nonzero(near)  # only these (receiver, texel) pairs are cut
+    plane, _ = cut_triangles(lookup.origins[ask[k]], lookup.u[ask[k]], tid[k, j], occluders.triangles, occluders.vertices)
     with np.errstate(invalid="ignore"):
-        doubt[ask] = np.any(near & ~(np.abs(plane - depth) < b), axis=1)
+        cut = plane < depth[k, 0] - b[k, 0]
+    doubt[ask[k[cut]]] = True
     return doubt
 
 
@@ -451,5 +459,4 @@ def _ask_rays(occluded, doubt, receivers, occluders, towards, reach):
         return
     lift = RAY_LIFT * occluders.scale
     start = receivers.points[ask] + lift * (receivers.normals[ask] + towards[ask])
-    hits = occluders.rays().cast(start, towards[ask], None if reach is None else reach[ask] * (1.0 - 1e-6) - lift)
-    occluded[ask] = hits.hit
+    occluded[ask] = occluders.rays().blocked(start, towards[ask], None if reach is None else reach[ask] * (1.0 - 1e-6) - lift)

@@ -36,9 +36,12 @@ class Hits:
 
 class RayCaster(Protocol):
     """``cast(origins (n, 3), dirs (n, 3) unit, reach (n,) or None) -> Hits``: each ray's
-    nearest hit among the caster's triangles, no farther than its reach (None: any)."""
+    nearest hit among the caster's triangles, no farther than its reach (None: any);
+    ``blocked(...) -> (n,) bool``: only whether it meets one (a shadow ray)."""
 
     def cast(self, origins, dirs, reach=None) -> Hits: ...
+
+    def blocked(self, origins, dirs, reach=None) -> np.ndarray: ...
 
 
 def hits_from_distances(points, triangles, origins, dirs, t, triangle) -> Hits:
@@ -98,6 +101,9 @@ class NumpyRays:
             best[sl] = near
             which[sl] = np.where(np.isfinite(near), j, -1)
         return hits_from_distances(self.points, self.triangles, origins, dirs, best, which)
+
+    def blocked(self, origins, dirs, reach=None) -> np.ndarray:
+        return self.cast(origins, dirs, reach).hit
 
 
 def caster_for(renderer, points, triangles) -> RayCaster:

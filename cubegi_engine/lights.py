@@ -23,6 +23,7 @@ import numpy as np
 
 from . import cubemap
 from .geometry import POINT_CHUNK, chunks, cut_triangles
+from .spatial import COORD_SLACK
 
 __all__ = ["Light", "area_polygon", "area_samples", "spot_attenuation", "polygon_form_factor", "unshadowed", "shadow_visibility",
            "ortho_visibility", "DepthMap", "Receivers", "Occluders", "OrthoView"]
@@ -250,6 +251,8 @@ class Occluders:
     sides: tuple | None = None
     # A callable giving the host's ray caster over the same surfaces (made when first
     # needed), or None: a receiver the map cannot decide is asked by one ray (see _occluded).
+    # (direct.scene_occluders holds the host's ``rays`` function: a static one, so that a
+    # kept shadow keeps no renderer.)
     rays: object = None
 
 
@@ -305,7 +308,7 @@ def shadow_visibility(receivers: Receivers, occluders: Occluders, eye, depth: De
     cos = np.abs(np.einsum("sc,sc->s", normals, rel / np.maximum(d, 1e-300)[:, None]))
     lookup = _Lookup(face, row, col, np.broadcast_to(eye, u.shape), u, d2, cos, footprint)
     occluded, doubt = _occluded(depth, lookup, receivers.ids, occluders, reach)
-    _ask_rays(occluded, doubt, receivers, occluders, -rel / np.maximum(d, 1e-300)[:, None], d)
+    _ask_rays(occluded, doubt, receivers, occluders, footprint, eye=eye)
     return (~occluded).astype(np.float64)
 
 
@@ -439,24 +442,36 @@ def ortho_visibility(receivers: Receivers, occluders: Occluders, view: OrthoView
     lookup = _Lookup(np.zeros(len(points), dtype=np.int64), row, col, lifted - distance[:, None] * axis,
                      np.broadcast_to(axis, lifted.shape), distance, np.abs(normals @ axis), footprint)
     occluded, doubt = _occluded(depth, lookup, receivers.ids, occluders)
-    _ask_rays(occluded, doubt & inside, receivers, occluders, np.broadcast_to(-axis, points.shape), None)
+    _ask_rays(occluded, doubt & inside, receivers, occluders, footprint, along=-axis)
     return (~occluded | ~inside).astype(np.float64)
 
 
-# A ray asked where the map cannot decide starts this share of the scene's size off its
-# receiver's surface and as far along itself (the map's lift, a quarter of a texel, could
+# A ray asked where the map cannot decide starts off its receiver's surface, and as far
+# along itself, by half the map's own lift (the map's whole lift, a quarter of a texel, could
 # carry it out of the fold it lies in; a surface through the receiver itself, a wall standing
-# on the floor where it lies, must not shadow it).
+# on the floor where it lies, must not shadow it), but at most RAY_LIFT of the scene's size
+# (never a share of the whole scene alone: a 5 mm gap under a rug in a scene 2 km wide must
+# hold) and at least COORD_SLACK of the receiver's coordinates (a float32 mesh's rounding).
 RAY_LIFT = 1e-5
 
 
-def _ask_rays(occluded, doubt, receivers, occluders, towards, reach):
-    """Decide the ``doubt`` receivers (``(s,)`` bool) by a ray each along ``towards (s, 3)``
-    (unit, to the light; ``reach (s,)`` or None: unbounded), through ``occluders.rays``, in
-    place into ``occluded``; nothing where there is no caster."""
+def _ask_rays(occluded, doubt, receivers, occluders, footprint, eye=None, along=None):
+    """Decide the ``doubt`` receivers (``(s,)`` bool; their maps' texels ``footprint (s,)``
+    across) by a ray each through ``occluders.rays``, in place into ``occluded``: to ``eye``
+    (3,), ending just short of it, or along the unit ``along`` without end (a sun); nothing
+    where there is no caster."""
     ask = np.flatnonzero(doubt)
     if occluders.rays is None or not len(ask):
         return
-    lift = RAY_LIFT * occluders.scale
-    start = receivers.points[ask] + lift * (receivers.normals[ask] + towards[ask])
-    occluded[ask] = occluders.rays().blocked(start, towards[ask], None if reach is None else reach[ask] * (1.0 - 1e-6) - lift)
+    at = receivers.points[ask]
+    lift = np.maximum(np.minimum(0.5 * LIFT * footprint[ask], RAY_LIFT * occluders.scale), COORD_SLACK * np.abs(at).max(axis=1))
+    start = at + lift[:, None] * receivers.normals[ask]
+    reach = None
+    if eye is None:
+        towards = np.broadcast_to(np.asarray(along, dtype=np.float64), start.shape)
+    else:
+        rel = np.asarray(eye, dtype=np.float64) - start
+        dist = np.linalg.norm(rel, axis=1)
+        towards = rel / np.maximum(dist, 1e-300)[:, None]
+        reach = dist * (1.0 - 1e-6) - lift
+    occluded[ask] = occluders.rays().blocked(start + lift[:, None] * towards, towards, reach)

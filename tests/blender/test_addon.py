@@ -329,11 +329,13 @@ def test_preferences_set_new_grids_only(box, monkeypatch):
     assert not {"shadow_size", "sun_shadow_size", "area_shadow_size"} & set(prefs.CubeGIPreferences.__annotations__)  # the file's
 
 
-def test_shadow_map_sizes_are_the_files_per_scene_and_per_light(empty_scene, cubegi):
+def test_shadow_map_sizes_are_the_files_per_scene_and_per_light(empty_scene, cubegi, monkeypatch):
     """Shadow-map sizes are saved in the file (the scene's per light type, and a light's own),
     so one file bakes the same on every machine (before: this machine's Preferences). A
     light's own size is what the scene's same size gives; an update after it changes redraws
-    that light's shadow and equals a fresh bake."""
+    that light's shadow and equals a fresh bake. (The maps drawn are watched: where a map's
+    texel cannot decide the block's shadow edge a ray does, so the light itself no longer
+    shows the size.)"""
     v, f = scenes.box_mesh((-2, -2, 0), (2, 2, 2.5), (16, 16, 4), inward=True)
     room = scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
     v, f = scenes.box_mesh((-0.6, -0.4, 0.0), (0.3, 0.5, 0.9), (3, 3, 3), inward=False)
@@ -341,27 +343,41 @@ def test_shadow_map_sizes_are_the_files_per_scene_and_per_light(empty_scene, cub
     lamp = scenes.add_light("POINT", (1.0, 1.0, 2.0), 200.0, shadow_soft_size=0.0)  # hard: one cube map of shadow_size
     read = cubegi.cubegi_addon.attributes.read
     kwargs = dict(grid=(3, 3, 2), cube_size=8, bounces=1)
+    lights = cubegi.cubegi_engine.lights
+    sizes, test = [], lights.shadow_visibility
+
+    def watched(receivers, occluders, eye, depth, *args, **kw):
+        sizes.append(depth.size)
+        return test(receivers, occluders, eye, depth, *args, **kw)
+
+    monkeypatch.setattr(lights, "shadow_visibility", watched)
 
     def direct():
-        return read(room.data, "CubeGI_direct").copy()
+        drawn = set(sizes)
+        sizes.clear()
+        assert len(drawn) == 1, drawn
+        return read(room.data, "CubeGI_direct").copy(), drawn.pop()
 
     scene = bpy.context.scene.cubegi
     assert scene.shadow_size == 512 and lamp.data.cubegi.shadow_size == 0
     assert bpy.ops.cubegi.bake(**kwargs) == {"FINISHED"}
-    fine = direct()
-    assert json.loads(scene.last_report)["settings"]["shadow_size"] == 512
+    fine, size = direct()
+    assert size == 512 and json.loads(scene.last_report)["settings"]["shadow_size"] == 512
     scene.shadow_size = 16
     assert bpy.ops.cubegi.bake(**kwargs) == {"FINISHED"}
-    coarse = direct()
-    assert json.loads(scene.last_report)["settings"]["shadow_size"] == 16
-    assert np.abs(coarse - fine).max() > 1e-3 * fine.max()  # the size matters here (the block's shadow edge)
+    coarse, size = direct()
+    assert size == 16 and json.loads(scene.last_report)["settings"]["shadow_size"] == 16
     scene.shadow_size = 512
     lamp.data.cubegi.shadow_size = 16
     assert bpy.ops.cubegi.bake(**kwargs) == {"FINISHED"}
-    np.testing.assert_array_equal(direct(), coarse)
+    light, size = direct()
+    assert size == 16
+    np.testing.assert_array_equal(light, coarse)
     lamp.data.cubegi.shadow_size = 0
     assert bpy.ops.cubegi.update_light() == {"FINISHED"}
-    np.testing.assert_allclose(direct(), fine, rtol=0, atol=1e-5 * fine.max())
+    light, size = direct()
+    assert size == 512
+    np.testing.assert_allclose(light, fine, rtol=0, atol=1e-5 * fine.max())
 
 
 class _Event:

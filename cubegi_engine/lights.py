@@ -402,9 +402,11 @@ def _around(depth_map: DepthMap, pick) -> np.ndarray:
 
 def _doubtful(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occluders, occluded):
     """``(s,)`` bool: the receivers the map leaves lit but cannot vouch for: a front face in
-    their texel or one of the 8 around it lies before them by more than the bias, and its
-    plane does not pass through them (it is no part of their own surface): a fold's rim or
-    a slat smaller than a texel, a shadow's edge. A ray decides them (:func:`_ask_rays`)."""
+    their texel or one of the 8 around it (not one of their own triangles) lies before them
+    by more than the bias, and its plane passes before them along their ray (the light and
+    they on opposite sides of it; a plane through them is their own surface's, one behind
+    them cannot shadow them): a fold's rim or a slat smaller than a texel, a shadow's edge.
+    A ray decides them (:func:`_ask_rays`)."""
     bias = BIAS_FOOTPRINTS * lookup.footprint / np.maximum(lookup.cos, MIN_COS) + BIAS_OF_DEPTH * lookup.depth
     ask = np.flatnonzero(~occluded & (_around(depth_map, np.minimum)[lookup.face, lookup.row, lookup.col] < lookup.depth - bias))
     doubt = np.zeros(len(occluded), dtype=bool)
@@ -416,9 +418,11 @@ def _doubtful(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occlud
     f = lookup.face[ask, None]
     tid, depth, b = depth_map.tid[f, r, c], lookup.depth[ask, None], bias[ask, None]
     near = (tid >= 0) & ~depth_map.back[f, r, c] & (depth_map.dist[f, r, c] < depth - b)
-    near &= ~np.any(occluders.triangles[np.maximum(tid, 0)] == point_ids[ask, None, None], axis=2)
-    k, j = np.nonzero(near)  # only these (receiver, texel) pairs are cut
-    plane, _ = cut_triangles(lookup.origins[ask[k]], lookup.u[ask[k]], tid[k, j], occluders.triangles, occluders.vertices)
+    k, j = np.nonzero(near)  # only these (receiver, texel) pairs are asked further
+    t = tid[k, j]
+    theirs = ~np.any(occluders.triangles[t] == point_ids[ask[k], None], axis=1)  # not the receiver's own triangle
+    k, t = k[theirs], t[theirs]
+    plane, _ = cut_triangles(lookup.origins[ask[k]], lookup.u[ask[k]], t, occluders.triangles, occluders.vertices)
     with np.errstate(invalid="ignore"):
         cut = plane < depth[k, 0] - b[k, 0]
     doubt[ask[k[cut]]] = True

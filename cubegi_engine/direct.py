@@ -16,7 +16,6 @@ be a weighted sum, and a moved light be recomputed alone.
 
 from dataclasses import dataclass, field
 from functools import partial
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -25,7 +24,7 @@ from . import eyes as eyes_mod
 from . import lights as lights_mod
 from .emitters import emitter_direct
 from .eyes import SOFT_SAMPLES, soft, soft_count
-from .gather import gathered_for, light_visibility, scene_caster
+from .gather import caster_made_by, gathered_for, light_visibility, scene_caster
 from .transport import CubeCapture, clip_planes, no_barycentrics
 from .working import CAPTURE_DRAWS_PER_STEP, in_background, in_batches, run, start, wait
 
@@ -184,7 +183,7 @@ def scene_occluders(scene, renderer=None) -> lights_mod.Occluders:
     asked). The occluders hold the caster's maker, not the renderer (a kept shadow must not
     keep the GPU's copy of the scene)."""
     make = getattr(renderer, "rays", None)
-    rays = None if make is None else partial(scene_caster, scene, SimpleNamespace(rays=make))
+    rays = None if make is None else partial(caster_made_by, scene, make)
     return lights_mod.Occluders(scene.triangles, scene.points, scene.scale, scene.sides(), rays)
 
 

@@ -33,7 +33,7 @@ from .nearfield import NearField
 from .rays import RayCaster, caster_for
 from .spatial import resting
 
-__all__ = ["large_points", "Corners", "Gathered", "gather", "gathered_for", "kept_nbytes", "light_visibility", "scene_caster",
+__all__ = ["large_points", "Corners", "Gathered", "gather", "gathered_for", "kept_nbytes", "light_visibility", "scene_caster", "caster_made_by",
            "GATHER_SHARE", "GATHER_RAYS"]
 
 # A point whose area is at least GATHER_SHARE of the scene's (front) surface, and at least
@@ -211,12 +211,18 @@ def _front_triangles(scene) -> np.ndarray:
 
 
 def scene_caster(scene, renderer) -> RayCaster:
-    """The host's ray caster over ``scene``'s triangles but the back sides', made once per
-    snapshot (and caster: ``renderer.rays``, or none)."""
-    key = (id(scene.points), id(scene.triangles), getattr(renderer, "rays", None))
+    """The host's ray caster over ``scene``'s triangles but the back sides' (the
+    ``renderer``'s ``rays``, or none: :func:`caster_made_by`)."""
+    return caster_made_by(scene, getattr(renderer, "rays", None))
+
+
+def caster_made_by(scene, make) -> RayCaster:
+    """:func:`scene_caster` of the host's ``rays`` function itself (what a kept shadow holds:
+    not the renderer), made once per snapshot and maker."""
+    key = (id(scene.points), id(scene.triangles), make)
     cached = scene.__dict__.get("_caster")
     if cached is None or cached[0] != key:
-        cached = (key, caster_for(renderer, scene.points, np.asarray(scene.triangles)[_front_triangles(scene)]))
+        cached = (key, caster_for(make, scene.points, np.asarray(scene.triangles)[_front_triangles(scene)]))
         scene.__dict__["_caster"] = cached
     return cached[1]
 

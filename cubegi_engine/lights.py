@@ -379,7 +379,7 @@ def _occluded(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occlud
     # around all see that surface before the receiver.)
     sure = np.any(occluding & (back_occ | on), axis=1)
     sure |= _around(depth_map, np.maximum)[face, row, col] < lookup.depth - bias[:, 0]
-    return occluded, _doubtful(depth_map, lookup, point_ids, occluders, occluded) | (occluded & ~sure)
+    return occluded, _doubtful(depth_map, lookup, point_ids, occluders, occluded, bias[:, 0]) | (occluded & ~sure)
 
 
 def _around(depth_map: DepthMap, pick) -> np.ndarray:
@@ -400,14 +400,13 @@ def _around(depth_map: DepthMap, pick) -> np.ndarray:
     return cached
 
 
-def _doubtful(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occluders, occluded):
+def _doubtful(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occluders, occluded, bias):
     """``(s,)`` bool: the receivers the map leaves lit but cannot vouch for: a front face in
     their texel or one of the 8 around it (not one of their own triangles) lies before them
     by more than the bias, and its plane passes before them along their ray (the light and
     they on opposite sides of it; a plane through them is their own surface's, one behind
     them cannot shadow them): a fold's rim or a slat smaller than a texel, a shadow's edge.
-    A ray decides them (:func:`_ask_rays`)."""
-    bias = BIAS_FOOTPRINTS * lookup.footprint / np.maximum(lookup.cos, MIN_COS) + BIAS_OF_DEPTH * lookup.depth
+    ``bias (s,)``: :func:`_occluded`'s margin. A ray decides them (:func:`_ask_rays`)."""
     ask = np.flatnonzero(~occluded & (_around(depth_map, np.minimum)[lookup.face, lookup.row, lookup.col] < lookup.depth - bias))
     doubt = np.zeros(len(occluded), dtype=bool)
     if not len(ask):

@@ -106,8 +106,7 @@ class NumpyRays:
         return self.cast(origins, dirs, reach).hit
 
 
-def caster_for(renderer, points, triangles) -> RayCaster:
-    """The host's caster over ``triangles`` (``renderer.rays``, where it has one), else a
-    :class:`NumpyRays`."""
-    make = getattr(renderer, "rays", None)
+def caster_for(make, points, triangles) -> RayCaster:
+    """The host's caster over ``triangles`` (``make``: a renderer's ``rays``, where it has
+    one), else a :class:`NumpyRays`."""
     return make(points, triangles) if make is not None else NumpyRays(points, triangles)

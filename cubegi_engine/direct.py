@@ -14,6 +14,7 @@ Keeping each source's share apart is what lets a later edit of one light's power
 be a weighted sum, and a moved light be recomputed alone.
 """
 
+from collections import deque
 from dataclasses import dataclass, field
 from functools import partial
 
@@ -26,7 +27,7 @@ from .emitters import emitter_direct
 from .eyes import SOFT_SAMPLES, soft, soft_count
 from .gather import caster_made_by, gathered_for, light_visibility, scene_caster
 from .transport import CubeCapture, clip_planes, no_barycentrics
-from .working import CAPTURE_DRAWS_PER_STEP, in_background, in_batches, run, start, wait
+from .working import CAPTURE_DRAWS_PER_STEP, WORKERS, in_background, in_batches, run, start, wait
 
 __all__ = ["DirectLight", "Shadow", "draw_shadow", "visibility", "light_direct", "direct_light", "EMISSION", "SKY"]
 
@@ -394,18 +395,18 @@ def sky_direct_steps(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY
             seen[on] += w * vis[:, None]
             facing[on] += w
 
-    # Each batch's maps are drawn (the GPU's work, on this thread) while the batch before is
-    # tested in a thread; the sums are taken in order.
-    job = None
+    # Each batch's maps are drawn (the GPU's work, on this thread) while the batches before
+    # are tested in threads, up to WORKERS at once; the sums are taken in order.
+    jobs = deque()
     for first in range(0, len(dirs), SKY_MAPS_AT_ONCE):  # (a few hundred MB of maps at once, not more)
         tid, _, dist, back = renderer.render(vps[first : first + SKY_MAPS_AT_ONCE], eyes[first : first + SKY_MAPS_AT_ONCE],
                                              -dirs[first : first + SKY_MAPS_AT_ONCE], size, with_bary=False)
-        if job is not None:
-            add((yield from wait(job, _working(step, f"direct light: the sky, {first} of {len(dirs)} directions"))))
-        job = start(tests, first, tid, dist, back)
+        while len(jobs) >= WORKERS:
+            add((yield from wait(jobs.popleft(), _working(step, f"direct light: the sky, {first} of {len(dirs)} directions"))))
+        jobs.append(start(tests, first, tid, dist, back))
         yield _working(step, f"direct light: the sky, {first + len(tid)} of {len(dirs)} directions drawn")
-    if job is not None:
-        add((yield from wait(job, _working(step, f"direct light: the sky, {len(dirs)} of {len(dirs)} directions"))))
+    while jobs:
+        add((yield from wait(jobs.popleft(), _working(step, f"direct light: the sky, {len(dirs)} of {len(dirs)} directions"))))
     open_sky = np.ones((len(which), 3))
     if getattr(scene, "sky_map", None) is not None:  # the pattern's SH, as diffuse light per normal
         n = 16

@@ -17,6 +17,29 @@ def chunks(count, size=POINT_CHUNK):
     return [slice(start, start + size) for start in range(0, count, size)]
 
 
+# The smallest piece :func:`in_pieces` cuts (below it, numpy's per-call overhead dominates).
+MIN_PIECE = 4096
+
+
+def piece_size(size=POINT_CHUNK):
+    """What :func:`in_pieces` cuts ``size`` into: one share per worker thread, at least
+    MIN_PIECE (``size`` itself with one worker)."""
+    from .working import WORKERS
+
+    return min(size, max(MIN_PIECE, -(-size // WORKERS)))
+
+
+def in_pieces(fn, count, size=POINT_CHUNK, least=MIN_PIECE):
+    """``[fn(sl) for sl in slices]`` over slices covering ``range(count)``, run on the
+    worker threads (:func:`~.working.in_parallel`): one share of ``count`` per worker, but
+    no more than :func:`piece_size` (what is in memory at once stays about one piece of
+    ``size``) and no fewer than ``least`` (work that costs much per item can take less)."""
+    from .working import WORKERS, in_parallel
+
+    share = -(-count // WORKERS)
+    return in_parallel(fn, chunks(count, max(1, min(piece_size(size), max(least, share)))))
+
+
 # The one ray-triangle kernel (:func:`ray_cut`) and its tolerances. A test that compares a
 # cut's distance with a depth map's (the shadow maps, the probes' cover test) takes no cut
 # within GRAZING (a cosine: 0.06 degrees) of a triangle's plane, whose distance along the ray

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import cubemap
-from .geometry import POINT_CHUNK, chunks, cut_triangles
+from .geometry import cut_triangles, in_pieces, piece_size
 from .spatial import COORD_SLACK
 
 __all__ = ["Light", "area_polygon", "area_samples", "spot_attenuation", "polygon_form_factor", "unshadowed", "shadow_visibility",
@@ -138,8 +138,8 @@ def polygon_form_factor(points, normals, polygon):
     side. Returns ``(s,)`` in [0, 1]: the cosine-weighted fraction of the hemisphere the
     polygon covers (Lambert's formula ``1/(2 pi) sum_i theta_i n . g_i``).
     """
-    if len(points) > POINT_CHUNK:  # its (s, 2k, 3) temporaries, a chunk of points at a time
-        return np.concatenate([polygon_form_factor(points[sl], normals[sl], polygon) for sl in chunks(len(points))])
+    if len(points) > piece_size():  # its (s, 2k, 3) temporaries, a chunk of points at a time
+        return np.concatenate(in_pieces(lambda sl: polygon_form_factor(points[sl], normals[sl], polygon), len(points)))
     s, k = len(points), len(polygon)
     rel = polygon[None, :, :] - points[:, None, :]  # (s, k, 3)
     h = np.einsum("skc,sc->sk", rel, normals)  # height above the receiver's tangent plane
@@ -292,8 +292,8 @@ def shadow_visibility(receivers: Receivers, occluders: Occluders, eye, depth: De
     in the map (see :func:`_occluded`); where the map cannot vouch for it, one ray decides
     (``occluders.rays``; :func:`_doubtful`). Returns ``(s,)`` float64 in {0, 1}.
     """
-    if len(receivers) > POINT_CHUNK:
-        return np.concatenate([shadow_visibility(receivers[sl], occluders, eye, depth, reach, turn) for sl in chunks(len(receivers))])
+    if len(receivers) > piece_size():
+        return np.concatenate(in_pieces(lambda sl: shadow_visibility(receivers[sl], occluders, eye, depth, reach, turn), len(receivers)))
     points, normals = receivers.points, receivers.normals
     n = depth.size
     rel = points - eye
@@ -430,8 +430,8 @@ def _doubtful(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occlud
 
 def ortho_visibility(receivers: Receivers, occluders: Occluders, view: OrthoView, depth: DepthMap):
     """Like :func:`shadow_visibility` for a sun: one orthographic depth map (``view``)."""
-    if len(receivers) > POINT_CHUNK:
-        return np.concatenate([ortho_visibility(receivers[sl], occluders, view, depth) for sl in chunks(len(receivers))])
+    if len(receivers) > piece_size():
+        return np.concatenate(in_pieces(lambda sl: ortho_visibility(receivers[sl], occluders, view, depth), len(receivers)))
     points, normals, axis = receivers.points, receivers.normals, view.axis
     n = depth.size
     footprint = np.full(len(points), 2.0 * view.half_width / n)

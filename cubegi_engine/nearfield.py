@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import convergence, sh
-from .geometry import chunks
+from .geometry import in_pieces
 from .hemisphere import TURN_HASH, hemisphere_rays
 from .spatial import COORD_SLACK, SLACK, resting, voxel_index
 
@@ -55,8 +55,9 @@ MAX_PAIRS = 2_000_000
 # The sample that estimates a scene's pairs; an object with at least CROWDED_SAMPLE points
 # in it, all crowded, is crowded whole.
 SAMPLE, CROWDED_SAMPLE = 2048, 8
-# Points whose rays are cast at a time (their per-ray arrays: about 200 bytes a ray).
-POINTS_AT_ONCE = 1 << 15
+# Points whose rays are cast at a time (their per-ray arrays: about 200 bytes a ray), and the
+# fewest a worker thread casts as one piece.
+POINTS_AT_ONCE, CAST_PIECE = 1 << 15, 256
 # Hits fade out over this last share of the reach.
 FADE = 0.25
 # A covered point counts as hidden from the near field's hits (its light stands for no
@@ -284,12 +285,11 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     pair_local, pair_t = pair_local[order], pair_t[order]
     at, nrm, rch = points[cast], normals[cast], reach[cast]
     turn = 2.0 * np.pi * ((at / np.maximum(rch, 1e-300)[:, None]) @ TURN_HASH % 1.0)
-    # Rays start this far off their surface, and a surface within twice that of a ray's start
-    # counts as met there: float32 meshes put points that lie on another surface up to a
-    # few 1e-7 of their coordinates off it, at any scale.
+    # Rays start this far off their surface, and a surface within twice that of a ray's start counts
+    # as met there: float32 meshes put points on another surface up to a few 1e-7 of their coordinates off it.
     slack = SLACK * rch + COORD_SLACK * np.abs(at).max(axis=1)
-    hits = _Rays.joined([_cast_rays(index, at, nrm, rch, slack, turn, rays, pair_local, pair_t, sl)
-                         for sl in chunks(max(len(cast), 1), POINTS_AT_ONCE)])
+    hits = _Rays.joined(in_pieces(lambda sl: _cast_rays(index, at, nrm, rch, slack, turn, rays, pair_local, pair_t, sl),
+                                  max(len(cast), 1), POINTS_AT_ONCE, least=CAST_PIECE))
     openness = np.ones(s)
     openness[cast] = hits.openness
     point = hits.point  # local

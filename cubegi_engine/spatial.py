@@ -6,7 +6,7 @@ import functools
 
 import numpy as np
 
-from .geometry import chunks, planes_of, ray_cut, sorted_unique
+from .geometry import chunks, in_pieces, planes_of, ray_cut, sorted_unique
 
 __all__ = ["VoxelIndex", "voxel_index", "forget_indexes", "resting", "intersect_pairs",
            "over_triangles", "SLACK", "COORD_SLACK", "BARY_SLACK", "MAX_NEARBY"]
@@ -230,8 +230,9 @@ class VoxelIndex:
         base = np.floor((points - self.origin) / self.h).astype(np.int64)
         crowded = np.zeros(len(points), dtype=bool)
         offsets = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
-        out_p, out_t = [], []
-        for sl in chunks(len(points), CANDIDATE_CHUNK):
+        empty = np.zeros(0, dtype=np.int64)
+
+        def piece(sl):
             lo = sl.start
             idx = base[sl, None, :] + offsets[None]  # (m, 27, 3)
             # Only the voxels within reach with a part in front of the point's tangent plane.
@@ -250,12 +251,10 @@ class VoxelIndex:
             many = np.bincount(pt, self._centre_count(key[pt, col]), minlength=len(idx)) > MAX_NEARBY
             pt, col = pt[~many[pt]], col[~many[pt]]
             if not len(pt):
-                crowded[sl] = many
-                continue
+                return empty, empty, many
             pt, slot = self._voxels(pt, key[pt, col])
             count = self.end[slot] - self.start[slot]
             many |= np.bincount(pt, count, minlength=len(idx)) > MAX_NEARBY
-            crowded[sl] = many
             pt, slot = pt[~many[pt]], slot[~many[pt]]
             # The voxels' own boxes first (the same tests as the triangles' boxes below, each
             # passed by every triangle the voxel holds that passes them).
@@ -285,10 +284,12 @@ class VoxelIndex:
             else:
                 keep = front > slack
             pair = sorted_unique(pp[keep] * len(a) + tt[keep])  # a triangle listed in several voxels, once
-            out_p.append(pair // len(a))
-            out_t.append(pair % len(a))
-        none = [np.zeros(0, dtype=np.int64)]
-        return np.concatenate(out_p or none), np.concatenate(out_t or none), crowded
+            return pair // len(a), pair % len(a), many
+        parts = in_pieces(piece, len(points), CANDIDATE_CHUNK)
+        if parts:
+            crowded = np.concatenate([many for _, _, many in parts])
+        none = [empty]
+        return np.concatenate([p for p, _, _ in parts] or none), np.concatenate([t for _, t, _ in parts] or none), crowded
 
 
 def _box_front(normals, to_lo, to_hi, x, reach):

@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import cubemap
-from .geometry import POINT_CHUNK, chunks, cut_planes, edge_neighbours, sorted_unique, triangle_planes
+from .geometry import cut_planes, edge_neighbours, in_pieces, piece_size, sorted_unique, triangle_planes
 
 __all__ = ["visibility_weights", "probes_in_front", "Cover", "Probes", "PointProbes", "ProbeWeights", "BEHIND"]
 
@@ -105,10 +105,9 @@ def visibility_weights(grid, probes: Probes, at: PointProbes, cover=None, both=F
     gets no probe light, instead of falling back to its plain weights. ``sheet``: ``(s,)``
     bool, points of two-sided sheets, which only probes in front of their plane light.
     """
-    if len(at) > POINT_CHUNK:
-        parts = [visibility_weights(grid, probes, at[sl], None if cover is None else cover.rows(sl), both,
-                                    None if sheet is None else sheet[sl])
-                 for sl in chunks(len(at))]
+    if len(at) > piece_size():
+        parts = in_pieces(lambda sl: visibility_weights(grid, probes, at[sl], None if cover is None else cover.rows(sl), both,
+                                                        None if sheet is None else sheet[sl]), len(at))
         weights = np.concatenate([p.weights for p in parts])
         return ProbeWeights(weights, np.concatenate([p.behind for p in parts]) if both else None)
     points, normals, index, weight = at.points, at.normals, at.index, at.weight

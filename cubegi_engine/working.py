@@ -11,10 +11,12 @@ thread runs leaves the thread to finish in the background; its result is dropped
 """
 
 import ctypes
+import os
 import threading
+from concurrent.futures import ThreadPoolExecutor
 
-__all__ = ["WORKING_SECONDS", "CAPTURE_DRAWS_PER_STEP", "run", "in_background", "in_batches", "start", "wait",
-           "give_back_memory"]
+__all__ = ["WORKING_SECONDS", "CAPTURE_DRAWS_PER_STEP", "WORKERS", "run", "in_background", "in_batches", "start", "wait",
+           "give_back_memory", "in_parallel"]
 
 # Seconds between the steps a long piece of work hands back.
 WORKING_SECONDS = 0.1
@@ -22,6 +24,9 @@ WORKING_SECONDS = 0.1
 # the capture: about WORKING_SECONDS on llvmpipe (measured on The Breakfast Room: 42 ms a probe
 # of 190K triangles, 37 ns a triangle drawn); a GPU draws a batch in far less.
 CAPTURE_DRAWS_PER_STEP = 2_500_000
+# Threads that share numpy work cut into independent pieces (numpy lets go of the GIL in its
+# loops, so they run on as many cores): the machine's cores, at most 8.
+WORKERS = max(1, min(os.cpu_count() or 1, 8))
 
 
 class Job:
@@ -83,6 +88,31 @@ def give_back_memory():
     rules, and the call changes nothing there)."""
     if _MALLOC_TRIM is not None:
         _MALLOC_TRIM(0)
+
+
+_pool = None
+_pool_lock = threading.Lock()
+_in_pool = threading.local()
+
+
+def _worker(fn, item):
+    _in_pool.inside = True
+    return fn(item)
+
+
+def in_parallel(fn, items):
+    """``[fn(item) for item in items]``, run on up to WORKERS threads, in order. Each item's
+    result is its own (the pieces must not depend on one another), so the numbers are the same
+    on any machine. Called from inside one of those threads (a piece cut into pieces), it runs
+    in that thread: the pool never waits on itself."""
+    global _pool
+    items = list(items)
+    if WORKERS == 1 or len(items) < 2 or getattr(_in_pool, "inside", False):
+        return [fn(item) for item in items]
+    with _pool_lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(max_workers=WORKERS, thread_name_prefix="cubegi-piece")
+    return list(_pool.map(_worker, [fn] * len(items), items))
 
 
 def in_background(fn, working, *args, **kwargs):

@@ -27,6 +27,12 @@ def _parsers(sub):
         help="instead: bake a hall lit by one area lamp and by thirteen (default quality, each in its own process, against "
         "Cycles) and write lights.json and lights.md (what many lights cost)",
     )
+    m.add_argument(
+        "--machine", action="store_true",
+        help="instead: the figures that compare two machines (a GPU's beside this one's): the Breakfast Room's default bake "
+        "stage by stage against its reference, Cycles at 16 and 64 samples, the scaling target (1M vertices) and its 95K "
+        "point; writes machine.json",
+    )
 
 
 def cmd_demo(args):
@@ -67,6 +73,13 @@ def cmd_benchmark(args):
 
         lights.run(args.out, log=log)
         print(f"cubegi: wrote {os.path.join(args.out, 'lights.json')}, {os.path.join(args.out, 'lights.md')}")
+        return
+    if args.machine:
+        cli.blender()
+        from benchmarks import machine
+
+        machine.run(args.out, log=log)
+        print(f"cubegi: wrote {os.path.join(args.out, 'machine.json')}")
         return
     if args.scaling:
         from benchmarks import scaling

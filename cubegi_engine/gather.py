@@ -22,6 +22,7 @@ shadow there is one ray per corner towards it (:func:`light_visibility`). The po
 is then what their own view holds, not the probes' estimate from up to a cell away.
 """
 
+import threading
 import time
 from dataclasses import dataclass
 
@@ -220,11 +221,15 @@ def caster_made_by(scene, make) -> RayCaster:
     """:func:`scene_caster` of the host's ``rays`` function itself (what a kept shadow holds:
     not the renderer), made once per snapshot and maker."""
     key = (id(scene.points), id(scene.triangles), make)
-    cached = scene.__dict__.get("_caster")
-    if cached is None or cached[0] != key:
-        cached = (key, caster_for(make, scene.points, np.asarray(scene.triangles)[_front_triangles(scene)]))
-        scene.__dict__["_caster"] = cached
+    with _CASTER_LOCK:  # asked by several worker threads at once: made once
+        cached = scene.__dict__.get("_caster")
+        if cached is None or cached[0] != key:
+            cached = (key, caster_for(make, scene.points, np.asarray(scene.triangles)[_front_triangles(scene)]))
+            scene.__dict__["_caster"] = cached
     return cached[1]
+
+
+_CASTER_LOCK = threading.Lock()
 
 
 def kept_nbytes(scene) -> int:

@@ -285,6 +285,7 @@ class VoxelIndex:
                 keep = front > slack
             pair = sorted_unique(pp[keep] * len(a) + tt[keep])  # a triangle listed in several voxels, once
             return pair // len(a), pair % len(a), many
+        self._list(), self._centre_keys, self.unit, self.offset  # made once, before the pieces share them
         parts = in_pieces(piece, len(points), CANDIDATE_CHUNK)
         if parts:
             crowded = np.concatenate([many for _, _, many in parts])

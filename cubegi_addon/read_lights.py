@@ -18,9 +18,6 @@ __all__ = ["add_light", "light_key", "AREA_SHADOW_SIDE"]
 # Measured against Cycles on the Cornell box's area lights (direct light, rel. RMSE): 4 x 4
 # 3.3-4.5%, 8 x 8 1.6-2.2% (0.1 s more there), 12 x 12 1.2-1.7% (0.3 s more).
 AREA_SHADOW_SIDE = 8
-# A sun whose Angle is above this (radians; the Sun's own is 0.53 degrees) gets a note: CubeGI's
-# sun shadows are sharp.
-SUN_ANGLE_NOTED = np.radians(1.0)
 
 
 def _light(ob_eval, matrix, key, notes):
@@ -47,7 +44,7 @@ def _light(ob_eval, matrix, key, notes):
     if data.type == "SPOT":
         return Light("SPOT", radius=float(data.shadow_soft_size), spot_size=float(data.spot_size), spot_blend=float(data.spot_blend), **common)
     if data.type == "SUN":
-        return Light("SUN", **common)
+        return Light("SUN", angle=float(getattr(data, "angle", 0.0)), **common)
     if data.type == "AREA":
         local = area_polygon(data.shape, data.size, data.size_y)
         poly = local @ m[:3, :3].T + pos
@@ -84,9 +81,6 @@ def _light_node_factor(name, data, notes):
 
 def _note_unread_light_options(ob, data, notes):
     """Notes for the light options that change Cycles' light and that CubeGI does not read."""
-    if data.type == "SUN" and float(getattr(data, "angle", 0.0)) > SUN_ANGLE_NOTED:
-        notes.append(f"light {ob.name}: its Angle ({np.degrees(data.angle):.1f} degrees) is not read; its shadows are "
-                     "sharp, where Cycles softens their edges")
     if data.type == "AREA" and float(getattr(data, "spread", np.pi)) < np.pi - 1e-6:
         notes.append(f"light {ob.name}: Spread ({np.degrees(data.spread):.0f} degrees) is not read; baked as a "
                      "diffuse (180 degree) area light")
@@ -99,7 +93,7 @@ def _note_unread_light_options(ob, data, notes):
 def _light_problem(light):
     """Why a light cannot be baked (None if it can): a NaN or Inf anywhere in it (one such
     light would darken every point), or negative power (CubeGI bakes no negative light)."""
-    values = [light.colour, light.position, light.direction, [light.radius, light.area]]
+    values = [light.colour, light.position, light.direction, [light.radius, light.area, light.angle]]
     if light.polygon is not None:
         values.append(np.ravel(light.polygon))
     if not all(np.all(np.isfinite(np.asarray(v, dtype=np.float64))) for v in values):

@@ -28,7 +28,7 @@ from . import light_groups, scene_data
 
 # Light fields whose change needs the light's direct light drawn again (not its colour).
 PLACEMENT = ("kind", "position", "direction", "radius", "spot_size", "spot_blend", "polygon", "area", "casts_shadow", "samples",
-             "shadow_size")
+             "shadow_size", "angle")
 
 
 def same_place(a, b):

@@ -26,6 +26,7 @@ from . import lights as lights_mod
 from .emitters import emitter_direct
 from .eyes import SOFT_SAMPLES, soft, soft_count
 from .gather import caster_made_by, gathered_for, light_visibility, scene_caster
+from .penumbra import sun_visibility
 from .transport import CubeCapture, clip_planes, no_barycentrics
 from .working import CAPTURE_DRAWS_PER_STEP, WORKERS, in_background, in_batches, run, start, wait
 
@@ -193,7 +194,7 @@ def visibility(shadow, pts, nrm, ids) -> np.ndarray:
     receivers' indices among the shadow's vertices, -1 for a receiver not among them)."""
     light, receivers = shadow.light, lights_mod.Receivers(pts, nrm, ids)
     if shadow.sun is not None:
-        return lights_mod.ortho_visibility(receivers, shadow.occluders, shadow.sun, shadow.sun_map)
+        return sun_visibility(receivers, shadow.occluders, shadow.sun, shadow.sun_map, light.angle)
     if len(shadow.eyes) == 1 and light.kind != "AREA":
         return lights_mod.shadow_visibility(receivers, shadow.occluders, light.position, shadow.cube_map(0))
     # Several eyes (an area light's points, a soft point light's sphere): their visibility

@@ -31,6 +31,7 @@ import numpy as np
 from . import cubemap, sh
 from .hemisphere import TURN_HASH, hemisphere_rays
 from .nearfield import NearField
+from .penumbra import SUN_DISK_RAYS, disk_directions
 from .rays import RayCaster, caster_for
 from .spatial import resting
 
@@ -266,11 +267,12 @@ def light_visibility(gathered: Gathered, caster: RayCaster, light, eyes=None) ->
     g = gathered.count
     if not len(at):
         return np.ones(g)
-    if light.kind == "SUN":
+    if light.kind == "SUN":  # towards the sun's middle, or across its disk (its Angle)
         to_sun = -np.asarray(light.direction, dtype=np.float64)
-        to_sun = to_sun / np.linalg.norm(to_sun)
-        seen = (~caster.blocked(at.origin, np.broadcast_to(to_sun, at.origin.shape))).astype(np.float64)
-        return np.bincount(at.row, at.weight * seen, minlength=g)
+        count = SUN_DISK_RAYS if light.angle > 0.0 else 1
+        dirs = disk_directions(to_sun / np.linalg.norm(to_sun), light.angle, at.origin, 1e-3 * float(np.abs(at.origin).max()), count)
+        seen = ~caster.blocked(np.repeat(at.origin, count, axis=0), dirs.reshape(-1, 3))
+        return np.bincount(at.row, at.weight * seen.reshape(len(at), count).mean(axis=1), minlength=g)
     eyes = np.asarray(light.position, dtype=np.float64)[None] if eyes is None or not len(eyes) else np.asarray(eyes, dtype=np.float64)
     if len(eyes) > LIGHT_EYES:
         eyes = eyes[np.linspace(0, len(eyes) - 1, LIGHT_EYES).round().astype(np.int64)]

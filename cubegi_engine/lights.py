@@ -45,6 +45,7 @@ class Light:
     :func:`light_keys`), the key of its direct light and of its source in relighting.
     shadow_size: its shadow maps' edge in texels (0: the bake settings' for its kind).
     group: the light group it belongs to ("" for none; see the add-on's light groups).
+    angle: a sun's angular diameter in radians (its Angle; 0: sharp shadows).
     """
 
     kind: str
@@ -62,6 +63,7 @@ class Light:
     key: str = ""
     shadow_size: int = 0
     group: str = ""
+    angle: float = 0.0
 
     @property
     def shadow_key(self) -> str:
@@ -437,8 +439,16 @@ def ortho_visibility(receivers: Receivers, occluders: Occluders, view: OrthoView
     """Like :func:`shadow_visibility` for a sun: one orthographic depth map (``view``)."""
     if len(receivers) > piece_size():
         return np.concatenate(in_pieces(lambda sl: ortho_visibility(receivers[sl], occluders, view, depth), len(receivers)))
+    lookup, inside = ortho_lookup(receivers, view, depth.size)
+    occluded, doubt = _occluded(depth, lookup, receivers.ids, occluders)
+    _ask_rays(occluded, doubt & inside, receivers, occluders, lookup.footprint, along=-view.axis)
+    return (~occluded | ~inside).astype(np.float64)
+
+
+def ortho_lookup(receivers: Receivers, view: OrthoView, n):
+    """Each receiver's place in an orthographic map of edge ``n`` (``view``), lifted off its
+    surface as the shadow test lifts it: ``(_Lookup, inside (s,) bool)``."""
     points, normals, axis = receivers.points, receivers.normals, view.axis
-    n = depth.size
     footprint = np.full(len(points), 2.0 * view.half_width / n)
     lifted = points + normals * (LIFT * footprint)[:, None]
     clip = np.concatenate([lifted, np.ones((len(points), 1))], axis=1) @ view.view_proj.T
@@ -446,12 +456,9 @@ def ortho_visibility(receivers: Receivers, occluders: Occluders, view: OrthoView
     col = np.clip(((ndc[:, 0] + 1.0) * 0.5 * n).astype(np.int64), 0, n - 1)
     row = np.clip(((ndc[:, 1] + 1.0) * 0.5 * n).astype(np.int64), 0, n - 1)
     distance = (lifted - view.eye) @ axis
-    inside = (np.abs(ndc) <= 1.0).all(axis=1)
     lookup = _Lookup(np.zeros(len(points), dtype=np.int64), row, col, lifted - distance[:, None] * axis,
                      np.broadcast_to(axis, lifted.shape), distance, np.abs(normals @ axis), footprint)
-    occluded, doubt = _occluded(depth, lookup, receivers.ids, occluders)
-    _ask_rays(occluded, doubt & inside, receivers, occluders, footprint, along=-axis)
-    return (~occluded | ~inside).astype(np.float64)
+    return lookup, (np.abs(ndc) <= 1.0).all(axis=1)
 
 
 # A ray asked where the map cannot decide starts off its receiver's surface, and as far
@@ -463,6 +470,13 @@ def ortho_visibility(receivers: Receivers, occluders: Occluders, view: OrthoView
 RAY_LIFT = 1e-5
 
 
+def ray_starts(receivers, occluders, footprint, ask):
+    """Where the rays of receivers ``ask`` start (see RAY_LIFT): ``(start (k, 3), lift (k,))``."""
+    at = receivers.points[ask]
+    lift = np.maximum(np.minimum(0.5 * LIFT * footprint[ask], RAY_LIFT * occluders.scale), COORD_SLACK * np.abs(at).max(axis=1))
+    return at + lift[:, None] * receivers.normals[ask], lift
+
+
 def _ask_rays(occluded, doubt, receivers, occluders, footprint, eye=None, along=None):
     """Decide the ``doubt`` receivers (``(s,)`` bool; their maps' texels ``footprint (s,)``
     across) by a ray each through ``occluders.rays``, in place into ``occluded``: to ``eye``
@@ -471,9 +485,7 @@ def _ask_rays(occluded, doubt, receivers, occluders, footprint, eye=None, along=
     ask = np.flatnonzero(doubt)
     if occluders.rays is None or not len(ask):
         return
-    at = receivers.points[ask]
-    lift = np.maximum(np.minimum(0.5 * LIFT * footprint[ask], RAY_LIFT * occluders.scale), COORD_SLACK * np.abs(at).max(axis=1))
-    start = at + lift[:, None] * receivers.normals[ask]
+    start, lift = ray_starts(receivers, occluders, footprint, ask)
     reach = None
     if eye is None:
         towards = np.broadcast_to(np.asarray(along, dtype=np.float64), start.shape)

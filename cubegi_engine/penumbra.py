@@ -1,0 +1,137 @@
+"""A sun's soft shadows: the receivers near a shadow's edge take rays across the sun's disk.
+
+A sun with an Angle (its disk's angular diameter: the Sun's own is about half a degree)
+blurs each shadow's edge over the occluder's distance times that angle: a window blind's
+slat 3 m from a counter, about 3 cm, as wide as the gaps between the slats. Cycles samples
+the disk. Here the sun's orthographic depth map still decides every receiver whose
+neighbourhood within the widest penumbra (the map's own depth times the angle) holds no
+shadow edge: either no surface stands before it there (lit), or every texel there sees one
+(in shadow). The others take SUN_DISK_RAYS rays across the disk, each weighted by its cosine,
+through the host's ray caster; without a caster the map's sharp answer stands.
+
+Pure numpy; must not import bpy.
+"""
+
+import threading
+
+import numpy as np
+
+from . import cubemap
+from .hemisphere import GOLDEN_ANGLE, TURN_HASH
+from .lights import MIN_COS, ortho_lookup, ortho_visibility, ray_starts
+
+__all__ = ["sun_visibility", "disk_directions", "SUN_DISK_RAYS"]
+
+# Rays across the sun's disk for a receiver near a shadow's edge (a sunflower pattern, turned
+# per receiver): FIRST_RAYS and one to the middle, then SUN_DISK_RAYS where those disagree; and
+# the widest neighbourhood searched for an edge, in texels each way.
+SUN_DISK_RAYS, FIRST_RAYS = 16, 6
+MAX_WINDOW = 32
+
+
+def sun_visibility(receivers, occluders, view, depth_map, angle):
+    """``(s,)`` in [0, 1]: how much of a sun of angular diameter ``angle`` (radians) reaches
+    each receiver, its shadows from ``depth_map`` drawn along ``view`` (an OrthoView)."""
+    sharp = ortho_visibility(receivers, occluders, view, depth_map)
+    if angle <= 0.0 or occluders.rays is None or not len(receivers):
+        return sharp
+    n = depth_map.size
+    spread = np.tan(0.5 * angle)
+    window = int(min(MAX_WINDOW, np.ceil(n * spread) + 1))
+    lookup, inside = ortho_lookup(receivers, view, n)
+    nearest, farthest = _window(depth_map, window)
+    at = (0, lookup.row, lookup.col)
+    # Depth changes across the window on a receiver's own tilted surface; that is no edge.
+    slope = window * lookup.footprint / np.maximum(lookup.cos, MIN_COS)
+    facing = receivers.normals @ -view.axis > -spread
+    edge = inside & facing & (nearest[at] < lookup.depth - slope) & (farthest[at] >= lookup.depth - slope)
+    ask = np.flatnonzero(edge)
+    if not len(ask):
+        return sharp
+    share, centre_open = _disk_share(receivers, occluders, view.axis, spread, lookup.footprint, ask)
+    out = sharp.copy()
+    # Where the map shadows a receiver that the ray from its middle of the disk passes, the
+    # map knows better: a surface standing on the receiver's own (a wall on a floor, whose
+    # bottom edge a ray starting on it slips under), where Cycles has no light either.
+    out[ask] = np.where((sharp[ask] == 0.0) & centre_open, 0.0, share)
+    return out
+
+
+def _disk_share(receivers, occluders, axis, spread, footprint, ask):
+    """``(share (k,), centre_open (k,) bool)``: the cosine-weighted share of the sun's disk (a
+    cone of half-angle tangent ``spread`` about ``-axis``) that rays leave unblocked from
+    receivers ``ask``, and whether the ray to the disk's middle passes. FIRST_RAYS rays first;
+    where they disagree (the receiver is in a penumbra), SUN_DISK_RAYS."""
+    start, lift = ray_starts(receivers, occluders, footprint, ask)
+    share, centre_open, split = _disk_rays(receivers.normals[ask], occluders, axis, spread, start, lift, FIRST_RAYS)
+    if split.any():
+        share[split], _, _ = _disk_rays(receivers.normals[ask[split]], occluders, axis, spread, start[split], lift[split],
+                                        SUN_DISK_RAYS)
+    return share, centre_open
+
+
+def _disk_rays(normals, occluders, axis, spread, start, lift, count):
+    """``count`` rays across the disk and one to its middle from each of ``start (m, 3)``:
+    ``(share (m,), centre_open (m,), split (m,))``, split where the rays disagree."""
+    to_sun = -np.asarray(axis, dtype=np.float64)
+    dirs = np.concatenate([disk_directions(to_sun, 2.0 * np.arctan(spread), start, occluders.scale, count),
+                           np.broadcast_to(to_sun, (len(start), 1, 3))], axis=1)
+    weight = np.maximum(np.einsum("mkc,mc->mk", dirs, normals), 0.0)
+    origins = (start[:, None, :] + lift[:, None, None] * dirs).reshape(-1, 3)
+    open_ = ~occluders.rays().blocked(origins, dirs.reshape(-1, 3), None).reshape(weight.shape)
+    total = weight[:, :-1].sum(axis=1)
+    share = np.where(total > 0, (weight[:, :-1] * open_[:, :-1]).sum(axis=1) / np.maximum(total, 1e-300), 0.0)
+    return share, open_[:, -1], open_.any(axis=1) & ~open_.all(axis=1)
+
+
+def disk_directions(to_sun, angle, origins, scale, count):
+    """``(k, count, 3)`` unit directions from each of ``origins (k, 3)`` over the disk of a sun
+    of angular diameter ``angle`` about the unit ``to_sun``: a sunflower pattern of ``count``
+    rays, turned by a hash of the origin (``scale``: the scene's size)."""
+    to_sun = np.asarray(to_sun, dtype=np.float64)
+    k = np.arange(count)
+    radius = np.sqrt((k + 0.5) / count)
+    turn = 2.0 * np.pi * ((np.asarray(origins, dtype=np.float64) / max(scale, 1e-300)) @ TURN_HASH % 1.0)
+    theta = k[None, :] * GOLDEN_ANGLE + turn[:, None]
+    e1 = cubemap.any_perpendicular(to_sun)
+    e2 = np.cross(to_sun, e1)
+    offset = np.tan(0.5 * angle) * radius[None, :, None] * (np.cos(theta)[..., None] * e1 + np.sin(theta)[..., None] * e2)
+    dirs = to_sun + offset
+    return dirs / np.linalg.norm(dirs, axis=2, keepdims=True)
+
+
+def _window(depth_map, window):
+    """``(nearest, farthest)``, each ``(f, n, n)``: over each texel and those within ``window``
+    of it on its face, the nearest surface's distance (front or back: either stands in the
+    sun's way) and the farthest (a texel that sees none: infinitely far); made once per map
+    and window."""
+    key = f"_window_{window}"
+    with _WINDOW_LOCK:
+        cached = depth_map.__dict__.get(key)
+        if cached is None:
+            seen = depth_map.tid >= 0
+            cached = (_filter(np.where(seen, depth_map.dist, np.inf).astype(np.float32), window, np.minimum),
+                      _filter(np.where(seen, depth_map.dist, np.inf).astype(np.float32), window, np.maximum))
+            depth_map.__dict__[key] = cached
+    return cached
+
+
+_WINDOW_LOCK = threading.Lock()
+
+
+def _filter(values, window, pick):
+    """``pick`` (np.minimum or np.maximum) over a square of ``window`` texels each way, one
+    axis at a time (texels past the edge count as seeing nothing)."""
+    out = values
+    for axis in (1, 2):
+        n = out.shape[axis]
+        pad = [(0, 0)] * 3
+        pad[axis] = (window, window)
+        padded = np.pad(out, pad, constant_values=np.inf)
+        acc = out.copy()
+        for shift in range(2 * window + 1):
+            window_slice = [slice(None)] * 3
+            window_slice[axis] = slice(shift, shift + n)
+            pick(acc, padded[tuple(window_slice)], out=acc)
+        out = acc
+    return out

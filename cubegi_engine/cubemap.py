@@ -20,7 +20,7 @@ Conventions (fixed here, used by the GPU capture and by every look-up):
 
 import numpy as np
 
-__all__ = ["sample_image", "equirect_uv", "texel_uv", "texel_directions", "texel_solid_angles", "direction_to_texel", "perspective_90", "orthographic", "look_matrix", "cube_view_projections", "any_perpendicular"]
+__all__ = ["sample_image", "equirect_uv", "texel_uv", "texel_directions", "texel_solid_angles", "direction_to_texel", "perspective_90", "orthographic", "look_matrix", "cube_view_projections", "any_perpendicular", "square_filter"]
 
 FACE_FORWARD = np.array(
     [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.float64
@@ -196,3 +196,22 @@ def equirect_uv(dirs):
 
 # The rotation part of each face's view matrix (the same at every eye).
 _FACE_ROTATIONS = np.stack([look_matrix(np.zeros(3), FACE_FORWARD[f], FACE_UP[f])[:3, :3] for f in range(6)])
+
+
+def square_filter(values, reach, pick):
+    """``pick`` (``np.minimum`` or ``np.maximum``) over each texel of ``values (f, n, n)`` and
+    those within ``reach`` of it on its face, one axis at a time (texels past the edge count
+    as seeing nothing: infinitely far)."""
+    out = values
+    for axis in (1, 2):
+        n = out.shape[axis]
+        pad = [(0, 0)] * 3
+        pad[axis] = (reach, reach)
+        padded = np.pad(out, pad, constant_values=np.inf)
+        acc = out.copy()
+        for shift in range(2 * reach + 1):
+            window = [slice(None)] * 3
+            window[axis] = slice(shift, shift + n)
+            pick(acc, padded[tuple(window)], out=acc)
+        out = acc
+    return out

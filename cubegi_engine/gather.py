@@ -22,7 +22,6 @@ shadow there is one ray per corner towards it (:func:`light_visibility`). The po
 is then what their own view holds, not the probes' estimate from up to a cell away.
 """
 
-import threading
 import time
 from dataclasses import dataclass
 
@@ -34,6 +33,7 @@ from .nearfield import NearField
 from .penumbra import SUN_DISK_RAYS, disk_directions
 from .rays import RayCaster, caster_for
 from .spatial import resting
+from .working import made_once
 
 __all__ = ["large_points", "Corners", "Gathered", "gather", "gathered_for", "kept_nbytes", "light_visibility", "scene_caster", "caster_made_by",
            "GATHER_SHARE", "GATHER_RAYS"]
@@ -221,16 +221,8 @@ def scene_caster(scene, renderer) -> RayCaster:
 def caster_made_by(scene, make) -> RayCaster:
     """:func:`scene_caster` of the host's ``rays`` function itself (what a kept shadow holds:
     not the renderer), made once per snapshot and maker."""
-    key = (id(scene.points), id(scene.triangles), make)
-    with _CASTER_LOCK:  # asked by several worker threads at once: made once
-        cached = scene.__dict__.get("_caster")
-        if cached is None or cached[0] != key:
-            cached = (key, caster_for(make, scene.points, np.asarray(scene.triangles)[_front_triangles(scene)]))
-            scene.__dict__["_caster"] = cached
-    return cached[1]
-
-
-_CASTER_LOCK = threading.Lock()
+    return made_once(scene, "_caster", lambda: caster_for(make, scene.points, np.asarray(scene.triangles)[_front_triangles(scene)]),
+                     key=(id(scene.points), id(scene.triangles), make))
 
 
 def kept_nbytes(scene) -> int:

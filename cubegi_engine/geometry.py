@@ -4,6 +4,8 @@ numpy; must not import bpy."""
 
 import numpy as np
 
+from . import working
+
 __all__ = ["sorted_unique", "triangle_planes", "planes_of", "ray_cut", "cut_planes", "cut_triangles", "near_any_triangle", "edge_neighbours",
            "chunks", "POINT_CHUNK", "GRAZING", "twin_triangles", "mix64", "position_hash"]
 
@@ -24,9 +26,7 @@ MIN_PIECE = 4096
 def piece_size(size=POINT_CHUNK):
     """What :func:`in_pieces` cuts ``size`` into: one share per worker thread, at least
     MIN_PIECE (``size`` itself with one worker)."""
-    from .working import WORKERS
-
-    return min(size, max(MIN_PIECE, -(-size // WORKERS)))
+    return min(size, max(MIN_PIECE, -(-size // working.WORKERS)))
 
 
 def in_pieces(fn, count, size=POINT_CHUNK, least=MIN_PIECE):
@@ -34,10 +34,8 @@ def in_pieces(fn, count, size=POINT_CHUNK, least=MIN_PIECE):
     worker threads (:func:`~.working.in_parallel`): one share of ``count`` per worker, but
     no more than :func:`piece_size` (what is in memory at once stays about one piece of
     ``size``) and no fewer than ``least`` (work that costs much per item can take less)."""
-    from .working import WORKERS, in_parallel
-
-    share = -(-count // WORKERS)
-    return in_parallel(fn, chunks(count, max(1, min(piece_size(size), max(least, share)))))
+    share = -(-count // working.WORKERS)
+    return working.in_parallel(fn, chunks(count, max(1, min(piece_size(size), max(least, share)))))
 
 
 # The one ray-triangle kernel (:func:`ray_cut`) and its tolerances. A test that compares a

@@ -17,7 +17,6 @@ Formulas (matched against Cycles 5.0 bakes; the measurements are in tests/blende
 Shadows come from depth cube maps rendered at the light (see :func:`shadow_visibility`).
 """
 
-import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -25,6 +24,7 @@ import numpy as np
 from . import cubemap
 from .geometry import cut_triangles, in_pieces, piece_size
 from .spatial import COORD_SLACK
+from .working import made_once
 
 __all__ = ["Light", "area_polygon", "area_samples", "spot_attenuation", "polygon_form_factor", "unshadowed", "shadow_visibility",
            "ortho_visibility", "DepthMap", "Receivers", "Occluders", "OrthoView"]
@@ -389,22 +389,11 @@ def _around(depth_map: DepthMap, pick) -> np.ndarray:
     """``(f, n, n)``: the nearest (``pick``: ``np.minimum``) or farthest (``np.maximum``)
     front face's distance in each texel and the 8 around it on its face (a texel that sees
     no front face: infinitely far); made once per map."""
-    key = "_around_" + pick.__name__
-    with _AROUND_LOCK:  # a map's pieces of receivers are tested by several threads at once: made once
-        cached = depth_map.__dict__.get(key)
-        if cached is None:
-            seen = np.where((depth_map.tid >= 0) & ~depth_map.back, depth_map.dist, np.inf).astype(np.float32)
-            padded = np.pad(seen, ((0, 0), (1, 1), (1, 1)), constant_values=np.inf)
-            n = seen.shape[-1]
-            cached = seen.copy()
-            for dr in range(3):
-                for dc in range(3):
-                    pick(cached, padded[:, dr:dr + n, dc:dc + n], out=cached)
-            depth_map.__dict__[key] = cached
-    return cached
+    def make():
+        seen = np.where((depth_map.tid >= 0) & ~depth_map.back, depth_map.dist, np.inf).astype(np.float32)
+        return cubemap.square_filter(seen, 1, pick)
 
-
-_AROUND_LOCK = threading.Lock()
+    return made_once(depth_map, "_around_" + pick.__name__, make)
 
 
 def _doubtful(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occluders, occluded, bias):

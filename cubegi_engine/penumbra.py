@@ -12,13 +12,12 @@ through the host's ray caster; without a caster the map's sharp answer stands.
 Pure numpy; must not import bpy.
 """
 
-import threading
-
 import numpy as np
 
 from . import cubemap
 from .hemisphere import GOLDEN_ANGLE, TURN_HASH
 from .lights import MIN_COS, ortho_lookup, ortho_visibility, ray_starts
+from .working import made_once
 
 __all__ = ["sun_visibility", "disk_directions", "SUN_DISK_RAYS"]
 
@@ -105,33 +104,8 @@ def _window(depth_map, window):
     of it on its face, the nearest surface's distance (front or back: either stands in the
     sun's way) and the farthest (a texel that sees none: infinitely far); made once per map
     and window."""
-    key = f"_window_{window}"
-    with _WINDOW_LOCK:
-        cached = depth_map.__dict__.get(key)
-        if cached is None:
-            seen = depth_map.tid >= 0
-            cached = (_filter(np.where(seen, depth_map.dist, np.inf).astype(np.float32), window, np.minimum),
-                      _filter(np.where(seen, depth_map.dist, np.inf).astype(np.float32), window, np.maximum))
-            depth_map.__dict__[key] = cached
-    return cached
+    def make():
+        seen = np.where(depth_map.tid >= 0, depth_map.dist, np.inf).astype(np.float32)
+        return cubemap.square_filter(seen, window, np.minimum), cubemap.square_filter(seen, window, np.maximum)
 
-
-_WINDOW_LOCK = threading.Lock()
-
-
-def _filter(values, window, pick):
-    """``pick`` (np.minimum or np.maximum) over a square of ``window`` texels each way, one
-    axis at a time (texels past the edge count as seeing nothing)."""
-    out = values
-    for axis in (1, 2):
-        n = out.shape[axis]
-        pad = [(0, 0)] * 3
-        pad[axis] = (window, window)
-        padded = np.pad(out, pad, constant_values=np.inf)
-        acc = out.copy()
-        for shift in range(2 * window + 1):
-            window_slice = [slice(None)] * 3
-            window_slice[axis] = slice(shift, shift + n)
-            pick(acc, padded[tuple(window_slice)], out=acc)
-        out = acc
-    return out
+    return made_once(depth_map, f"_window_{window}", make)

@@ -16,7 +16,7 @@ import threading
 from concurrent.futures import ThreadPoolExecutor
 
 __all__ = ["WORKING_SECONDS", "CAPTURE_DRAWS_PER_STEP", "WORKERS", "run", "in_background", "in_batches", "start", "wait",
-           "give_back_memory", "in_parallel"]
+           "give_back_memory", "in_parallel", "made_once"]
 
 # Seconds between the steps a long piece of work hands back.
 WORKING_SECONDS = 0.1
@@ -123,6 +123,21 @@ def in_parallel(fn, items):
         if _pool is None:
             _pool = ThreadPoolExecutor(max_workers=WORKERS, thread_name_prefix="cubegi-piece")
     return list(_pool.map(_worker, [fn] * len(items), items))
+
+
+_made_lock = threading.RLock()
+
+
+def made_once(owner, name, make, key=None):
+    """``make()``, kept in ``owner.__dict__[name]`` and made again only where ``key`` differs
+    from the one it was made for; under one lock, since worker threads ask for it at once (a
+    ray caster or a map's filters, made once, not once per thread)."""
+    with _made_lock:
+        cached = owner.__dict__.get(name)
+        if cached is None or cached[0] != key:
+            cached = (key, make())
+            owner.__dict__[name] = cached
+    return cached[1]
 
 
 def in_background(fn, working, *args, **kwargs):

@@ -224,18 +224,28 @@ def _surfaces(records, shown=12):
         surfaces = r.get("surfaces")
         if not surfaces:
             continue
-        lines += [f"## {scene}: the default bake per surface (area-weighted mean, the {shown} largest)", "",
-                  "| object | area share | direct: CubeGI | Cycles | difference | indirect: CubeGI | Cycles | difference |",
-                  "|---|---|---|---|---|---|---|---|"]
+        lines += [f"## {scene}: the default bake per surface (area-weighted mean, the {shown} largest, then the "
+                  f"{shown} others holding the most squared error)", "",
+                  "| object | area share | direct: CubeGI | Cycles | difference | share of the squared error "
+                  "| indirect: CubeGI | Cycles | difference | share of the squared error |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
         total = sum(x["area"] for x in surfaces.values())
-        for name, x in sorted(surfaces.items(), key=lambda kv: -kv[1]["area"])[:shown]:
+        largest = sorted(surfaces, key=lambda n: -surfaces[n]["area"])[:shown]
+        others = sorted((n for n in surfaces if n not in largest), key=lambda n: -surfaces[n].get("indirect_error_share", 0.0))
+        for name in largest + others[:shown]:
+            x = surfaces[name]
             cells = []
             for part in ("direct", "indirect"):
                 ours, theirs = x[part]
                 diff = f"{100 * (ours - theirs) / theirs:+.1f}%" if theirs > 0 else "n/a"
-                cells += [f"{ours:.4g}", f"{theirs:.4g}", diff]
+                share = x.get(f"{part}_error_share")
+                cells += [f"{ours:.4g}", f"{theirs:.4g}", diff, "" if share is None else f"{100 * share:.1f}%"]
             lines.append(f"| {name} | {100 * x['area'] / total:.1f}% | " + " | ".join(cells) + " |")
         lines.append("")
+        holders = r.get("error_holders")
+        if holders:
+            lines += [" ".join(f"Half of the squared {part} error is held by {h['points']:,} vertices "
+                               f"({100 * h['area_share']:.1f}% of the area)." for part, h in holders.items()), ""]
     return lines
 
 

@@ -138,6 +138,7 @@ def run_scene(scene_name, config, cache_dir, log=print):
         records.append(_cubegi_run(scene_name, objects, ref, areas, {"default": which}, log, repeat=config.get("default_repeats", 1), **kw))
         if which == "after":
             records[-1]["surfaces"] = _surfaces(objects, ref, scored)
+            records[-1]["error_holders"] = _error_holders(objects, ref, scored)
     for k, samples in enumerate(config["cycles_samples"]):
         baked, seconds = reference.bake_reference(bpy.context, objects, samples=samples, seed=1 + k)
         direct, indirect = _stack(objects, baked["DIRECT"]), _stack(objects, baked["INDIRECT"])
@@ -153,8 +154,13 @@ def run_scene(scene_name, config, cache_dir, log=print):
 
 
 def _surfaces(objects, ref, scored):
-    """Per object of the last bake: its area and its area-weighted mean direct and indirect
-    light, CubeGI's and the reference's (where the error sits, surface by surface)."""
+    """Per object of the last bake: its area, its area-weighted mean direct and indirect
+    light, CubeGI's and the reference's, and its share of the scene's squared error of each
+    (where the error sits, surface by surface)."""
+    ours = {part: _stack(objects, {ob.name: attributes.read(ob.data, name) for ob in objects})
+            for part, name in (("direct", attributes.DIRECT), ("indirect", attributes.INDIRECT))}
+    areas = np.concatenate([scored[ob.name] for ob in objects])
+    shares = {part: metrics.squared_error(ours[part], ref[part], areas) for part in ours}
     out, start = {}, 0
     for ob in objects:
         count = len(ob.data.vertices)
@@ -164,12 +170,21 @@ def _surfaces(objects, ref, scored):
         if w.sum() <= 0:
             continue
         row = {"area": float(w.sum())}
-        for part, name in (("direct", attributes.DIRECT), ("indirect", attributes.INDIRECT)):
-            ours = attributes.read(ob.data, name).mean(axis=1)
+        for part in ours:
+            mine = ours[part][sl].mean(axis=1)
             theirs = np.asarray(ref[part][sl]).mean(axis=1)
-            row[part] = [float(np.average(ours, weights=w)), float(np.average(theirs, weights=w))]
+            row[part] = [float(np.average(mine, weights=w)), float(np.average(theirs, weights=w))]
+            row[f"{part}_error_share"] = float(shares[part][sl].sum())
         out[ob.name] = row
     return out
+
+
+def _error_holders(objects, ref, scored):
+    """How few vertices of the last bake hold half of its squared direct and indirect error
+    (``metrics.error_holders``), and their share of the area."""
+    areas = np.concatenate([scored[ob.name] for ob in objects])
+    return {part: metrics.error_holders(_stack(objects, {ob.name: attributes.read(ob.data, name) for ob in objects}), ref[part], areas)
+            for part, name in (("direct", attributes.DIRECT), ("indirect", attributes.INDIRECT))}
 
 
 def _cubegi_run(scene_name, objects, ref, areas, settings, log, repeat=1, **bake):

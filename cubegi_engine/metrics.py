@@ -10,11 +10,16 @@ point's share of the surface area a:
 * ``p95_rel``   = the area-weighted 95th percentile of |x - r| / max(r, 1e-3 mean(r))
 
 The floor in ``p95_rel`` keeps points the reference sees as black from dividing by zero.
+
+Where the error sits: each point's share of ``sum a (x - r)^2`` (:func:`squared_error`), and
+how few points hold a given share of it (:func:`error_holders`; a room modelled as a few
+large quads has a handful of vertices standing for most of its surface, and they can hold
+most of the error).
 """
 
 import numpy as np
 
-__all__ = ["errors", "compare"]
+__all__ = ["errors", "compare", "squared_error", "error_holders"]
 
 
 def _weighted_quantile(values, weights, q):
@@ -54,3 +59,28 @@ def compare(direct, indirect, ref_direct, ref_indirect, areas):
         "indirect": errors(indirect, ref_indirect, areas),
         "total": errors(np.asarray(direct) + np.asarray(indirect), np.asarray(ref_direct) + np.asarray(ref_indirect), areas),
     }
+
+
+def squared_error(estimate, reference, areas) -> np.ndarray:
+    """``(s,)``: each point's ``a (x - r)^2`` (channel means), over their sum (all zero where
+    the estimate is exact)."""
+    x = np.asarray(estimate, dtype=np.float64)
+    r = np.asarray(reference, dtype=np.float64)
+    if x.ndim == 2:
+        x, r = x.mean(axis=1), r.mean(axis=1)
+    e = np.asarray(areas, dtype=np.float64) * (x - r) ** 2
+    total = e.sum()
+    return e / total if total > 0 else np.zeros_like(e)
+
+
+def error_holders(estimate, reference, areas, share=0.5):
+    """The fewest points holding at least ``share`` of the squared error
+    (:func:`squared_error`): ``{"points": k, "area_share": their share of the area}``
+    (0 and 0.0 where the estimate is exact)."""
+    e = squared_error(estimate, reference, areas)
+    if not e.any():
+        return {"points": 0, "area_share": 0.0}
+    order = np.argsort(-e, kind="stable")
+    k = int(np.searchsorted(np.cumsum(e[order]), share * (1.0 - 1e-12))) + 1
+    a = np.asarray(areas, dtype=np.float64)
+    return {"points": k, "area_share": float(a[order[:k]].sum() / a.sum())}

@@ -7,6 +7,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
@@ -32,8 +34,15 @@ def test_quick_benchmark_writes_results_for_both_methods(tmp_path):
     for scene in scenes:
         cyc = sorted((r for r in records if r["scene"] == scene and r["method"] == "cycles"), key=lambda r: r["settings"]["samples"])
         assert cyc[-1]["errors"]["indirect"]["rel_rmse"] < cyc[0]["errors"]["indirect"]["rel_rmse"]
+    # Where the default bake's error sits: every scene's surfaces share all of it, and some
+    # vertices hold half of it.
+    for rec in (r for r in records if r["settings"].get("default") == "after"):
+        for part in ("direct", "indirect"):
+            assert sum(x[f"{part}_error_share"] for x in rec["surfaces"].values()) == pytest.approx(1.0), (rec["scene"], part)
+            assert rec["error_holders"][part]["points"] >= 1 and 0 < rec["error_holders"][part]["area_share"] <= 1
     md = (tmp_path / "results.md").read_text()
     assert "## Best trade-off, indirect light" in md and all(f"## {s}" in md for s in scenes)
+    assert "share of the squared error" in md and "Half of the squared indirect error is held by" in md
     png = (tmp_path / "error_vs_time.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
     # The references are cached, named by their samples.

@@ -39,3 +39,21 @@ def test_best_tradeoff_is_on_the_front_with_the_largest_speedup():
     assert best["record"]["settings"] == {"cube": 16} and best["speedup"] == pytest.approx(32.0)
     md = benchmark.markdown(records, {"mode": "test"})
     assert "| s | cube 16 | 0.50 s | 10.0% | 16.00 s | 32.0x |" in md
+
+
+def test_surfaces_show_the_largest_and_those_holding_the_error():
+    after = _rec("s", "cubegi", 1.0, 0.3, default="after")
+    surface = {"direct": [1.0, 1.0], "indirect": [1.0, 2.0], "direct_error_share": 0.0}
+    after["surfaces"] = {
+        "floor": {**surface, "area": 10.0, "indirect_error_share": 0.1},
+        "wall": {**surface, "area": 5.0, "indirect_error_share": 0.2},
+        "cup": {**surface, "area": 0.1, "indirect_error_share": 0.6},
+        "spoon": {**surface, "area": 0.2, "indirect_error_share": 0.1},
+    }
+    after["error_holders"] = {"direct": {"points": 0, "area_share": 0.0}, "indirect": {"points": 7, "area_share": 0.48}}
+    lines = benchmark._surfaces(CYCLES + [after], shown=1)
+    rows = [line.split(" | ")[0] for line in lines if line.startswith(("| floor", "| wall", "| cup", "| spoon"))]
+    assert rows == ["| floor", "| cup"]  # the largest, then the other holding the most error
+    assert "| cup | 0.7% | 1 | 1 | +0.0% | 0.0% | 1 | 2 | -50.0% | 60.0% |" in lines
+    assert "Half of the squared indirect error is held by 7 vertices (48.0% of the area)." in " ".join(lines)
+    assert "| cup |" in benchmark.markdown(CYCLES + [after], {"mode": "test"})

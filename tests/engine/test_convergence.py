@@ -106,3 +106,14 @@ def test_fixed_point_settles_a_contraction_and_stops_at_its_cap():
     assert capped == 7
     same, one = convergence.fixed_point(lambda x: x, np.ones(3))
     assert one == 1 and np.array_equal(same, np.ones(3))
+
+
+def test_squared_error_says_which_points_hold_the_error():
+    # Three points; the large one off by 1, a small one off by 2: a (x - r)^2 = 10 and 4.
+    est, ref, areas = np.array([2.0, 3.0, 1.0]), np.array([1.0, 1.0, 1.0]), np.array([10.0, 1.0, 1.0])
+    share = metrics.squared_error(est, ref, areas)
+    assert share == pytest.approx([10 / 14, 4 / 14, 0.0])
+    assert metrics.error_holders(est, ref, areas) == {"points": 1, "area_share": pytest.approx(10 / 12)}
+    assert metrics.error_holders(est, ref, areas, share=0.8)["points"] == 2  # 10/14 < 0.8
+    assert metrics.error_holders(ref, ref, areas) == {"points": 0, "area_share": 0.0}
+    assert not metrics.squared_error(ref, ref, areas).any()

@@ -17,7 +17,9 @@ triangle (:class:`Corners`), GATHER_RAYS cosine-weighted rays go out to the near
 the scene sees the sky (the point's direct sky light, exact); one that meets a surface
 takes its light, each bounce from the bounce before (a final gather of the whole view, as the
 near field is of its near part: the hits are rows of a
-:class:`~cubegi_engine.nearfield.NearField` whose probe light is all taken away); a light's
+:class:`~cubegi_engine.nearfield.NearField` whose probe light is all taken away), from the
+corners of the hit triangle that the hit point sees along it (:func:`_seen_corners`: a floor
+runs under the walls into the sun outside, where its corners there are lit); a light's
 shadow there is one ray per corner towards it (:func:`light_visibility`). The points' light
 is then what their own view holds, not the probes' estimate from up to a cell away.
 """
@@ -54,6 +56,9 @@ GATHER_RAYS = 128
 INSET, LIFT = 1e-5, 1e-6
 # Shadow rays per corner and light at most (an area light's sample points, a soft light's).
 LIGHT_EYES = 16
+# A hit's rays towards its triangle's corners run this share of the scene's size off the
+# triangle, and stop short of the corner by SEEN_SHORT of their length (see _seen_corners).
+SEEN_LIFT, SEEN_SHORT = 1e-5, 1e-3
 
 
 def large_points(scene, share=GATHER_SHARE) -> np.ndarray:
@@ -199,11 +204,37 @@ def gather(scene, rows, caster: RayCaster, rays=GATHER_RAYS) -> Gathered:
         tri[turned] = twins[tri[turned]]
         sends |= turned
     hit, tri = hit[sends], tri[sends]
-    weight = hits.bary[hit] * w[hit, None]
+    at_hit = origins[hit] + hits.t[hit, None] * flat_dirs[hit]
+    weight = _seen_corners(caster, scene.points, tri, at_hit, hits.bary[hit], scene.scale) * w[hit, None]
     normals = np.asarray(scene.normals, dtype=np.float64)[rows]
     near = NearField(rows, sh.diffuse_basis(normals), row[hit], tri, weight, rays * max(1, int(np.max(np.bincount(at.row), initial=1))),
                      share=share)
     return Gathered(rows, near, sky, at, rays, time.perf_counter() - t0)
+
+
+def _seen_corners(caster, points, tri, at, bary, scale) -> np.ndarray:
+    """The weights ``bary (h, 3)`` of hits at ``at (h, 3)`` on triangles ``tri (h, 3)``
+    (corner points, wound to face the ray) over the corners each hit sees along its
+    triangle, made whole again: a large triangle runs under a wall or out of the room (a
+    floor past the walls, a skirting board past the window wall), and its corners there are
+    lit by the outside's sun, which the hit point is not. A hit that sees none of its
+    corners keeps them all."""
+    p = np.asarray(points, dtype=np.float64)[tri]  # (h, 3 corners, 3)
+    face = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    face /= np.maximum(np.linalg.norm(face, axis=1, keepdims=True), 1e-300)
+    lift = SEEN_LIFT * scale
+    start = np.repeat(at + lift * face, 3, axis=0)
+    rel = (p + lift * face[:, None, :]).reshape(-1, 3) - start
+    length = np.linalg.norm(rel, axis=1)
+    towards = rel / np.maximum(length, 1e-300)[:, None]
+    reach = length - np.maximum(SEEN_SHORT * length, 4.0 * lift)  # a corner on a wall's foot is seen
+    ask = np.flatnonzero(reach > 0)
+    blocked = np.zeros(len(start), dtype=bool)
+    if len(ask):
+        blocked[ask] = caster.blocked(start[ask], towards[ask], reach[ask])
+    seen = np.where(blocked.reshape(-1, 3), 0.0, bary)
+    total = seen.sum(axis=1, keepdims=True)
+    return np.where(total > 0, seen * (bary.sum(axis=1, keepdims=True) / np.maximum(total, 1e-300)), bary)
 
 
 def _front_triangles(scene) -> np.ndarray:

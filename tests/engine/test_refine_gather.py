@@ -224,3 +224,19 @@ def test_triangles_at_a_gathered_point_are_cut_finer_and_their_count_is_kept():
     assert plain.sampled_triangles[0] < out.sampled_triangles[0]
     front = ~out.back[out.triangles[:, 0]]
     assert np.array_equal(out.sampled_triangles, np.bincount(owner[front], minlength=2) - [2, 2])
+
+
+def test_a_hit_takes_only_the_corners_it_sees_along_its_triangle():
+    """A floor triangle runs under a wall standing on it (x = 2): a hit on the near side takes
+    its near corners' light, made whole, not the far corner's (outside, in the sun); a corner
+    on the wall's foot is seen; a hit that sees no corner keeps them all."""
+    floor = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [0.0, 4.0, 0.0], [2.0, 0.0, 0.0]])
+    wall = np.array([[2.0, -1.0, 0.0], [2.0, 5.0, 0.0], [2.0, 5.0, 2.0], [2.0, -1.0, 2.0]])
+    points = np.concatenate([floor, wall])
+    caster = rays.NumpyRays(points, np.array([[0, 1, 2], [4, 5, 6], [4, 6, 7]]))
+    bary = np.array([[0.5, 0.25, 0.25], [0.5, 0.25, 0.25]])
+    got = gather._seen_corners(caster, points, np.array([[0, 1, 2], [0, 3, 2]]), np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0]]), bary, 4.0)
+    assert got[0] == pytest.approx([2 / 3, 0.0, 1 / 3])  # the far corner left out, the rest made whole
+    assert got[1] == pytest.approx(bary[1])  # its corner (2, 0, 0) stands at the wall's foot: seen
+    boxed = gather._seen_corners(caster, points, np.array([[1, 1, 1]]), np.array([[1.0, 1.0, 0.0]]), bary[:1], 4.0)
+    assert boxed[0] == pytest.approx(bary[0])  # no corner seen: all kept

@@ -225,7 +225,7 @@ def _surfaces(records, shown=12):
         if not surfaces:
             continue
         lines += [f"## {scene}: the default bake per surface (area-weighted mean, the {shown} largest, then the "
-                  f"{shown} others holding the most squared error)", "",
+                  f"{shown} others holding the most squared indirect error)", "",
                   "| object | area share | direct: CubeGI | Cycles | difference | share of the squared error "
                   "| indirect: CubeGI | Cycles | difference | share of the squared error |",
                   "|---|---|---|---|---|---|---|---|---|---|"]

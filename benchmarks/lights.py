@@ -25,7 +25,7 @@ def one(lamps, cache_dir):
     import bpy
 
     from benchmarks import scenes, sweep
-    from cubegi.cubegi_addon import attributes, scene_data, session
+    from cubegi.cubegi_addon import scene_data, session
     from cubegi.cubegi_engine import metrics
     from cubegi.cubegi_engine.report import BakeReport
 
@@ -41,9 +41,8 @@ def one(lamps, cache_dir):
     bake = session.kept(bpy.context.scene).bake
     scored = scene_data.scored_areas(bake.targets, bake.arrays)
     areas = np.concatenate([scored[ob.name] for ob in objects])
-    read = {part: sweep._stack(objects, {ob.name: attributes.read(ob.data, part) for ob in objects})
-            for part in (attributes.DIRECT, attributes.INDIRECT)}
-    errors = metrics.compare(read[attributes.DIRECT], read[attributes.INDIRECT], ref["direct"], ref["indirect"], areas)
+    read = sweep.baked_light(objects)
+    errors = metrics.compare(read["direct"], read["indirect"], ref["direct"], ref["indirect"], areas)
     return {"lamps": lamps, "points": report.points, "triangles": report.triangles, "seconds": seconds, "timings": report.timings,
             "shadow_eyes": sorted(bake.result.direct_parts.eyes.values()),
             "errors": {part: {"rel_rmse": errors[part]["rel_rmse"], "rel_bias": errors[part]["rel_bias"]}

@@ -137,8 +137,9 @@ def run_scene(scene_name, config, cache_dir, log=print):
     for which, kw in variants:
         records.append(_cubegi_run(scene_name, objects, ref, areas, {"default": which}, log, repeat=config.get("default_repeats", 1), **kw))
         if which == "after":
-            records[-1]["surfaces"] = _surfaces(objects, ref, scored)
-            records[-1]["error_holders"] = _error_holders(objects, ref, scored)
+            ours = baked_light(objects)
+            records[-1]["surfaces"] = _surfaces(objects, ours, ref, scored)
+            records[-1]["error_holders"] = {part: metrics.error_holders(ours[part], ref[part], areas) for part in ours}
     for k, samples in enumerate(config["cycles_samples"]):
         baked, seconds = reference.bake_reference(bpy.context, objects, samples=samples, seed=1 + k)
         direct, indirect = _stack(objects, baked["DIRECT"]), _stack(objects, baked["INDIRECT"])
@@ -153,12 +154,16 @@ def run_scene(scene_name, config, cache_dir, log=print):
     return records
 
 
-def _surfaces(objects, ref, scored):
-    """Per object of the last bake: its area, its area-weighted mean direct and indirect
-    light, CubeGI's and the reference's, and its share of the scene's squared error of each
-    (where the error sits, surface by surface)."""
-    ours = {part: _stack(objects, {ob.name: attributes.read(ob.data, name) for ob in objects})
+def baked_light(objects):
+    """The last bake's ``{"direct", "indirect"}`` light per vertex, stacked over ``objects``."""
+    return {part: _stack(objects, {ob.name: attributes.read(ob.data, name) for ob in objects})
             for part, name in (("direct", attributes.DIRECT), ("indirect", attributes.INDIRECT))}
+
+
+def _surfaces(objects, ours, ref, scored):
+    """Per object: its area, its area-weighted mean direct and indirect light, ``ours``
+    (:func:`baked_light`) and the reference's, and its share of the scene's squared error of
+    each (where the error sits, surface by surface)."""
     areas = np.concatenate([scored[ob.name] for ob in objects])
     shares = {part: metrics.squared_error(ours[part], ref[part], areas) for part in ours}
     out, start = {}, 0
@@ -179,14 +184,6 @@ def _surfaces(objects, ref, scored):
     return out
 
 
-def _error_holders(objects, ref, scored):
-    """How few vertices of the last bake hold half of its squared direct and indirect error
-    (``metrics.error_holders``), and their share of the area."""
-    areas = np.concatenate([scored[ob.name] for ob in objects])
-    return {part: metrics.error_holders(_stack(objects, {ob.name: attributes.read(ob.data, name) for ob in objects}), ref[part], areas)
-            for part, name in (("direct", attributes.DIRECT), ("indirect", attributes.INDIRECT))}
-
-
 def _cubegi_run(scene_name, objects, ref, areas, settings, log, repeat=1, **bake):
     """One CubeGI bake with the operator's ``bake`` options, scored: its record. A one-shot
     bake: the kept capture of the run before is dropped first (else a run on the same grid
@@ -199,8 +196,8 @@ def _cubegi_run(scene_name, objects, ref, areas, settings, log, repeat=1, **bake
             raise RuntimeError(f"{scene_name}: the bake with {bake} did not finish")
         times.append(BakeReport.from_json(bpy.context.scene.cubegi.last_report).total_seconds)
     rep = BakeReport.from_json(bpy.context.scene.cubegi.last_report)
-    direct = _stack(objects, {ob.name: attributes.read(ob.data, attributes.DIRECT) for ob in objects})
-    indirect = _stack(objects, {ob.name: attributes.read(ob.data, attributes.INDIRECT) for ob in objects})
+    light = baked_light(objects)
+    direct, indirect = light["direct"], light["indirect"]
     t = float(np.median(times))
     if "grid" not in settings:  # a default bake: what it chose
         settings = dict(settings, grid="x".join(map(str, rep.grid.resolution)), cube=rep.settings["cube_size"],

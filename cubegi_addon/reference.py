@@ -5,6 +5,9 @@ Cycles writes, with the colour pass off, the diffuse light a white surface refle
 the selection and active colour attributes are put back afterwards.
 """
 
+import contextlib
+import os
+import sys
 import time
 
 import bpy
@@ -30,6 +33,26 @@ _CYCLES_SETTINGS = {
     "use_adaptive_sampling": False,
     "use_denoising": False,
 }
+
+
+@contextlib.contextmanager
+def _status_lines_muted():
+    """Standard output (the process's, not Python's alone) closed to Cycles' status lines
+    while it bakes without a window: Blender 4.5 prints one "Fra:1 Mem:..." line per object
+    and step, some two hundred for a small room. Its errors go to standard error and the
+    operator's reports, which stay."""
+    if not bpy.app.background:
+        yield
+        return
+    sys.stdout.flush()
+    kept = os.dup(1)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 1)
+        yield
+    finally:
+        os.dup2(kept, 1)
+        os.close(kept)
 
 
 def reference_layers(context, targets, samples, seed=0):
@@ -85,7 +108,8 @@ def bake_reference(context, meshes, passes=("DIRECT", "INDIRECT"), samples=128, 
         view_layer.objects.active = meshes[0]
         for p in passes:
             t = time.perf_counter()
-            bpy.ops.object.bake(type="DIFFUSE", pass_filter={p}, target="VERTEX_COLORS", use_clear=True)
+            with _status_lines_muted():
+                bpy.ops.object.bake(type="DIFFUSE", pass_filter={p}, target="VERTEX_COLORS", use_clear=True)
             seconds[p] = time.perf_counter() - t
             for o in meshes:
                 out[p][o.name] = attributes.read(o.data, _TMP)

@@ -2,8 +2,16 @@
 
 Implements the :class:`cubegi_engine.bake.Renderer` protocol. Every view of a call is drawn
 into one atlas (a float RGBA target with a depth attachment) and read back once.
-Per texel the id pass writes ``(+-(triangle + 1), b1, b2, distance)``: the sign marks a
-back face, 0 means nothing was hit; triangle ids are exact in float32 up to 2^24.
+
+The triangles are drawn indexed, so a vertex shared by triangles is transformed once (on
+llvmpipe 1.6x faster than three vertices of its own per triangle): a vertex carries its
+position and, as a flat value, the number ``k`` of the one drawn triangle it is the
+provoking vertex of (each triangle is given one of its own; see :func:`provoking_layout`).
+Per texel the id pass writes ``(+-(k + 1), x, y, z)``, the point hit; the triangle, its
+twin, the barycentric weights and the distance are worked out from them after the
+read-back. The sign marks a back face, 0 means nothing was hit; numbers are exact in
+float32 up to 2^24. Depth maps write ``(+-(k + 1), distance)``. (``gl_PrimitiveID`` would
+serve without the layout, but llvmpipe draws then as slowly as without indices.)
 """
 
 import atexit
@@ -18,21 +26,15 @@ import gpu
 import numpy as np
 from gpu_extras.batch import batch_for_shader
 
-from ..cubegi_engine import geometry
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.transport import no_barycentrics
 from ..cubegi_engine.working import in_background, run
 from . import compat
 from .bvh_rays import BvhRays
+from .draw_layout import barycentric, boxes_in_frusta, prepare
 
 # Largest atlas edge in texels; 2048^2 RGBA32F is 64 MiB.
 ATLAS_EDGE = 2048
-# Per-view culling: the triangles are uploaded in spatial order (a Morton curve through
-# their centroids) and cut into chunks of CULL_CHUNK; a view draws only the chunks whose
-# bounding box reaches into its frustum (a cube face sees about a sixth of the scene
-# around a probe). A scene of at most one chunk is drawn whole.
-CULL_CHUNK = 2048
-MAX_TRIANGLES = (1 << 24) - 1
 FAR_AWAY = 3.0e38
 
 _gpu_ready = False
@@ -89,48 +91,24 @@ def ensure_gpu():
 _ID_VERT = """
 void main() {
   v_id = tid;
-  v_twin = twin;
-  v_bary = bary;
-  v_twin_bary = twin_bary;
   v_pos = pos;
   gl_Position = view_proj * vec4(pos, 1.0);
 }
 """
-# A triangle of a two-sided object (see SceneArrays.back) is drawn once for itself and its
-# twin facing the other way, which stands in the same place: ``twin`` >= 0 is the twin's
-# index, reported (with the hit's weights of the twin's corners, ``twin_bary``) where the
-# triangle is seen from behind. One with no twin comes as tid = -(triangle + 1): its back face
-# is not drawn.
+# A sheet's triangle whose twin is drawn for it reports itself from behind; the twin is found
+# after the read-back. A sheet's triangle with no twin is drawn with back faces culled (see
+# GpuRenderer._draw).
 _ID_FRAG = """
 void main() {
-  bool front = gl_FrontFacing;
-  float id = v_id < 0.0 ? -v_id - 1.0 : v_id;
-  vec2 bary = v_bary;
-  if (!front && v_twin >= 0.0) {
-    id = v_twin;
-    bary = v_twin_bary;
-    front = true;
-  }
-  else if (v_id < 0.0 && !front) {
-    discard;
-  }
-  float dist = ortho > 0.5 ? dot(v_pos - eye, axis) : length(v_pos - eye);
-  out_texel = vec4(front ? id + 1.0 : -(id + 1.0), bary, dist);
+  float id = v_id + 1.0;
+  out_texel = vec4(gl_FrontFacing ? id : -id, v_pos);
 }
 """
 _DEPTH_FRAG = """
 void main() {
-  bool front = gl_FrontFacing;
-  float id = v_id < 0.0 ? -v_id - 1.0 : v_id;
-  if (!front && v_twin >= 0.0) {
-    id = v_twin;
-    front = true;
-  }
-  else if (v_id < 0.0 && !front) {
-    discard;
-  }
+  float id = v_id + 1.0;
   float dist = ortho > 0.5 ? dot(v_pos - eye, axis) : length(v_pos - eye);
-  out_texel = vec2(front ? id + 1.0 : -(id + 1.0), dist);
+  out_texel = vec2(gl_FrontFacing ? id : -id, dist);
 }
 """
 _COLOUR_VERT = """
@@ -153,25 +131,20 @@ void main() {
 # buffer, seen on llvmpipe after other GPU work in the same process).
 @functools.cache
 def _id_shader(with_bary=True):
-    """The id pass: ``(+-(triangle + 1), b1, b2, distance)`` per texel into RGBA32F, or with
-    ``with_bary=False`` ``(+-(triangle + 1), distance)`` into RG32F (shadow maps: half the
-    texels' bytes to write and read back)."""
+    """The id pass: ``(+-(k + 1), x, y, z)`` per texel into RGBA32F (see the module), or with
+    ``with_bary=False`` ``(+-(k + 1), distance)`` into RG32F (shadow maps: half the texels'
+    bytes to write and read back)."""
     iface = gpu.types.GPUStageInterfaceInfo("cubegi_id_iface" if with_bary else "cubegi_depth_iface")
     iface.flat("FLOAT", "v_id")
-    iface.flat("FLOAT", "v_twin")
-    iface.smooth("VEC2", "v_bary")
-    iface.smooth("VEC2", "v_twin_bary")
     iface.smooth("VEC3", "v_pos")
     info = gpu.types.GPUShaderCreateInfo()
     info.push_constant("MAT4", "view_proj")
-    info.push_constant("VEC3", "eye")
-    info.push_constant("VEC3", "axis")
-    info.push_constant("FLOAT", "ortho")
+    if not with_bary:  # the id pass's distances are worked out after the read-back
+        info.push_constant("VEC3", "eye")
+        info.push_constant("VEC3", "axis")
+        info.push_constant("FLOAT", "ortho")
     info.vertex_in(0, "VEC3", "pos")
-    info.vertex_in(1, "VEC2", "bary")
-    info.vertex_in(2, "FLOAT", "tid")
-    info.vertex_in(3, "FLOAT", "twin")
-    info.vertex_in(4, "VEC2", "twin_bary")
+    info.vertex_in(1, "FLOAT", "tid")
     info.vertex_out(iface)
     info.fragment_out(0, "VEC4" if with_bary else "VEC2", "out_texel")
     info.vertex_source(_ID_VERT)
@@ -194,6 +167,35 @@ def _colour_shader():
     info.vertex_source(_COLOUR_VERT)
     info.fragment_source(_COLOUR_FRAG)
     return gpu.shader.create_from_info(info)
+
+
+@functools.cache
+def _last_vertex_provokes():
+    """Whether a flat value comes from a triangle's last vertex (OpenGL's rule) or its first
+    (Vulkan's and Metal's): one triangle drawn into one texel tells, once per process."""
+    iface = gpu.types.GPUStageInterfaceInfo("cubegi_provoke_iface")
+    iface.flat("FLOAT", "v_which")
+    info = gpu.types.GPUShaderCreateInfo()
+    info.vertex_in(0, "VEC2", "pos")
+    info.vertex_in(1, "FLOAT", "which")
+    info.vertex_out(iface)
+    info.fragment_out(0, "VEC4", "out_texel")
+    info.vertex_source("void main() { v_which = which; gl_Position = vec4(pos, 0.0, 1.0); }")
+    info.fragment_source("void main() { out_texel = vec4(v_which, 0.0, 0.0, 1.0); }")
+    shader = gpu.shader.create_from_info(info)
+    batch = batch_for_shader(shader, "TRIS", {"pos": [(-4.0, -4.0), (4.0, -4.0), (0.0, 4.0)], "which": [0.0, 1.0, 2.0]})
+    colour = gpu.types.GPUTexture((1, 1), format="RGBA32F")
+    fb = gpu.types.GPUFrameBuffer(color_slots=(colour,))
+    with fb.bind():
+        fb.clear(color=(-1.0, 0.0, 0.0, 0.0))
+        gpu.state.face_culling_set("NONE")
+        gpu.state.viewport_set(0, 0, 1, 1)
+        batch.draw(shader)
+    which = float(read_texture(colour, 1, 1)[0, 0, 0])
+    del fb, colour
+    if which not in (0.0, 2.0):
+        raise BakeError(f"this GPU takes a triangle's flat values from its vertex {which:g}, not its first or last")
+    return which == 2.0
 
 
 def _free_shaders():
@@ -236,27 +238,25 @@ class GpuRenderer:
 
     def __init__(self, points, triangles, drawn=None, sheet=None):
         ensure_gpu()
-        run(self._uploaded(_prepared(points, triangles, drawn, sheet)))
+        run(self._uploaded(prepare(points, triangles, drawn, sheet, _last_vertex_provokes())))
 
     @classmethod
     def steps(cls, points, triangles, working, sheet=None):
         """The renderer, made in steps: its arrays in a thread, then each vertex column
         uploaded in a step of its own (a generator yielding ``working``, a Progress)."""
         ensure_gpu()
-        prepared = yield from in_background(_prepared, working, points, triangles, None, sheet)
+        prepared = yield from in_background(prepare, working, points, triangles, None, sheet, _last_vertex_provokes())
         renderer = cls.__new__(cls)
         yield from renderer._uploaded(prepared, working)
         return renderer
 
-    # The vertex columns, kept only until they are uploaded (a million-vertex scene's are
-    # hundreds of MB; the GPU keeps its own copy).
-    UPLOADED = ("pos", "bary", "tid", "twin", "twin_bary")
-
     def _uploaded(self, prepared, working=None):
-        columns = {name: prepared.pop(name) for name in self.UPLOADED}
+        # The vertex columns and indices, kept only until uploaded (the GPU keeps its own copy).
+        columns = {name: prepared.pop(name) for name in ("pos", "tid")}
+        indices = prepared.pop("indices")
         self.__dict__.update(prepared)
         self.id_shader = _id_shader()
-        self.id_batch = yield from _batch_steps(self.id_shader, columns, working)
+        self.id_batch = yield from _batch_steps(self.id_shader, columns, working, indices)
         self._colour_shader = None
 
     @staticmethod
@@ -280,26 +280,36 @@ class GpuRenderer:
         return m / np.abs(m).max()
 
     def _ranges(self, local_vps):
-        """Per view, the ``(first vertex, count)`` runs of chunks it may see (see CULL_CHUNK);
-        None where the scene is drawn whole."""
+        """Per view, the ``(first index, count)`` runs of chunks it may see (see CULL_CHUNK;
+        every chunk where the scene is small); a run never spans the start of the
+        one-sided triangles (see :meth:`_draw`)."""
+        starts, ends = self.chunk_starts, self.chunk_ends
         if self.chunk_boxes is None:
-            return None
-        seen = _boxes_in_frusta(self.chunk_boxes, local_vps)  # (v, c)
-        t = self.drawn_count
+            return [[(3 * int(a), 3 * int(b - a)) for a, b in zip(starts, ends)]] * len(local_vps)
+        seen = boxes_in_frusta(self.chunk_boxes, local_vps)  # (v, c)
+        opens = np.isin(starts, (0, self.lone_from))  # a chunk that starts a part
         out = []
         for row in seen:
-            edges = np.diff(np.concatenate([[False], row, [False]]).astype(np.int8))
-            starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-            out.append([(3 * CULL_CHUNK * a, 3 * (min(CULL_CHUNK * b, t) - CULL_CHUNK * a)) for a, b in zip(starts, ends)])
+            begin = np.flatnonzero(row & (opens | ~np.concatenate([[False], row[:-1]])))
+            end = np.flatnonzero(row & (np.append(opens[1:], True) | ~np.append(row[1:], False)))
+            out.append([(3 * int(starts[a]), 3 * int(ends[b] - starts[a])) for a, b in zip(begin, end)])
         return out
 
     def _draw(self, batch, shader, ranges, k):
-        """Draw view ``k``'s share of ``batch`` (all of it where there is no culling)."""
+        """Draw view ``k``'s share of ``batch`` (all of it where ``ranges`` is None: a batch
+        of its own). The id batch's triangles of a sheet with no twin (the last part) are
+        drawn with back faces culled."""
         if ranges is None:
             batch.draw(shader)
             return
+        culled = False
         for first, count in ranges[k]:
+            if (first >= 3 * self.lone_from) != culled:
+                culled = not culled
+                gpu.state.face_culling_set("BACK" if culled else "NONE")
             batch.draw_range(shader, elem_start=int(first), elem_count=int(count))
+        if culled:
+            gpu.state.face_culling_set("NONE")
 
     def _draw_views(self, view_projs, size, draw_one, channels=4):
         """Draw every view into atlas tiles; yields ``(first_view, tiles (k, n, n, channels))``."""
@@ -345,31 +355,48 @@ class GpuRenderer:
         ranges = self._ranges(local)
         shader.bind()
 
+        local_eyes = (np.asarray(eyes, dtype=np.float64).reshape(-1, 3) - self.centre) / self.unit
+        axes = None if axes is None else np.asarray(axes, dtype=np.float64).reshape(-1, 3)
+
         def draw_one(k):
             shader.uniform_float("view_proj", _column_major(local[k]))
-            shader.uniform_float("eye", tuple(float(x) for x in (np.asarray(eyes[k]) - self.centre) / self.unit))
-            if axes is None:
-                shader.uniform_float("axis", (0.0, 0.0, 1.0))
-                shader.uniform_float("ortho", 0.0)
-            else:
-                shader.uniform_float("axis", tuple(float(x) for x in axes[k]))
-                shader.uniform_float("ortho", 1.0)
+            if not with_bary:
+                shader.uniform_float("eye", tuple(float(x) for x in local_eyes[k]))
+                shader.uniform_float("axis", (0.0, 0.0, 1.0) if axes is None else tuple(float(x) for x in axes[k]))
+                shader.uniform_float("ortho", 0.0 if axes is None else 1.0)
             self._draw(batch, shader, ranges, k)
 
         for first, tiles in self._draw_views(view_projs, size, draw_one, 4 if with_bary else 2):
             sl = slice(first, first + len(tiles))
-            code = tiles[..., 0]
-            np.less(code, 0.0, out=back[sl])
-            tid[sl] = np.abs(code)  # exact small integers in float32
-            tid[sl] -= 1
-            if with_bary:
-                b1, b2 = tiles[..., 1], tiles[..., 2]
-                bary[sl] = np.stack([1.0 - b1 - b2, b1, b2], axis=-1)
+            self._triangles_seen(tiles[..., 0], tid[sl], back[sl])
             d = dist[sl]
-            with np.errstate(over="ignore"):
-                np.multiply(tiles[..., -1], np.float32(self.unit), out=d)
-            d[tid[sl] < 0] = np.inf  # nothing drawn: the clear value, not a distance
+            if with_bary:
+                hit = np.nonzero(tid[sl] >= 0)
+                pos = tiles[..., 1:4][hit].astype(np.float64)
+                views = first + hit[0]
+                rel = pos - local_eyes[views]
+                along = np.linalg.norm(rel, axis=1) if axes is None else np.einsum("kc,kc->k", rel, axes[views])
+                d.fill(np.inf)  # nothing drawn: no distance
+                d[hit] = along * self.unit
+                bary[sl][hit] = barycentric(self.unit_points, self.triangles[tid[sl][hit]], pos)
+            else:
+                with np.errstate(over="ignore"):
+                    np.multiply(tiles[..., -1], np.float32(self.unit), out=d)
+                d[tid[sl] < 0] = np.inf  # nothing drawn: the clear value, not a distance
         return tid, bary, dist, back
+
+    def _triangles_seen(self, code, tid, back):
+        """From the texels' codes ``+-(k + 1)`` (k: the drawn triangle's number, 0: none),
+        into ``tid`` and ``back``: the triangle each texel sees (-1: none) and whether from
+        behind. A sheet's triangle seen from behind is its twin, seen from the front."""
+        np.less(code, 0.0, out=back)
+        k = np.abs(code).astype(np.int64) - 1  # exact small integers in float32
+        seen = k >= 0
+        tid[...] = np.where(seen, self.order[np.maximum(k, 0)], -1)
+        twin = np.where(seen & back, self.twin[np.maximum(tid, 0)], -1)
+        turned = twin >= 0
+        tid[turned] = twin[turned]
+        back[turned] = False
 
     def render_colour(self, view_projs, size, point_radiance):
         if self._colour_shader is None:
@@ -395,38 +422,9 @@ class GpuRenderer:
         return out
 
 
-def _prepared(points, triangles, drawn, sheet):
-    """The arrays a GpuRenderer draws from (numpy alone: see the class)."""
-    triangles = np.asarray(triangles)
-    if len(triangles) > MAX_TRIANGLES:
-        raise BakeError(f"the scene has {len(triangles)} triangles; capture supports up to {MAX_TRIANGLES}")
-    pts = np.asarray(points, dtype=np.float64)
-    lo, hi = (pts.min(axis=0), pts.max(axis=0)) if len(pts) else (np.zeros(3), np.ones(3))
-    out = {"triangles": triangles, "centre": 0.5 * (lo + hi), "unit": max(float(np.max(hi - lo)), 1e-300)}
-    unit_pts = ((pts - out["centre"]) / out["unit"]).astype(np.float32)
-    drawn = np.arange(len(triangles)) if drawn is None else np.asarray(drawn, dtype=np.int64)
-    sheet = np.zeros(len(triangles), dtype=bool) if sheet is None else np.asarray(sheet, dtype=bool)
-    out["all_drawn"], out["sheet_all"], out["unit_points"] = drawn, sheet, unit_pts  # for render_colour
-    twin, twin_bary = geometry.twin_triangles(unit_pts, triangles, sheet & np.isin(np.arange(len(triangles)), drawn))
-    drawn = drawn[~(twin[drawn] >= 0) | (twin[drawn] > drawn)]  # a pair drawn once, as its first
-    t = len(drawn)
-    # Drawn in spatial order; each vertex carries its triangle's own index, so what a
-    # texel reports does not depend on the order (nor on triangles left out).
-    order = drawn[_spatial_order(unit_pts[triangles[drawn]].mean(axis=1))] if t > CULL_CHUNK else drawn
-    out["drawn_count"] = t
-    out["pos"] = unit_pts[triangles[order]].reshape(-1, 3)
-    out["chunk_boxes"] = _chunk_boxes(out["pos"].reshape(-1, 3, 3), CULL_CHUNK) if t > CULL_CHUNK else None
-    out["bary"] = np.tile(np.array([[0, 0], [1, 0], [0, 1]], dtype=np.float32), (t, 1))
-    lone = sheet[order] & (twin[order] < 0)  # a sheet's triangle with no twin here: its back face is not drawn
-    out["tid"] = np.repeat(np.where(lone, -(order + 1.0), order).astype(np.float32), 3)
-    out["twin"] = np.repeat(twin[order].astype(np.float32), 3)
-    out["twin_bary"] = twin_bary[order].reshape(-1, 2)
-    return out
-
-
-def _batch_steps(shader, columns, working=None):
-    """``batch_for_shader(shader, "TRIS", columns)`` (its vertex format), filling one column
-    at a time and yielding ``working`` between them (none if it is None)."""
+def _batch_steps(shader, columns, working=None, indices=None):
+    """``batch_for_shader(shader, "TRIS", columns, indices=indices)`` (its vertex format),
+    filling one column at a time and yielding ``working`` between them (none if it is None)."""
     columns = compat.shader_columns(shader, columns)
     fmt = gpu.types.GPUVertFormat()
     for name, kind in shader.attrs_info_get():
@@ -438,43 +436,8 @@ def _batch_steps(shader, columns, working=None):
         if i and working is not None:
             yield working
         vbo.attr_fill(name, data)
-    return gpu.types.GPUBatch(type="TRIS", buf=vbo)
-
-
-def _spatial_order(centres):
-    """An order of points ``(t, 3)`` along a Morton (Z-order) curve of a 1024^3 grid over
-    their box: neighbours in space end up near each other in the order."""
-    lo, hi = centres.min(axis=0), centres.max(axis=0)
-    q = ((centres - lo) / np.maximum(hi - lo, 1e-30) * 1023.0).astype(np.uint64)
-    code = np.zeros(len(centres), dtype=np.uint64)
-    for bit in range(10):
-        for axis in range(3):
-            code |= ((q[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
-    return np.argsort(code, kind="stable")
-
-
-def _chunk_boxes(corners, chunk):
-    """The 8 corners ``(c, 8, 4)`` (homogeneous) of the box of each run of ``chunk``
-    triangles ``corners (t, 3, 3)``."""
-    t = len(corners)
-    starts = np.arange(0, t, chunk)
-    lo = np.minimum.reduceat(corners.min(axis=1), starts, axis=0)
-    hi = np.maximum.reduceat(corners.max(axis=1), starts, axis=0)
-    pick = np.array([[i >> 0 & 1, i >> 1 & 1, i >> 2 & 1] for i in range(8)], dtype=bool)  # (8, 3)
-    xyz = np.where(pick[None], hi[:, None, :], lo[:, None, :]).astype(np.float64)
-    return np.concatenate([xyz, np.ones(xyz.shape[:2] + (1,))], axis=2)
-
-
-def _boxes_in_frusta(boxes, view_projs):
-    """``(v, c)`` bool: whether box ``c`` (its corners ``(c, 8, 4)``) may reach into view
-    ``v``'s clip volume. A box is left out only where all its corners lie beyond one and the
-    same clip plane (exact for a convex box: each plane is linear in homogeneous space)."""
-    vps = np.asarray(view_projs, dtype=np.float64)
-    step = max(1, 4_000_000 // (32 * len(boxes)))  # views at a time: clip coordinates of <= 32 MB
-    seen = np.empty((len(vps), len(boxes)), dtype=bool)
-    for first in range(0, len(vps), step):
-        clip = np.einsum("vij,ckj->vcki", vps[first : first + step], boxes)  # (v, c, 8, 4)
-        x, y, z, w = clip[..., 0], clip[..., 1], clip[..., 2], clip[..., 3]
-        out = (x > w).all(-1) | (x < -w).all(-1) | (y > w).all(-1) | (y < -w).all(-1) | (z > w).all(-1) | (z < -w).all(-1)
-        seen[first : first + step] = ~out
-    return seen
+    if indices is None:
+        return gpu.types.GPUBatch(type="TRIS", buf=vbo)
+    if working is not None:
+        yield working
+    return gpu.types.GPUBatch(type="TRIS", buf=vbo, elem=gpu.types.GPUIndexBuf(type="TRIS", seq=indices))

@@ -39,6 +39,9 @@ def test_every_texel_looks_where_it_should(empty_scene, cubegi):
     # The id path: hit point from triangle and barycentric weights, and its distance.
     cap = transport.capture_cubes(renderer, eye[None], n, 0.01, 50.0)
     assert (cap.tid >= 0).all() and not cap.backface.any()
+    # Each texel names the triangle it sees: its point lies inside it (a neighbour's weights
+    # of the same plane would reach past the corners).
+    assert cap.bary.min() > -1e-4 and cap.bary.max() < 1.0 + 1e-4
     hit = np.einsum("...c,...cx->...x", cap.bary[0], arrays.points[arrays.triangles[cap.tid[0]]])
     d = hit - eye
     np.testing.assert_allclose(np.linalg.norm(d, axis=-1), cap.dist[0], rtol=1e-4)
@@ -96,7 +99,8 @@ def test_culling_draws_what_drawing_everything_draws(empty_scene, cubegi):
     v, f = scenes.box_mesh((-0.5, 0.5, -1.5), (0.5, 1.5, 0.5), (20, 20, 20), inward=False)
     scenes.mesh_object("Block", v, f)
     arrays, culled = _collect_and_renderer(cubegi)
-    assert len(arrays.triangles) > 8 * gpu_capture.CULL_CHUNK and culled.chunk_boxes is not None
+    chunk = importlib.import_module("cubegi.cubegi_addon.draw_layout").CULL_CHUNK
+    assert len(arrays.triangles) > 8 * chunk and culled.chunk_boxes is not None
     whole = gpu_capture.GpuRenderer(arrays.points, arrays.triangles)
     whole.chunk_boxes = None  # draws every triangle in every view
     eyes = np.array([[0.3, -0.4, 0.2], [-2.5, 3.5, 2.0], [1.5, -1.5, -1.0]])
@@ -109,3 +113,20 @@ def test_culling_draws_what_drawing_everything_draws(empty_scene, cubegi):
     for got, want in zip(a, b):
         np.testing.assert_array_equal(got, want)
     np.testing.assert_array_equal(culled.render_colour(vps, 32, arrays.points), whole.render_colour(vps, 32, arrays.points))
+
+
+def test_each_drawn_triangle_has_a_provoking_vertex_of_its_own(cubegi):
+    """The id pass's layout (see gpu_capture): every triangle's last corner (or first) is a
+    vertex no other triangle provokes, naming it; corners keep their positions and winding."""
+    draw_layout = importlib.import_module("cubegi.cubegi_addon.draw_layout")
+    v, f = scenes.box_mesh((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0), (6, 5, 4), inward=True)
+    tris = np.array([[q[0], q[k], q[k + 1]] for q in f for k in range(1, len(q) - 1)])
+    for last in (True, False):
+        indices, extra, owner = draw_layout.provoking_layout(tris, len(v), last)
+        own = indices[:, 2 if last else 0]
+        assert len(np.unique(own)) == len(tris)
+        np.testing.assert_array_equal(owner[own], np.arange(len(tris)))
+        assert len(extra) < len(tris)  # most triangles found a corner of their own
+        source = np.concatenate([np.arange(len(v)), extra])[indices]
+        turned = [np.roll(tris, -k, axis=1) for k in range(3)]
+        assert all(any((source[i] == t[i]).all() for t in turned) for i in range(len(tris)))

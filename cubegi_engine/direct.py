@@ -347,6 +347,10 @@ SKY_PER_VERTEX_MAP_SIZE = 256
 # Sky depth maps drawn and read back at a time: a step of about a tenth of a second on llvmpipe
 # (The Breakfast Room: 32 at a time took 2.5-3.2 s between two steps of the modal bake).
 SKY_MAPS_AT_ONCE = 2
+# Where the points' rays across those directions are at most this many, a ray each way decides
+# instead of the maps (the courtyard: 1,525 points, 24K rays, 0.15 -> 0.04 s; a ray costs
+# 1.5-3 us, a map of a small scene several ms).
+SKY_RAYS_AT_MOST = 50_000
 
 
 def sky_direct(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY_MAP_SIZE) -> np.ndarray:
@@ -399,6 +403,12 @@ def sky_direct_steps(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY
             seen[on] += w * vis[:, None]
             facing[on] += w
 
+    rays = None if getattr(renderer, "rays", None) is None else int(np.count_nonzero(nrm @ dirs.T > 0))
+    if rays is not None and rays <= SKY_RAYS_AT_MOST:  # few points: a ray each way, not a map
+        receivers = lights_mod.Receivers(pts, nrm, which)
+        add((yield from in_background(_sky_rays, _working(step, f"direct light: the sky, {rays:,} rays"), receivers, occluders,
+                                      scene_caster(scene, renderer), dirs, 2.0 * radius / size)))
+        dirs = dirs[:0]  # no maps
     # Each batch's maps are drawn (the GPU's work, on this thread) while the batches before
     # are tested in threads, up to WORKERS at once; the sums are taken in order.
     jobs = deque()
@@ -418,6 +428,17 @@ def sky_direct_steps(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY
         coeffs = sh.project(_sky_pattern(scene, texel_dirs), texel_dirs, np.tile(cubemap.texel_solid_angles(n).ravel(), 6))
         open_sky = np.maximum(sh.diffuse_basis(nrm) @ coeffs, 0.0)
     return open_sky * np.where(facing > 0, seen / np.maximum(facing, 1e-300), 0.0)
+
+
+def _sky_rays(receivers, occluders, caster, dirs, footprint):
+    """:func:`sky_direct_steps`' shadow tests by rays: ``[(k, receivers, their visibility)]``
+    for each direction ``dirs[k]``, one ray from each receiver facing it (started off its
+    surface as a map's doubtful receiver's ray is: ``footprint``, the map's texel)."""
+    facing = receivers.normals @ dirs.T > 0  # (r, k)
+    row, k = np.nonzero(facing)
+    start, lift = lights_mod.ray_starts(receivers[row], occluders, np.full(len(row), footprint), np.arange(len(row)))
+    open_ = ~caster.blocked(start + lift[:, None] * dirs[k], dirs[k], None)
+    return [(j, row[k == j], open_[k == j].astype(np.float64)) for j in range(len(dirs)) if np.any(k == j)]
 
 
 def _sky_pattern(scene, dirs):

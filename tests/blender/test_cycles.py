@@ -207,6 +207,33 @@ def test_the_sky_matches_cycles(empty_scene, cubegi, sky, per_vertex):
     assert err["total"]["rel_rmse"] < total_tol and abs(err["total"]["rel_bias"]) < 0.04, err
 
 
+def test_the_sky_at_points_no_probe_lights_by_rays_and_by_maps(empty_scene, cubegi, monkeypatch):
+    """The courtyard's points no probe lights (its walls' and ground's outer faces, open to
+    the sky all round) take the sky along their own lines of sight: by a ray each way where
+    those are few, else by a depth map each way. The rays see all of the open sky; the maps
+    widen shadows where surfaces meet (a back face in a texel next to a receiver's counts:
+    0.92 of the sky on average here), never narrow them."""
+    from benchmarks import scenes as bench_scenes
+    from cubegi.cubegi_addon import gpu_capture, session
+    from cubegi.cubegi_engine import direct
+
+    bench_scenes.courtyard()
+    assert bpy.ops.cubegi.bake() == {"FINISHED"}
+    bake = session.kept(bpy.context.scene).bake
+    arrays = bake.arrays
+    alone = np.flatnonzero(bake.result.capture.transport.covered)
+    assert 500 < len(alone) < len(arrays.points)
+    renderer = gpu_capture.GpuRenderer(arrays.points, arrays.triangles)
+    light = {}
+    for way, most in (("rays", 10**9), ("maps", 0)):
+        monkeypatch.setattr(direct, "SKY_RAYS_AT_MOST", most)
+        light[way] = direct.sky_direct(arrays, renderer, alone)[:, 0]
+    down = arrays.normals[alone, 2] < -0.9  # the ground's underside: the open sky below
+    assert down.sum() > 10 and np.all(light["rays"][down] > 0.99)
+    assert light["rays"].mean() > 0.97 and light["maps"].mean() > 0.85
+    assert np.all(light["rays"] >= light["maps"] - 0.05)
+
+
 def test_a_large_point_light_casts_soft_shadows_as_cycles(empty_scene, cubegi):
     """A bulb of 0.1 m radius 0.5 m from the red wall, the blocks between it and the floor:
     its shadows are averaged over 32 points on its sphere. Measured against Cycles at 256

@@ -406,8 +406,10 @@ def sky_direct_steps(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY
     rays = None if getattr(renderer, "rays", None) is None else int(np.count_nonzero(nrm @ dirs.T > 0))
     if rays is not None and rays <= SKY_RAYS_AT_MOST:  # few points: a ray each way, not a map
         receivers = lights_mod.Receivers(pts, nrm, which)
-        add((yield from in_background(_sky_rays, _working(step, f"direct light: the sky, {rays:,} rays"), receivers, occluders,
-                                      scene_caster(scene, renderer), dirs, 2.0 * radius / size)))
+        working = _working(step, f"direct light: the sky, {rays:,} rays")
+        yield working  # a step of its own, however fast the rays
+        add((yield from in_background(_sky_rays, working, receivers, occluders, scene_caster(scene, renderer), dirs,
+                                      2.0 * radius / size)))
         dirs = dirs[:0]  # no maps
     # Each batch's maps are drawn (the GPU's work, on this thread) while the batches before
     # are tested in threads, up to WORKERS at once; the sums are taken in order.

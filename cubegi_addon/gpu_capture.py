@@ -392,6 +392,9 @@ class GpuRenderer:
         np.less(code, 0.0, out=back)
         k = np.abs(code).astype(np.int64) - 1  # exact small integers in float32
         seen = k >= 0
+        if not len(self.order):  # nothing drawn
+            tid[...], back[...] = -1, False
+            return
         tid[...] = np.where(seen, self.order[np.maximum(k, 0)], -1)
         twin = np.where(seen & back, self.twin[np.maximum(tid, 0)], -1)
         turned = twin >= 0

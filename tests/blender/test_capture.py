@@ -130,3 +130,37 @@ def test_each_drawn_triangle_has_a_provoking_vertex_of_its_own(cubegi):
         source = np.concatenate([np.arange(len(v)), extra])[indices]
         turned = [np.roll(tris, -k, axis=1) for k in range(3)]
         assert all(any((source[i] == t[i]).all() for t in turned) for i in range(len(tris)))
+
+
+def test_a_renderer_with_nothing_to_draw_sees_nothing(cubegi):
+    """Every triangle left out of the drawing (``drawn`` empty): every texel sees nothing."""
+    gpu_capture = importlib.import_module("cubegi.cubegi_addon.gpu_capture")
+    v, f = scenes.box_mesh((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0), (2, 2, 2), inward=True)
+    tris = np.array([[q[0], q[k], q[k + 1]] for q in f for k in range(1, len(q) - 1)])
+    vps = cubemap.cube_view_projections(np.zeros(3), 0.01, 10.0)
+    for drawn, seen in ((None, True), (np.zeros(0, dtype=np.int64), False)):
+        renderer = gpu_capture.GpuRenderer(np.asarray(v, dtype=np.float64), tris, drawn)
+        tid, _, dist, back = renderer.render(vps, np.zeros((6, 3)), None, 8)
+        assert (tid >= 0).all() == seen and (tid < 0).all() != seen
+        assert np.isfinite(dist).all() == seen and not back.any()
+
+
+def test_the_id_pass_and_the_depth_pass_agree(cubegi):
+    """The id pass's distances are worked out from the point a texel reports, the depth
+    pass's in the shader: the same triangle and distance in every texel, for a cube map and
+    for an orthographic (sun) view."""
+    gpu_capture = importlib.import_module("cubegi.cubegi_addon.gpu_capture")
+    rng = np.random.default_rng(0)
+    renderer = gpu_capture.GpuRenderer(rng.uniform(-1.0, 1.0, (300, 3)), np.arange(300).reshape(100, 3))
+    d = np.array([0.3, -0.2, 1.0]) / np.linalg.norm([0.3, -0.2, 1.0])
+    ortho = cubemap.orthographic(2.0, 0.1, 10.0) @ cubemap.look_matrix(5.0 * d, -d, cubemap.any_perpendicular(d))
+    eye = np.array([0.1, 0.05, -0.1])
+    for vps, eyes, axes, n in ((ortho[None], 5.0 * d[None], -d[None], 64),
+                               (cubemap.cube_view_projections(eye, 0.01, 10.0), np.repeat(eye[None], 6, axis=0), None, 32)):
+        tid, bary, dist, _ = renderer.render(vps, eyes, axes, n, with_bary=True)
+        tid2, _, dist2, _ = renderer.render(vps, eyes, axes, n, with_bary=False)
+        hit = tid >= 0
+        assert hit.sum() > 100
+        np.testing.assert_array_equal(tid, tid2)
+        np.testing.assert_allclose(dist[hit], dist2[hit], rtol=1e-5)
+        assert bary[hit].min() > -1e-4

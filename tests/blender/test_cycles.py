@@ -207,7 +207,7 @@ def test_the_sky_matches_cycles(empty_scene, cubegi, sky, per_vertex):
     assert err["total"]["rel_rmse"] < total_tol and abs(err["total"]["rel_bias"]) < 0.04, err
 
 
-def test_the_sky_at_points_no_probe_lights_by_rays_and_by_maps(empty_scene, cubegi, monkeypatch):
+def test_the_sky_at_points_no_probe_lights_by_rays_and_by_maps(empty_scene, cubegi):
     """The courtyard's points no probe lights (its walls' and ground's outer faces, open to
     the sky all round) take the sky along their own lines of sight: by a ray each way where
     those are few, else by a depth map each way. The rays see all of the open sky; the maps
@@ -226,8 +226,7 @@ def test_the_sky_at_points_no_probe_lights_by_rays_and_by_maps(empty_scene, cube
     renderer = gpu_capture.GpuRenderer(arrays.points, arrays.triangles)
     light = {}
     for way, most in (("rays", 10**9), ("maps", 0)):
-        monkeypatch.setattr(direct, "SKY_RAYS_AT_MOST", most)
-        light[way] = direct.sky_direct(arrays, renderer, alone)[:, 0]
+        light[way] = direct.sky_direct(arrays, renderer, alone, rays_at_most=most)[:, 0]
     down = arrays.normals[alone, 2] < -0.9  # the ground's underside: the open sky below
     assert down.sum() > 10 and np.all(light["rays"][down] > 0.99)
     assert light["rays"].mean() > 0.97 and light["maps"].mean() > 0.85

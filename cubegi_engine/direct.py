@@ -352,7 +352,7 @@ SKY_MAPS_AT_ONCE = 2
 # instead of the maps (the courtyard: 1,525 points, 24K rays, 0.15 -> 0.04 s; a ray costs
 # 1.5-3 us, a map of a small scene several ms). Not for the sky per vertex: a ray from a vertex
 # where two surfaces meet slips past the other one (the courtyard's sky per vertex by rays:
-# direct 39% against Cycles, 7.5% by maps, whose back-face test holds there).
+# direct 39% against Cycles, 4.8% by maps, whose back-face test holds there).
 SKY_RAYS_AT_MOST = 50_000
 
 

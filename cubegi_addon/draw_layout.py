@@ -29,7 +29,7 @@ def prepare(points, triangles, drawn, sheet, last_provokes=True):
     drawn = np.arange(len(triangles)) if drawn is None else np.asarray(drawn, dtype=np.int64)
     sheet = np.zeros(len(triangles), dtype=bool) if sheet is None else np.asarray(sheet, dtype=bool)
     out["all_drawn"], out["sheet_all"], out["unit_points"] = drawn, sheet, unit_pts  # for render_colour
-    twin, _ = geometry.twin_triangles(unit_pts, triangles, sheet & np.isin(np.arange(len(triangles)), drawn))
+    twin = geometry.twin_triangles(unit_pts, triangles, sheet & np.isin(np.arange(len(triangles)), drawn))
     drawn = drawn[~(twin[drawn] >= 0) | (twin[drawn] > drawn)]  # a pair drawn once, as its first
     # A sheet's triangle with no twin here is drawn last, its back face culled.
     lone = sheet[drawn] & (twin[drawn] < 0)

@@ -194,15 +194,13 @@ def edge_neighbours(triangles) -> np.ndarray:
 
 def twin_triangles(points, triangles, sheet):
     """Each triangle's twin (``(t,)``, -1: none): among ``sheet`` triangles, the other one of
-    a pair over the same three positions, wound the other way; and ``(t, 3, 2)`` per corner
-    its place in the twin (its weights of the twin's second and third corners), so that the
-    hit's weights carry over. Exact positions (the twins are copies), hashed."""
+    a pair over the same three positions, wound the other way. Exact positions (the twins
+    are copies), hashed."""
     t = len(triangles)
     twin = np.full(t, -1, dtype=np.int64)
-    twin_bary = np.zeros((t, 3, 2), dtype=np.float32)
     ids = np.flatnonzero(sheet)
     if len(ids) < 2:
-        return twin, twin_bary
+        return twin
     corner = position_hash(np.asarray(points)[triangles[ids]].reshape(-1, 3)).reshape(-1, 3)  # (k, 3)
     key = np.sort(corner, axis=1)
     key = mix64(mix64(key[:, 0]) ^ key[:, 1])
@@ -217,14 +215,9 @@ def twin_triangles(points, triangles, sheet):
     same = match.any(axis=2).all(axis=1) & match.any(axis=1).all(axis=1)
     where = np.argmax(match, axis=2)  # a's corner j is b's corner where[j]
     reversed_ = (where[:, 1] - where[:, 0]) % 3 == 2
-    a, b, where = a[same & reversed_], b[same & reversed_], where[same & reversed_]
-    ia, ib = ids[a], ids[b]
-    twin[ia], twin[ib] = ib, ia
-    unit = np.eye(3, dtype=np.float32)[:, 1:]  # a corner's weights of corners 1 and 2
-    twin_bary[ia] = unit[where]
-    back = np.argsort(where, axis=1)  # b's corner j is a's corner back[j]
-    twin_bary[ib] = unit[back]
-    return twin, twin_bary
+    a, b = a[same & reversed_], b[same & reversed_]
+    twin[ids[a]], twin[ids[b]] = ids[b], ids[a]
+    return twin
 
 
 def mix64(x):

@@ -92,7 +92,7 @@ def test_a_sheet_drawn_once_reports_its_twin_from_behind_as_drawing_both_did(emp
         return renderer.drawn_count, renderer.render(vps, np.repeat(eyes, 6, axis=0), None, 32)
 
     drawn_once, once = render()
-    monkeypatch.setattr(geometry, "twin_triangles", lambda p, t, s: (np.full(len(t), -1), np.zeros((len(t), 3, 2), np.float32)))
+    monkeypatch.setattr(geometry, "twin_triangles", lambda p, t, s: np.full(len(t), -1))
     drawn_both, both = render()
     assert drawn_once < drawn_both and drawn_once == len(arrays.triangles) - arrays.back_triangles().sum()
     tid, bary, dist, back = once

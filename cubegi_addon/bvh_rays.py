@@ -8,6 +8,9 @@ from ..cubegi_engine.rays import Hits, hits_from_distances
 
 # Resident memory of Blender's BVH tree per triangle (measured: about 160 MB for a million).
 TREE_BYTES = 160
+# Shadow rays cast at a time: each answer is a tuple of Python objects (about 3 KB a ray
+# held until read: seven million rays at once took 24 GB).
+RAYS_AT_ONCE = 65_536
 
 
 class BvhRays:
@@ -49,8 +52,14 @@ class BvhRays:
         """``(n,)`` bool: whether each ray meets a triangle within its reach (a shadow ray:
         no more asked of the hit)."""
         local = np.asarray(origins, dtype=np.float64).reshape(-1, 3) - self.centre
-        found = self._found(local, np.asarray(dirs, dtype=np.float64).reshape(-1, 3), reach)
-        return np.fromiter((f[2] is not None for f in found), dtype=bool, count=len(local))
+        dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
+        reach = None if reach is None else np.broadcast_to(np.asarray(reach, dtype=np.float64), (len(local),))
+        out = np.empty(len(local), dtype=bool)
+        for at in range(0, len(local), RAYS_AT_ONCE):  # the tree's answers are Python objects: a few at a time
+            part = slice(at, at + RAYS_AT_ONCE)
+            found = self._found(local[part], dirs[part], None if reach is None else reach[part])
+            out[part] = np.fromiter((f[2] is not None for f in found), dtype=bool, count=len(found))
+        return out
 
     def _found(self, local, dirs, reach):
         """The tree's answers for rays from ``local`` (tree frame) along ``dirs``."""

@@ -324,7 +324,7 @@ def unit_sky_direct_steps(scene, renderer, transport, per_vertex=False, step=Non
     if alone.any():
         sampling = (SKY_PER_VERTEX_DIRECTIONS, SKY_PER_VERTEX_MAP_SIZE) if per_vertex else (SKY_DIRECTIONS, SKY_MAP_SIZE)
         light[alone] = yield from sky_direct_steps(scene, renderer, np.flatnonzero(alone), *sampling, step=step,
-                                                   rays_at_most=0 if per_vertex else SKY_RAYS_AT_MOST)
+                                                   rays_at_most=SKY_RAYS_AT_MOST)
     if transport.gathered is not None:
         light[transport.gathered.rows] = transport.gathered.sky
     return light
@@ -349,11 +349,13 @@ SKY_PER_VERTEX_MAP_SIZE = 256
 # (The Breakfast Room: 32 at a time took 2.5-3.2 s between two steps of the modal bake).
 SKY_MAPS_AT_ONCE = 2
 # Where the points' rays across those directions are at most this many, a ray each way decides
-# instead of the maps (the courtyard: 1,525 points, 24K rays, 0.15 -> 0.04 s; a ray costs
-# 1.5-3 us, a map of a small scene several ms). Not for the sky per vertex: a ray from a vertex
-# where two surfaces meet slips past the other one (the courtyard's sky per vertex by rays:
-# direct 39% against Cycles, 4.8% by maps, whose back-face test holds there).
-SKY_RAYS_AT_MOST = 50_000
+# instead of the maps: the Breakfast Room's outside faces (26,793 points, 430K rays) by rays,
+# direct light 6.35 -> 5.63% off Cycles, indirect 32.9 -> 32.6%, its window wall's mean -18.9 ->
+# -11.2%, 0.2 s slower; the courtyard's 1,525 points, 24K rays, 0.15 -> 0.04 s. The courtyard's
+# sky per vertex (3,242 points, 415K rays) 2.1 -> 1.4 s, direct 1.77 -> 1.39%. A ray costs
+# 2-30 us (long ones through a large room the most) and a map several ms to a tenth of a second:
+# the Breakfast Room's sky per vertex (7.3M rays) took 205 s by rays, 65 s by maps.
+SKY_RAYS_AT_MOST = 500_000
 
 
 def sky_direct(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY_MAP_SIZE, rays_at_most=0) -> np.ndarray:
@@ -443,8 +445,8 @@ def _sky_rays(receivers, occluders, caster, dirs, footprint):
     surface as a map's doubtful receiver's ray is: ``footprint``, the map's texel)."""
     facing = receivers.normals @ dirs.T > 0  # (r, k)
     row, k = np.nonzero(facing)
-    start, lift = lights_mod.ray_starts(receivers[row], occluders, np.full(len(row), footprint), np.arange(len(row)))
-    open_ = ~caster.blocked(start + lift[:, None] * dirs[k], dirs[k], None)
+    start = lights_mod.ray_starts(receivers[row], occluders, np.full(len(row), footprint), np.arange(len(row)))
+    open_ = ~caster.blocked(start, dirs[k], None)
     return [(j, row[k == j], open_[k == j].astype(np.float64)) for j in range(len(dirs)) if np.any(k == j)]
 
 

@@ -192,6 +192,20 @@ def edge_neighbours(triangles) -> np.ndarray:
     return out
 
 
+def inward(triangles, vertices) -> np.ndarray:
+    """``(v, 3)``: for each vertex, the mean of the unit vectors from it to the middles of its
+    triangles: about nothing inside a surface, up to a unit pointing away from the edge on a
+    surface's edge or corner."""
+    middles = vertices[triangles].mean(axis=1)
+    total = np.zeros((len(vertices), 3))
+    for k in range(3):
+        to = middles - vertices[triangles[:, k]]
+        to /= np.maximum(np.linalg.norm(to, axis=1), 1e-300)[:, None]
+        for c in range(3):
+            total[:, c] += np.bincount(triangles[:, k], to[:, c], len(vertices))
+    return total / np.maximum(np.bincount(triangles.ravel(), None, len(vertices)), 1)[:, None]
+
+
 def twin_triangles(points, triangles, sheet):
     """Each triangle's twin (``(t,)``, -1: none): among ``sheet`` triangles, the other one of
     a pair over the same three positions, wound the other way. Exact positions (the twins

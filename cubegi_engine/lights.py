@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import cubemap
+from . import cubemap, geometry
 from .geometry import cut_triangles, in_pieces, piece_size
 from .spatial import COORD_SLACK
 from .working import made_once
@@ -450,20 +450,29 @@ def ortho_lookup(receivers: Receivers, view: OrthoView, n):
     return lookup, (np.abs(ndc) <= 1.0).all(axis=1)
 
 
-# A ray asked where the map cannot decide starts off its receiver's surface, and as far
-# along itself, by half the map's own lift (the map's whole lift, a quarter of a texel, could
-# carry it out of the fold it lies in; a surface through the receiver itself, a wall standing
-# on the floor where it lies, must not shadow it), but at most RAY_LIFT of the scene's size
-# (never a share of the whole scene alone: a 5 mm gap under a rug in a scene 2 km wide must
-# hold) and at least COORD_SLACK of the receiver's coordinates (a float32 mesh's rounding).
+# A ray asked where the map cannot decide starts off its receiver's surface by half the
+# map's own lift (the map's whole lift, a quarter of a texel, could carry it out of the fold
+# it lies in), but at most RAY_LIFT of the scene's size (never a share of the whole scene
+# alone: a 5 mm gap under a rug in a scene 2 km wide must hold) and at least COORD_SLACK of
+# the receiver's coordinates (a float32 mesh's rounding); and as far again into its own
+# triangles (see geometry.inward). A surface through the receiver itself (a wall standing on the floor
+# where the floor ends, walls meeting at a corner) then lies on one side of the start: it
+# shadows the rays that go through it and no others, as the map's back-face rule has it. (A
+# start moved along the ray instead went through such a wall on every ray heading into it:
+# the courtyard's sky per vertex by rays, direct light 19.7% off Cycles; from starts into
+# their own triangles 1.4%, by maps 1.8%.)
 RAY_LIFT = 1e-5
 
 
 def ray_starts(receivers, occluders, footprint, ask):
-    """Where the rays of receivers ``ask`` start (see RAY_LIFT): ``(start (k, 3), lift (k,))``."""
-    at = receivers.points[ask]
+    """Where the rays of receivers ``ask`` start (see RAY_LIFT): ``(k, 3)``."""
+    at, normals = receivers.points[ask], receivers.normals[ask]
     lift = np.maximum(np.minimum(0.5 * LIFT * footprint[ask], RAY_LIFT * occluders.scale), COORD_SLACK * np.abs(at).max(axis=1))
-    return at + lift[:, None] * receivers.normals[ask], lift
+    ids = receivers.ids[ask]
+    inward = made_once(occluders, "_inward", lambda: geometry.inward(occluders.triangles, occluders.vertices))
+    into = np.where((ids >= 0)[:, None], inward[np.maximum(ids, 0)], 0.0)
+    into -= np.einsum("kc,kc->k", into, normals)[:, None] * normals  # along the surface
+    return at + lift[:, None] * (normals + into)
 
 
 def _ask_rays(occluded, doubt, receivers, occluders, footprint, eye=None, along=None):
@@ -474,7 +483,7 @@ def _ask_rays(occluded, doubt, receivers, occluders, footprint, eye=None, along=
     ask = np.flatnonzero(doubt)
     if occluders.rays is None or not len(ask):
         return
-    start, lift = ray_starts(receivers, occluders, footprint, ask)
+    start = ray_starts(receivers, occluders, footprint, ask)
     reach = None
     if eye is None:
         towards = np.broadcast_to(np.asarray(along, dtype=np.float64), start.shape)
@@ -482,5 +491,5 @@ def _ask_rays(occluded, doubt, receivers, occluders, footprint, eye=None, along=
         rel = np.asarray(eye, dtype=np.float64) - start
         dist = np.linalg.norm(rel, axis=1)
         towards = rel / np.maximum(dist, 1e-300)[:, None]
-        reach = dist * (1.0 - 1e-6) - lift
-    occluded[ask] = occluders.rays().blocked(start + lift[:, None] * towards, towards, reach)
+        reach = dist * (1.0 - 1e-6)
+    occluded[ask] = occluders.rays().blocked(start, towards, reach)

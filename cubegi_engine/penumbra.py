@@ -61,22 +61,21 @@ def _disk_share(receivers, occluders, axis, spread, footprint, ask):
     cone of half-angle tangent ``spread`` about ``-axis``) that rays leave unblocked from
     receivers ``ask``, and whether the ray to the disk's middle passes. FIRST_RAYS rays first;
     where they disagree (the receiver is in a penumbra), SUN_DISK_RAYS."""
-    start, lift = ray_starts(receivers, occluders, footprint, ask)
-    share, centre_open, split = _disk_rays(receivers.normals[ask], occluders, axis, spread, start, lift, FIRST_RAYS)
+    start = ray_starts(receivers, occluders, footprint, ask)
+    share, centre_open, split = _disk_rays(receivers.normals[ask], occluders, axis, spread, start, FIRST_RAYS)
     if split.any():
-        share[split], _, _ = _disk_rays(receivers.normals[ask[split]], occluders, axis, spread, start[split], lift[split],
-                                        SUN_DISK_RAYS)
+        share[split], _, _ = _disk_rays(receivers.normals[ask[split]], occluders, axis, spread, start[split], SUN_DISK_RAYS)
     return share, centre_open
 
 
-def _disk_rays(normals, occluders, axis, spread, start, lift, count):
+def _disk_rays(normals, occluders, axis, spread, start, count):
     """``count`` rays across the disk and one to its middle from each of ``start (m, 3)``:
     ``(share (m,), centre_open (m,), split (m,))``, split where the rays disagree."""
     to_sun = -np.asarray(axis, dtype=np.float64)
     dirs = np.concatenate([disk_directions(to_sun, 2.0 * np.arctan(spread), start, occluders.scale, count),
                            np.broadcast_to(to_sun, (len(start), 1, 3))], axis=1)
     weight = np.maximum(np.einsum("mkc,mc->mk", dirs, normals), 0.0)
-    origins = (start[:, None, :] + lift[:, None, None] * dirs).reshape(-1, 3)
+    origins = np.repeat(start, dirs.shape[1], axis=0)
     open_ = ~occluders.rays().blocked(origins, dirs.reshape(-1, 3), None).reshape(weight.shape)
     total = weight[:, :-1].sum(axis=1)
     share = np.where(total > 0, (weight[:, :-1] * open_[:, :-1]).sum(axis=1) / np.maximum(total, 1e-300), 0.0)

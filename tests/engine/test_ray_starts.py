@@ -1,0 +1,61 @@
+"""Where a shadow ray leaves its receiver (pure numpy, no bpy): off its surface and into its
+own triangles, so that a surface meeting it there (a wall standing where a floor ends, walls
+meeting at a corner) shadows the rays that go into that surface and no others."""
+
+import numpy as np
+import pytest
+
+from cubegi.cubegi_engine import geometry
+from cubegi.cubegi_engine.lights import Occluders, Receivers, ray_starts
+from cubegi.cubegi_engine.rays import NumpyRays
+
+
+def _patch(origin, u, v, n):
+    """A flat ``n`` x ``n`` grid of quads: ``(points, triangles)``."""
+    s = np.linspace(0.0, 1.0, n + 1)
+    points = (np.asarray(origin, float) + s[:, None, None] * np.asarray(u, float) + s[None, :, None] * np.asarray(v, float)).reshape(-1, 3)
+    k = np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]
+    quads = np.stack([k, k + n + 1, k + n + 2, k + 1], axis=-1).reshape(-1, 4)
+    return points, np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+
+
+def test_inward_points_away_from_a_surface_s_edges_and_is_about_nothing_inside_it():
+    points, triangles = _patch((0, 0, 0), (1, 0, 0), (0, 1, 0), 4)
+    into = geometry.inward(triangles, points)
+    inside = np.all((points[:, :2] > 0.1) & (points[:, :2] < 0.9), axis=1)
+    assert np.abs(into[inside]).max() < 0.2
+    edge = np.isclose(points[:, 0], 0.0) & (points[:, 1] > 0.1) & (points[:, 1] < 0.9)
+    assert np.all(into[edge, 0] > 0.5) and np.all(into[edge, 0] > 2.0 * np.abs(into[edge, 1:]).max(axis=1))
+    corner = np.all(np.isclose(points, [1.0, 1.0, 0.0]), axis=1)
+    assert np.all(into[corner, :2] < -0.5)
+    assert np.all(np.linalg.norm(into, axis=1) <= 1.0 + 1e-12)
+
+
+def _floor_and_wall():
+    """A 1 m floor (z = 0, facing up) ending at a one-sided wall (x = 0, facing +x) that
+    stands on its edge: ``(occluders, receivers)`` with the floor's vertex at the wall's foot
+    and the wall's vertex on the floor."""
+    floor, ft = _patch((0, 0, 0), (1, 0, 0), (0, 1, 0), 2)
+    wall, wt = _patch((0, 0, 0), (0, 1, 0), (0, 0, 1), 2)
+    points = np.concatenate([floor, wall])
+    triangles = np.concatenate([ft, wt + len(floor)])
+    caster = NumpyRays(points, triangles)
+    occluders = Occluders(triangles, points, 1.0, None, lambda: caster)
+    at_foot = np.flatnonzero(np.all(np.isclose(floor, [0.0, 0.5, 0.0]), axis=1))[0]
+    on_floor = len(floor) + np.flatnonzero(np.all(np.isclose(wall, [0.0, 0.5, 0.0]), axis=1))[0]
+    receivers = Receivers(points[[at_foot, on_floor]], np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),
+                          np.array([at_foot, on_floor]))
+    return occluders, receivers
+
+
+@pytest.mark.parametrize("receiver, towards, blocked", [
+    (0, (-1.0, 0.0, 1.0), True),   # the floor's vertex, over the wall: the wall stands in the way
+    (0, (1.0, 0.0, 1.0), False),   # away from the wall
+    (1, (1.0, 0.0, -1.0), True),   # the wall's foot, down: the floor
+    (1, (1.0, 0.0, 1.0), False),   # up and out
+])
+def test_a_ray_from_where_two_surfaces_meet_is_stopped_by_the_other_one_only_when_it_goes_into_it(receiver, towards, blocked):
+    occluders, receivers = _floor_and_wall()
+    start = ray_starts(receivers, occluders, np.full(2, 0.01), np.array([receiver]))
+    towards = np.array([towards]) / np.linalg.norm(towards)
+    assert occluders.rays().blocked(start, towards, None)[0] == blocked

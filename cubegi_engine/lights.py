@@ -455,12 +455,12 @@ def ortho_lookup(receivers: Receivers, view: OrthoView, n):
 # it lies in), but at most RAY_LIFT of the scene's size (never a share of the whole scene
 # alone: a 5 mm gap under a rug in a scene 2 km wide must hold) and at least COORD_SLACK of
 # the receiver's coordinates (a float32 mesh's rounding); and as far again into its own
-# triangles (see geometry.inward). A surface through the receiver itself (a wall standing on the floor
-# where the floor ends, walls meeting at a corner) then lies on one side of the start: it
-# shadows the rays that go through it and no others, as the map's back-face rule has it. (A
-# start moved along the ray instead went through such a wall on every ray heading into it:
-# the courtyard's sky per vertex by rays, direct light 19.7% off Cycles; from starts into
-# their own triangles 1.4%, by maps 1.8%.)
+# triangles (see geometry.inward). A surface through the receiver itself (a wall standing on
+# the floor where the floor ends, walls meeting at a corner) then lies on one side of the
+# start: it shadows the rays that go through it and no others, as the map's back-face rule
+# has it. (A start moved along the ray instead went through such a wall on every ray heading
+# into it: the courtyard's sky per vertex by rays, direct light 19.7% off Cycles; from starts
+# into their own triangles 1.4%, by maps 1.8%.)
 RAY_LIFT = 1e-5
 
 

@@ -351,7 +351,7 @@ SKY_MAPS_AT_ONCE = 2
 # Where the points' rays across those directions are at most this many, a ray each way decides
 # instead of the maps: the Breakfast Room's outside faces (26,793 points, 430K rays) by rays,
 # direct light 6.35 -> 5.63% off Cycles, indirect 32.9 -> 32.6%, its window wall's mean -18.9 ->
-# -11.2%, 0.2 s slower; the courtyard's 1,525 points, 24K rays, 0.15 -> 0.04 s. The courtyard's
+# -11.2%, 0.3 s slower; the courtyard's 1,525 points, 24K rays, 0.15 -> 0.04 s. The courtyard's
 # sky per vertex (3,242 points, 415K rays) 2.1 -> 1.4 s, direct 1.77 -> 1.39%. A ray costs
 # 2-30 us (long ones through a large room the most) and a map several ms to a tenth of a second:
 # the Breakfast Room's sky per vertex (7.3M rays) took 205 s by rays, 65 s by maps.

@@ -257,6 +257,8 @@ class Occluders:
     # (direct.scene_occluders holds the host's ``rays`` function: a static one, so that a
     # kept shadow keeps no renderer.)
     rays: object = None
+    # A callable giving geometry.inward of these surfaces, made once per scene (not per light).
+    inward: object = None
 
 
 @dataclass(frozen=True)
@@ -468,11 +470,14 @@ def ray_starts(receivers, occluders, footprint, ask):
     """Where the rays of receivers ``ask`` start (see RAY_LIFT): ``(k, 3)``."""
     at, normals = receivers.points[ask], receivers.normals[ask]
     lift = np.maximum(np.minimum(0.5 * LIFT * footprint[ask], RAY_LIFT * occluders.scale), COORD_SLACK * np.abs(at).max(axis=1))
+    start = at + lift[:, None] * normals
     ids = receivers.ids[ask]
-    inward = made_once(occluders, "_inward", lambda: geometry.inward(occluders.triangles, occluders.vertices))
+    if not np.any(ids >= 0):  # no receiver among these surfaces (a moving object's, against the scene's)
+        return start
+    inward = occluders.inward() if occluders.inward is not None else geometry.inward(occluders.triangles, occluders.vertices)
     into = np.where((ids >= 0)[:, None], inward[np.maximum(ids, 0)], 0.0)
     into -= np.einsum("kc,kc->k", into, normals)[:, None] * normals  # along the surface
-    return at + lift[:, None] * (normals + into)
+    return start + lift[:, None] * into
 
 
 def _ask_rays(occluded, doubt, receivers, occluders, footprint, eye=None, along=None):

@@ -227,8 +227,8 @@ def _surfaces(records, shown=12):
         lines += [f"## {scene}: the default bake per surface (area-weighted mean, the {shown} largest, then the "
                   f"{shown} others holding the most squared indirect error)", "",
                   "| object | area share | direct: CubeGI | Cycles | difference | share of the squared error "
-                  "| indirect: CubeGI | Cycles | difference | share of the squared error |",
-                  "|---|---|---|---|---|---|---|---|---|---|"]
+                  "| indirect: CubeGI | Cycles | difference | share of the squared error | indirect: Cycles, more samples |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|"]
         total = sum(x["area"] for x in surfaces.values())
         largest = sorted(surfaces, key=lambda n: -surfaces[n]["area"])[:shown]
         others = sorted((n for n in surfaces if n not in largest), key=lambda n: -surfaces[n].get("indirect_error_share", 0.0))
@@ -240,7 +240,15 @@ def _surfaces(records, shown=12):
                 diff = f"{100 * (ours - theirs) / theirs:+.1f}%" if theirs > 0 else "n/a"
                 share = x.get(f"{part}_error_share")
                 cells += [f"{ours:.4g}", f"{theirs:.4g}", diff, "" if share is None else f"{100 * share:.1f}%"]
+            fine = x.get("fine")
+            if fine and fine["indirect"] > 0:
+                cells.append(f"{fine['indirect']:.4g} at {fine['samples']} ({100 * (x['indirect'][0] - fine['indirect']) / fine['indirect']:+.1f}%)")
+            else:
+                cells.append("")
             lines.append(f"| {name} | {100 * x['area'] / total:.1f}% | " + " | ".join(cells) + " |")
+        lines += ["", "A large surface of few vertices (a wall of a few quads) takes its mean from a handful of the "
+                  "reference's vertices: it is baked again alone at more samples, and CubeGI's difference from that is "
+                  "in brackets."] if any(surfaces[n].get("fine") for n in largest + others[:shown]) else []
         lines.append("")
         holders = r.get("error_holders")
         if holders:

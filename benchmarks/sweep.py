@@ -93,6 +93,30 @@ def cached_reference(cache_dir, scene_name, samples, objects, log=print):
     return ref
 
 
+# A surface of at least FINE_AREA of the scene's area modelled with at most FINE_VERTICES
+# vertices (a wall of a few quads) has its mean from a handful of the reference's vertices,
+# each as noisy as the reference's samples leave it: those surfaces are baked again, alone
+# in the scene, at FINE_FACTOR times the samples (a few seconds), and the table shows both.
+FINE_AREA, FINE_VERTICES, FINE_FACTOR = 0.01, 128, 16
+
+
+def fine_surfaces(cache_dir, scene_name, samples, objects, scored, log=print):
+    """``({object name: {"direct", "indirect"}: area-weighted mean}, samples)`` of the few-vertex
+    large surfaces (see FINE_AREA) at ``samples``, cached beside the scene's reference; ``({},
+    samples)`` where the scene has none."""
+    total = sum(float(scored[ob.name].sum()) for ob in objects)
+    few = [ob for ob in objects if len(ob.data.vertices) <= FINE_VERTICES and scored[ob.name].sum() >= FINE_AREA * total]
+    if not few:
+        return {}, samples
+    ref = cached_reference(cache_dir, f"{scene_name}-surfaces", samples, few, log)
+    out, start = {}, 0
+    for ob in few:
+        sl = slice(start, start + len(ob.data.vertices))
+        start = sl.stop
+        out[ob.name] = {part: float(np.average(ref[part][sl].mean(axis=1), weights=scored[ob.name])) for part in ("direct", "indirect")}
+    return out, samples
+
+
 def _record(scene_name, method, settings, seconds, by_part, ours_direct, ours_indirect, ref, areas, extra=None):
     rec = {
         "scene": scene_name,
@@ -139,6 +163,9 @@ def run_scene(scene_name, config, cache_dir, log=print):
         if which == "after":
             ours = baked_light(objects)
             records[-1]["surfaces"] = _surfaces(objects, ours, ref, scored)
+            fine, fine_samples = fine_surfaces(cache_dir, scene_name, FINE_FACTOR * config["reference_samples"], objects, scored, log)
+            for name, means in fine.items():
+                records[-1]["surfaces"][name]["fine"] = {**means, "samples": fine_samples}
             records[-1]["error_holders"] = {part: metrics.error_holders(ours[part], ref[part], areas) for part in ours}
     for k, samples in enumerate(config["cycles_samples"]):
         baked, seconds = reference.bake_reference(bpy.context, objects, samples=samples, seed=1 + k)

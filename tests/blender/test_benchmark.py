@@ -45,8 +45,11 @@ def test_quick_benchmark_writes_results_for_both_methods(tmp_path):
     assert "share of the squared error" in md and "Half of the squared indirect error is held by" in md
     png = (tmp_path / "error_vs_time.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
-    # The references are cached, named by their samples.
-    assert sorted(os.listdir(tmp_path / "cache")) == sorted(f"{s}-cycles-16spp.npz" for s in scenes)
+    # The references are cached, named by their samples (the large surfaces of few vertices
+    # baked again at 16 times those, where a scene has any).
+    cached = os.listdir(tmp_path / "cache")
+    assert sorted(f for f in cached if "-surfaces-" not in f) == sorted(f"{s}-cycles-16spp.npz" for s in scenes)
+    assert all(f.endswith("-cycles-256spp.npz") for f in cached if "-surfaces-" in f)
 
 
 def test_quick_scaling_benchmark_writes_both_sweeps(tmp_path):
@@ -77,3 +80,28 @@ def test_scaling_helpers(cubegi):
     for probes in (50, 200, 1000, 2000):
         res = scaling.resolution_for(probes)
         assert 0.6 * probes <= res[0] * res[1] * res[2] <= 1.5 * probes
+
+
+def test_a_large_surface_of_few_vertices_is_baked_again_at_more_samples(tmp_path, empty_scene, cubegi):
+    """A floor of one quad under a finely cut block: the floor (4 vertices, most of the area)
+    is baked again alone at the samples asked, cached; the block is not."""
+    import bpy
+    import numpy as np
+
+    from benchmarks import scenes as bench_scenes
+    from benchmarks import sweep
+
+    grey = bench_scenes.material("Grey", (0.5, 0.5, 0.5))
+    bench_scenes.mesh_object("Floor", [(-2, -2, 0), (2, -2, 0), (2, 2, 0), (-2, 2, 0)], [(0, 1, 2, 3)], grey)
+    v, f = bench_scenes.box((-0.3, -0.3, 0.0), (0.3, 0.3, 0.6), (8, 8, 8))
+    bench_scenes.mesh_object("Block", v, f, bench_scenes.material("White", (0.8, 0.8, 0.8)))
+    bench_scenes.add_light("POINT", (0.5, 0.5, 2.0), 200.0)
+    objects = sweep._meshes()
+    scored = {ob.name: cubegi.cubegi_addon.scene_data.vertex_areas(ob) for ob in objects}
+    fine, samples = sweep.fine_surfaces(str(tmp_path), "t", 8, objects, scored, log=lambda *_: None)
+    assert samples == 8 and sorted(fine) == ["Floor"]
+    assert fine["Floor"]["direct"] > 0 and np.isfinite(fine["Floor"]["indirect"])
+    assert os.listdir(tmp_path) == ["t-surfaces-cycles-8spp.npz"]
+    again, _ = sweep.fine_surfaces(str(tmp_path), "t", 8, objects, scored, log=lambda *_: None)
+    assert again == fine  # from the cache
+    assert len(bpy.data.objects["Block"].data.vertices) > sweep.FINE_VERTICES

@@ -54,6 +54,11 @@ def test_surfaces_show_the_largest_and_those_holding_the_error():
     lines = benchmark._surfaces(CYCLES + [after], shown=1)
     rows = [line.split(" | ")[0] for line in lines if line.startswith(("| floor", "| wall", "| cup", "| spoon"))]
     assert rows == ["| floor", "| cup"]  # the largest, then the other holding the most error
-    assert "| cup | 0.7% | 1 | 1 | +0.0% | 0.0% | 1 | 2 | -50.0% | 60.0% |" in lines
+    assert "| cup | 0.7% | 1 | 1 | +0.0% | 0.0% | 1 | 2 | -50.0% | 60.0% |  |" in lines
+    # A surface baked again at more samples: its mean there, and CubeGI's difference from it.
+    after["surfaces"]["floor"]["fine"] = {"direct": 1.0, "indirect": 1.25, "samples": 4096}
+    lines = benchmark._surfaces(CYCLES + [after], shown=1)
+    assert "| floor | 65.4% | 1 | 1 | +0.0% | 0.0% | 1 | 2 | -50.0% | 10.0% | 1.25 at 4096 (-20.0%) |" in lines
+    assert any("baked again alone at more samples" in line for line in lines)
     assert "Half of the squared indirect error is held by 7 vertices (48.0% of the area)." in " ".join(lines)
     assert "| cup |" in benchmark.markdown(CYCLES + [after], {"mode": "test"})

@@ -195,15 +195,20 @@ def edge_neighbours(triangles) -> np.ndarray:
 def inward(triangles, vertices) -> np.ndarray:
     """``(v, 3)``: for each vertex, the mean of the unit vectors from it to the middles of its
     triangles: about nothing inside a surface, up to a unit pointing away from the edge on a
-    surface's edge or corner."""
-    middles = vertices[triangles].mean(axis=1)
-    total = np.zeros((len(vertices), 3))
+    surface's edge or corner. A triangle with no extent at a corner (all three corners in one
+    place) adds nothing there, not a unit vector in a direction of rounding."""
+    count = len(vertices)
+    corners = [vertices[triangles[:, k]] for k in range(3)]
+    middle = (corners[0] + corners[1] + corners[2]) / 3.0
+    slack = 1e-9 * np.abs(middle).max(axis=1, initial=0.0) + 1e-300
+    total = np.zeros((count, 3))
     for k in range(3):
-        to = middles - vertices[triangles[:, k]]
-        to /= np.maximum(np.linalg.norm(to, axis=1), 1e-300)[:, None]
+        to = middle - corners[k]
+        length = np.sqrt(np.einsum("tc,tc->t", to, to))
+        to *= np.where(length > slack, 1.0 / np.maximum(length, 1e-300), 0.0)[:, None]
         for c in range(3):
-            total[:, c] += np.bincount(triangles[:, k], to[:, c], len(vertices))
-    return total / np.maximum(np.bincount(triangles.ravel(), None, len(vertices)), 1)[:, None]
+            total[:, c] += np.bincount(triangles[:, k], to[:, c], count)
+    return total / np.maximum(np.bincount(triangles.ravel(), None, count), 1)[:, None]
 
 
 def twin_triangles(points, triangles, sheet):

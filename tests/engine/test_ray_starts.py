@@ -71,3 +71,15 @@ def test_every_light_s_occluders_of_one_scene_share_its_inward_vectors():
     first, second = direct.scene_occluders(scene), direct.scene_occluders(scene)
     assert first is not second and first.inward() is second.inward()
     np.testing.assert_allclose(first.inward(), geometry.inward(triangles, points))
+
+
+def test_a_triangle_with_no_extent_pulls_no_corner_anywhere():
+    """Three corners in one place (a collapsed triangle, left by a modifier or a weld) add no
+    direction of rounding to where a ray starts."""
+    points, triangles = _patch((0, 0, 0), (1, 0, 0), (0, 1, 0), 2)
+    alone = geometry.inward(triangles, points)
+    points = np.concatenate([points, np.repeat([[0.5, 0.5, 0.0]], 3, axis=0) + [[0.0, 0.0, 0.0], [1e-12, 0.0, 0.0], [0.0, 1e-12, 0.0]]])
+    collapsed = np.concatenate([triangles, [[len(points) - 3, len(points) - 2, len(points) - 1]]])
+    into = geometry.inward(collapsed, points)
+    np.testing.assert_allclose(into[: len(alone)], alone)
+    assert np.all(into[len(alone):] == 0.0)

@@ -454,7 +454,10 @@ def _sky_rays(receivers, occluders, caster, dirs, footprint):
     row, k = np.nonzero(facing)
     start = lights_mod.ray_starts(receivers[row], occluders, np.full(len(row), footprint), np.arange(len(row)))
     open_ = ~caster.blocked(start, dirs[k], None)
-    return [(j, row[k == j], open_[k == j].astype(np.float64)) for j in range(len(dirs)) if np.any(k == j)]
+    order = np.argsort(k, kind="stable")  # each direction's rays together (not one mask per direction)
+    bounds = np.searchsorted(k[order], np.arange(len(dirs) + 1))
+    return [(j, row[order[a:b]], open_[order[a:b]].astype(np.float64))
+            for j, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])) if b > a]
 
 
 def _sky_pattern(scene, dirs):

@@ -338,6 +338,18 @@ def _placement(placement):
     return {"probes_moved": placement.moved, "probes_left_inside": placement.left_out}
 
 
+def _object_names(capture, objects):
+    """The names of the captured scene's ``objects`` (indices in its fingerprint's order)."""
+    names = [name for name, _ in capture.fingerprint.objects]
+    return tuple(names[k] for k in objects if k < len(names))
+
+
+def _first_names(names, shown=5):
+    """``"A, B, C, D, E and 3 more"``."""
+    more = f" and {len(names) - shown} more" if len(names) > shown else ""
+    return ", ".join(names[:shown]) + more
+
+
 def _left_out_of_capture(capture, grid, placement=None):
     """What the capture left out: probes, the near field of vertices, geometry (LeftOut)."""
     out = []
@@ -358,16 +370,15 @@ def _left_out_of_capture(capture, grid, placement=None):
         out.append(LeftOut(LeftOutKind.NEAR_FIELD, f"every vertex ({near.skipped}); the probes light their surroundings as "
                                                    "seen from a cell away", len(capture.transport.index)))
     elif near is not None and near.crowded:
+        where = _object_names(capture, near.crowded_objects)
         out.append(LeftOut(LeftOutKind.NEAR_FIELD, (
-            f"{near.crowded:,} vertices in dense, folded geometry (hundreds of triangles within {near.reach:.3g}); "
-            "the probes light their surroundings"), near.crowded))
+            f"{near.crowded:,} vertices in dense, folded geometry (hundreds of triangles within {near.reach:.3g}"
+            f"{': ' + _first_names(where) if where else ''}); the probes light their surroundings"), near.crowded, where))
     if capture.small_objects:
-        names = [name for name, _ in capture.fingerprint.objects]
-        small = tuple(names[k] for k in capture.small_objects if k < len(names))
-        more = f" and {len(small) - 5} more" if len(small) > 5 else ""
+        small = _object_names(capture, capture.small_objects)
         n = len(capture.small_objects)
         out.append(LeftOut(LeftOutKind.CAPTURE_GEOMETRY, (
-            f"{n} {plural(n, 'object', 'objects')} smaller than a texel from every probe ({', '.join(small[:5])}{more}) "
+            f"{n} {plural(n, 'object', 'objects')} smaller than a texel from every probe ({_first_names(small)}) "
             f"{plural(n, 'was', 'were')} not drawn by the probes; {plural(n, 'it', 'they')} still "
             f"{plural(n, 'receives', 'receive')} light and {plural(n, 'casts', 'cast')} shadows"), n, small))
     proxy = capture.proxy

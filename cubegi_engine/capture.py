@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import cubemap
+from .gather import near_caster
 from .grid import Grid
 from .records import Progress, Stage
 from .scene import GeometryFingerprint, same_sky_map
@@ -67,7 +68,8 @@ class ProbeCapture:
         t = time.perf_counter()
         def tables():
             scene.fingerprint()  # made here, in the thread, and kept on the snapshot for below
-            return Transport(scene, grid, cubes, visibility=visibility, proxy=proxy, near_field=settings.near_field)
+            return Transport(scene, grid, cubes, visibility=visibility, proxy=proxy, near_field=settings.near_field,
+                             caster=near_caster(scene, renderer))
 
         transport = yield from in_background(tables, step("building the tables (what each probe sees, and each point's near field)"))
         return cls(grid, cube_size, visibility, scene.fingerprint(), cubes, transport, t_capture,
@@ -110,7 +112,8 @@ class ProbeCapture:
                 mine[redraw] = theirs
         t_capture = time.perf_counter() - t
         t = time.perf_counter()
-        transport = Transport(scene, grid, cubes, visibility=self.visibility, near_field=settings.near_field)
+        transport = Transport(scene, grid, cubes, visibility=self.visibility, near_field=settings.near_field,
+                              caster=near_caster(scene, renderer))
         patched = ProbeCapture(grid, self.cube_size, self.visibility, fingerprint, cubes, transport, t_capture,
                                time.perf_counter() - t, None, self.key)
         return patched, int(redraw.sum())

@@ -31,6 +31,9 @@ GEOMETRIC_TAIL_LIMIT = 0.01
 # the vector's largest entry, or after FIXED_POINT_STEPS steps (see fixed_point).
 FIXED_POINT_TOLERANCE = 1e-6
 FIXED_POINT_STEPS = 64
+# The steps an Anderson mix looks back on, and how far above the least change so far a
+# change sends it back to plain steps (see fixed_point).
+ANDERSON_MEMORY, RESTART = 5, 10.0
 
 
 def ratios(previous_mean, mean):
@@ -112,21 +115,40 @@ def gmres(apply, b, tol=1e-5, max_iter=60):
     return x, j + 1, residual
 
 
-def fixed_point(step, x, tol=FIXED_POINT_TOLERANCE, max_steps=FIXED_POINT_STEPS):
-    """``x = step(x)`` iterated from ``x`` until the error left, estimated from the last
-    step's change and the ratio of the last two changes (``change r / (1 - r)``, the rest of
-    a geometric series), is at most ``tol`` of the largest entry (max norm), or
-    ``max_steps`` steps: ``(x, steps)``. For contractions such as the near field's sum of
-    bounces (each step gathers once more, taking at most the albedo of the light before: a
-    light trapped between two close surfaces shrinks by their albedos' product a step, 0.55
-    for a white lamp under a white ceiling, so a fixed few steps would lose a tenth of it)."""
-    steps, before = 0, None
+def fixed_point(step, x, tol=FIXED_POINT_TOLERANCE, max_steps=FIXED_POINT_STEPS, gain=None):
+    """``x = step(x)`` solved from ``x`` by Anderson acceleration (each step's input mixes the
+    last ANDERSON_MEMORY steps' outputs so that their change is least, GMRES's answer for a
+    linear ``step``) until the error left, estimated from the last step's change and the
+    map's ``gain`` (a bound on how much of a change a step keeps; None: the ratio of the last
+    two changes), ``change r / (1 - r)`` (the rest of a geometric series), is at most ``tol``
+    of the largest entry (max norm), or ``max_steps`` steps: ``(x, steps)``, ``x`` a step's
+    output. For contractions such as the near field's sum of bounces (each step gathers
+    once more, taking at most the albedo of the light before: the light inside a white
+    teapot keeps 0.9 of itself a step, and plain steps would take a hundred and fifty)."""
+    shape = np.shape(x)
+    x = np.asarray(x, dtype=np.float64).ravel()
+    changes, outputs, last = [], [], None
+    steps, before, out, least = 0, None, x, np.inf
     for steps in range(1, max_steps + 1):
-        new = step(x)
-        change = float(np.max(np.abs(new - x), initial=0.0))
-        x = new
-        r = min(change / before, 0.999) if before else 0.0
-        if not change * (1.0 + r / (1.0 - r)) > tol * float(np.max(np.abs(x), initial=0.0)):
+        out = np.asarray(step(x.reshape(shape)), dtype=np.float64).ravel()
+        f = out - x
+        change = float(np.max(np.abs(f), initial=0.0))
+        r = gain if gain is not None else (min(change / before, 0.999) if before else 0.0)
+        if not change * (1.0 + r / (1.0 - r)) > tol * float(np.max(np.abs(out), initial=0.0)):
             break
-        before = change
-    return x, steps
+        if before is not None and change > RESTART * least:  # the mix went astray: start it again
+            changes, outputs = [], []
+        elif last is not None:
+            changes.append(f - last[0])
+            outputs.append(out - last[1])
+            del changes[:-ANDERSON_MEMORY], outputs[:-ANDERSON_MEMORY]
+        before, last, least = change, (f, out), min(least, change)
+        x = out
+        if changes:
+            # The least-squares mix by its normal equations (a few columns: no (n, k) copy).
+            gram = np.array([[a @ b for b in changes] for a in changes])
+            mix = np.linalg.lstsq(gram + 1e-12 * np.trace(gram) * np.eye(len(changes)), [a @ f for a in changes], rcond=None)[0]
+            x = out.copy()
+            for m, o in zip(mix, outputs):
+                x -= m * o
+    return out.reshape(shape), steps

@@ -37,8 +37,8 @@ from .rays import RayCaster, caster_for
 from .spatial import resting
 from .working import made_once
 
-__all__ = ["large_points", "Corners", "Gathered", "gather", "gathered_for", "kept_nbytes", "light_visibility", "scene_caster", "caster_made_by",
-           "GATHER_SHARE", "GATHER_RAYS"]
+__all__ = ["large_points", "Corners", "Gathered", "gather", "gathered_for", "kept_nbytes", "light_visibility", "near_caster", "scene_caster",
+           "caster_made_by", "GATHER_SHARE", "GATHER_RAYS"]
 
 # A point whose area is at least GATHER_SHARE of the scene's (front) surface, and at least
 # GATHER_OUTLIER times a point's mean, is gathered by rays: at most 1 / GATHER_SHARE points,
@@ -247,6 +247,15 @@ def scene_caster(scene, renderer) -> RayCaster:
     """The host's ray caster over ``scene``'s triangles but the back sides' (the
     ``renderer``'s ``rays``, or none: :func:`caster_made_by`)."""
     return caster_made_by(scene, getattr(renderer, "rays", None))
+
+
+def near_caster(scene, renderer):
+    """What the near field's crowded points cast their rays through
+    (:func:`~cubegi_engine.nearfield.build`'s ``caster``): a callable giving the host's caster
+    over ``scene`` and its triangles' indices; None where the host has no caster of its own."""
+    if getattr(renderer, "rays", None) is None:
+        return None
+    return lambda: (scene_caster(scene, renderer), _front_triangles(scene))
 
 
 def caster_made_by(scene, make) -> RayCaster:

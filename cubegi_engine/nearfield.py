@@ -28,7 +28,11 @@ point in the open casts no rays. A point with more than MAX_CANDIDATES candidate
 than MAX_NEARBY (:mod:`.spatial`) triangles in the voxels (of edge ``reach``) around it (dense, folded
 geometry: the inside of a sculpt's ear), is left out, and so is the whole near field of a scene whose
 candidate pairs would exceed MAX_PAIRS (estimated from a sample first); the report names
-both. Left-out points keep the probes' light.
+both. Left-out points keep the probes' light. Where the host has a ray caster of its own
+(Blender's BVH tree), the crowded points of the smallest objects are not left out: one point
+per small cluster of them casts its rays through it, with a longer reach, and the cluster's
+points gather what it gathers (the inside of a white cup or teapot, lit by itself many times
+over: the probes never see in).
 """
 
 import time
@@ -36,9 +40,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import convergence, sh
-from .geometry import in_pieces
-from .hemisphere import TURN_HASH, hemisphere_rays
+from . import convergence
+from .hemisphere import hemisphere_rays
+from .nearrays import CASTER_RAYS, FADE, cast_points, clusters, shared_rows
 from .spatial import COORD_SLACK, SLACK, resting, voxel_index
 
 __all__ = ["NearField", "build", "NEAR_REACH", "NEAR_RAYS", "MAX_CANDIDATES", "MAX_PAIRS"]
@@ -55,11 +59,12 @@ MAX_PAIRS = 2_000_000
 # The sample that estimates a scene's pairs; an object with at least CROWDED_SAMPLE points
 # in it, all crowded, is crowded whole.
 SAMPLE, CROWDED_SAMPLE = 2048, 8
-# Points whose rays are cast at a time (their per-ray arrays: about 200 bytes a ray), and the
-# fewest a worker thread casts as one piece.
-POINTS_AT_ONCE, CAST_PIECE = 1 << 15, 256
-# Hits fade out over this last share of the reach.
-FADE = 0.25
+# What a row keeps at most of the light it gathers in the near field's sum of bounces: a
+# point all of whose rays met white surfaces has seen no opening, but 16 rays do not show
+# one narrower than about 1/18 of its view (the rule of succession).
+MAX_LOOP_GAIN = 1.0 - 1.0 / (CASTER_RAYS + 2)
+# The sum stops once the light it estimates is left is at most this share of the brightest row's.
+NEAR_SUM_TOLERANCE = 1e-4
 # A covered point counts as hidden from the near field's hits (its light stands for no
 # surface) where at least this share of its view is closed in within reach, or where it
 # lies on another surface (see resting).
@@ -102,6 +107,8 @@ class NearField:
     seconds: float = 0.0
     share: np.ndarray | None = None
     hidden: np.ndarray | None = None
+    alias: tuple | None = None  # (rows (a,), theirs (a,)): rows (places) that gather what other rows gather
+    crowded_objects: tuple = ()  # the objects (``owner`` indices) of the crowded points left out
 
     def enclosed(self, count, at_least=0.5):
         """``(count,)`` bool: points whose near surroundings cover at least ``at_least`` of
@@ -124,12 +131,19 @@ class NearField:
         hits = renumber[self.hit_row] >= 0
         n = len(keep_rows)
         share = None if self.share is None else np.concatenate([self.share[keep_rows], other.share])
+        alias = None
+        for mine in (None if self.alias is None else tuple(renumber[x] for x in self.alias),
+                     None if other.alias is None else tuple(x + n for x in other.alias)):
+            if mine is not None:
+                both = (mine[0] >= 0) & (mine[1] >= 0)  # a row whose rep is replaced gathers its own hits (none)
+                mine = (mine[0][both], mine[1][both])
+                alias = mine if alias is None else (np.concatenate([alias[0], mine[0]]), np.concatenate([alias[1], mine[1]]))
         return NearField(
             np.concatenate([self.rows[keep_rows], other.rows]), np.concatenate([self.open_basis[keep_rows], other.open_basis]),
             np.concatenate([renumber[self.hit_row[hits]], other.hit_row + n]), np.concatenate([self.hit_corner[hits], other.hit_corner]),
             np.concatenate([self.hit_weight[hits], other.hit_weight]), self.rays, self.reach,
             self.pairs, self.crowded, self.skipped, self.seconds + other.seconds, share,
-            self.hidden,
+            self.hidden, alias, self.crowded_objects,
         )
 
     @classmethod
@@ -142,9 +156,8 @@ class NearField:
         return len(self.rows)
 
     def _matrix(self):
-        """The hits as a sparse matrix, rows x points: ``(starts (m,), corner (e,), local
-        corner (e,), weight (e,))`` with each row's entries contiguous (a (row, corner) pair
-        once, its weights summed); made once."""
+        """The hits as a sparse matrix, rows x points: ``(row (e,), corner (e,), local corner
+        (e,), weight (e,))``, a (row, corner) pair once, its weights summed; made once."""
         cached = self.__dict__.get("_csr")
         if cached is None:
             span = int(self.hit_corner.max(initial=0)) + 1
@@ -152,21 +165,18 @@ class NearField:
             uniq, inverse = np.unique(key, return_inverse=True)
             weight = np.bincount(inverse.ravel(), self.hit_weight.ravel(), minlength=len(uniq))
             row, corner = uniq // span, uniq % span
-            starts = np.searchsorted(row, np.arange(self.count))
-            cached = (starts, corner, np.searchsorted(self.support, corner), weight)
+            cached = (row, corner, np.searchsorted(self.support, corner), weight)
             self.__dict__["_csr"] = cached
         return cached
 
     def _gather(self, radiance, local):
         """Each row's light from its hits: ``(m, c)`` for radiance ``(points or support, c)``."""
-        starts, corner, corner_local, weight = self._matrix()
-        r = np.asarray(radiance, dtype=np.float64)[corner_local if local else corner]
-        if not len(weight):
-            return np.zeros((self.count, r.shape[1]))
-        # A row with no hits (a gathered point under the open sky) gathers nothing: reduceat
-        # would take the next row's first entry (or run past the end) for it.
-        summed = np.add.reduceat(np.concatenate([weight[:, None] * r, np.zeros((1, r.shape[1]))]), starts, axis=0)
-        summed[np.diff(np.append(starts, len(weight))) == 0] = 0.0
+        row, corner, corner_local, weight = self._matrix()
+        by_channel = np.asarray(radiance, dtype=np.float64).T  # one bincount a channel: 3x a reduceat of (e, c)
+        at = corner_local if local else corner
+        summed = np.stack([np.bincount(row, weight * np.ascontiguousarray(x)[at], minlength=self.count) for x in by_channel], axis=1)
+        if self.alias is not None:
+            summed[self.alias[0]] = summed[self.alias[1]]
         return summed
 
     def gather(self, radiance):
@@ -222,14 +232,24 @@ class NearField:
         rows = self._support_rows()
         start = light[rows] - probe_part
         albedo = np.asarray(albedo, dtype=np.float64)
+        damp = self._damping(albedo)
 
         def step(rows_light):
             light[rows] = rows_light
-            new = start + self._gather(albedo * (before + light), local=True)
+            new = start + damp * self._gather(albedo * (before + light), local=True)
             return np.maximum(new, 0.0) if clamp else new
 
-        light[rows], _ = convergence.fixed_point(step, light[rows])
+        light[rows], _ = convergence.fixed_point(step, light[rows], tol=NEAR_SUM_TOLERANCE, gain=MAX_LOOP_GAIN)
         return light - base
+
+    def _damping(self, albedo):
+        """``(m, 1)``: what each row's gather is scaled by in :meth:`settle` so that it keeps
+        at most MAX_LOOP_GAIN of the light it gathers from ``albedo (u, c)`` (on the support).
+        A point whose rays all met white surfaces (a pocket under a white saucer's rim, every
+        ray meeting the saucer) would otherwise return all of it: a closed loop, summed without
+        end, makes any light that reaches it (a shadow map's leak) as bright as the room."""
+        gain = self._gather(np.max(albedo, axis=1, keepdims=True), local=True)[:, 0]
+        return np.minimum(1.0, MAX_LOOP_GAIN / np.maximum(gain, 1e-300))[:, None]
 
     def correct_sum(self, light, probe_part, albedo, before):
         """:meth:`settle` over every point ``(s, 3)``, clamped: ``light`` with its near field
@@ -242,7 +262,7 @@ class NearField:
 
 
 def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PAIRS, hidden=None, lit_if_open=None, which=None,
-          hidden_as_given=False, sheets=None, owner=None, keep_index=True):
+          hidden_as_given=False, sheets=None, owner=None, keep_index=True, caster=None):
     """The near field of ``points``/``normals`` ``(s, 3)`` among ``triangles (t, 3)``
     (indices into points), rays reaching ``reach`` (one length, or ``(s,)``). ``hidden``:
     ``(s,)`` bool, points covered by another object (their light is no sample of the
@@ -256,7 +276,11 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     its back, so back faces of sheets are not hit, and a ray from a sheet never meets the
     sheet's own far side (a slightly bent wall's twin lies in front of its points); a sheet's
     back side, and a covered point whose rays meet one, are never hidden. ``owner``: each
-    point's object (see :func:`_candidate_pairs`); ``keep_index``: see :func:`~.spatial.voxel_index`."""
+    point's object (see :func:`_candidate_pairs`); ``keep_index``: see :func:`~.spatial.voxel_index`.
+    ``caster``: where given, a callable giving ``(RayCaster, its triangles' indices among
+    triangles)``, the host's ray caster over the scene (Blender's BVH tree): the crowded
+    points of the smallest objects are not left out but share the rays of one point per
+    cluster, cast through it (:func:`~.nearrays.clusters`)."""
     t0 = time.perf_counter()
     points = np.asarray(points, dtype=np.float64)
     normals = np.asarray(normals, dtype=np.float64)
@@ -273,84 +297,38 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     if isinstance(found, str):
         return NearField.empty(rays, found, time.perf_counter() - t0)
     pair_p, pair_t, crowded = found
-    # Each point's pattern is turned by an angle hashed from its position (not its index:
-    # the same scene in another object order bakes the same), decorrelating neighbours.
-    # Only the points with candidates cast rays; their arrays are theirs alone (a million
-    # points with a few thousand near surfaces do not make (s, rays) arrays), and their
-    # per-ray arrays are made POINTS_AT_ONCE points at a time: what is kept of them is their
-    # hits.
-    cast, pair_local = np.unique(pair_p, return_inverse=True)
-    pair_local = pair_local.ravel()
-    order = np.argsort(pair_local, kind="stable")  # each point's pairs together, in their order
-    pair_local, pair_t = pair_local[order], pair_t[order]
-    at, nrm, rch = points[cast], normals[cast], reach[cast]
-    turn = 2.0 * np.pi * ((at / np.maximum(rch, 1e-300)[:, None]) @ TURN_HASH % 1.0)
-    # Rays start this far off their surface, and a surface within twice that of a ray's start counts
-    # as met there: float32 meshes put points on another surface up to a few 1e-7 of their coordinates off it.
-    slack = SLACK * rch + COORD_SLACK * np.abs(at).max(axis=1)
-    hits = _Rays.joined(in_pieces(lambda sl: _cast_rays(index, at, nrm, rch, slack, turn, rays, pair_local, pair_t, sl),
-                                  max(len(cast), 1), POINTS_AT_ONCE, least=CAST_PIECE))
+    by_caster, members, member_of, caster_reach = clusters(crowded, points, normals, owner, reach, CASTER_RAYS, caster)
+    crowded[members] = False
+    crowded_objects = () if owner is None else tuple(int(k) for k in np.unique(np.asarray(owner)[crowded]))
+    cast, traced, hits, rch, turn = cast_points(index, points, normals, reach, pair_p, pair_t, by_caster, caster_reach, caster, tri, sheets, rays)
     openness = np.ones(s)
     openness[cast] = hits.openness
+    openness[members] = openness[by_caster[member_of]]
     point = hits.point  # local
     local_rows, hit_row = np.unique(point, return_inverse=True)
     rows = cast[local_rows]
     uv = np.clip(hits.uv, 0.0, 1.0)
     weight = np.stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], axis=1)
     corners = tri[hits.triangle]
+    # The caster's hits lie in dense geometry, where the voxel index's tests below would take
+    # minutes: their hidden corners' weight goes to the others, and no gap darkens them.
+    by_voxels = point < traced
     if hidden is not None:
         hidden = np.asarray(hidden, dtype=bool).copy()
         if not hidden_as_given:
             hidden = _hidden(hidden, openness, lit_if_open, sheets, cast[point], corners, points, normals, tri)
-        weight = _uncover(index, weight, corners, hidden, hits.triangle, rch[point])
+        hidden[members] = False  # lit by their own rays: a surface's light
+        weight = _uncover(index, weight, corners, hidden, hits.triangle, rch[point], by_voxels)
     if OPENNESS_RAYS:
-        weight = _gap_darkening(index, weight, corners, openness, hits.at, hits.triangle, hits.front, rch[point], turn[point])
-    weight *= (hits.front * hits.fade)[:, None] / rays  # a back face occludes and sends nothing
-    open_basis, share = hits.open_basis, hits.share
-    return NearField(rows.astype(np.int64), open_basis, hit_row.astype(np.int64).ravel(), corners, weight,
+        weight = _gap_darkening(index, weight, corners, openness, hits.at, hits.triangle, hits.front & by_voxels, rch[point], turn[point])
+    weight *= (hits.front * hits.fade / np.where(by_voxels, rays, CASTER_RAYS))[:, None]  # a back face occludes and sends nothing
+    open_basis, share, hit_row = hits.open_basis, hits.share, hit_row.astype(np.int64).ravel()
+    alias = None
+    if len(members):
+        rows, open_basis, share, alias = shared_rows(rows, open_basis, share, members, by_caster[member_of], normals)
+    return NearField(rows.astype(np.int64), open_basis, hit_row, corners, weight,
                      rays, float(reach.max()), len(pair_p), int(crowded.sum()), "", time.perf_counter() - t0, share,
-                     None if hidden is None else np.flatnonzero(hidden))
-
-
-@dataclass(frozen=True)
-class _Rays:
-    """The hits of some points' rays, one row each: ``point`` (the caster's index),
-    ``triangle``, ``uv`` (its barycentrics), ``front``, ``fade`` (its weight by distance),
-    ``at`` (where it lies); per point with a hit, in order, ``open_basis`` and ``share``
-    (:func:`_open_basis`); per point, ``openness`` (the share of its rays that meet nothing
-    within reach, faded)."""
-
-    point: np.ndarray
-    triangle: np.ndarray
-    uv: np.ndarray
-    front: np.ndarray
-    fade: np.ndarray
-    at: np.ndarray
-    open_basis: np.ndarray
-    share: np.ndarray
-    openness: np.ndarray
-
-    @classmethod
-    def joined(cls, parts):
-        return cls(*(np.concatenate([getattr(part, f) for part in parts]) for f in cls.__dataclass_fields__))
-
-
-def _cast_rays(index, at, nrm, rch, slack, turn, rays, pair_local, pair_t, sl):
-    """The hits of the rays of the points ``sl`` (a slice) of ``at`` (``pair_local``: the
-    pairs' points, sorted): a :class:`_Rays`, its ``point`` counted as ``at``'s."""
-    first, end = np.searchsorted(pair_local, [sl.start, sl.stop])
-    at, nrm, rch, slack, turn = at[sl], nrm[sl], rch[sl], slack[sl], turn[sl]
-    dirs = hemisphere_rays(nrm, rays, turn)  # (c, rays, 3)
-    best, hit_tri, hit_uv, hit_front = index.trace(at, nrm, dirs, rch, slack, pair_local[first:end] - sl.start, pair_t[first:end])
-    point, ray = np.nonzero(hit_tri >= 0)
-    # Hits fade out over the last FADE of the reach (their direction goes back to the
-    # probes by as much): no step in the light where a surface passes out of reach.
-    fade = np.clip((rch[:, None] - best) / (FADE * rch[:, None]), 0.0, 1.0)  # (c, rays); 0 where no hit
-    with_hits = np.unique(point)
-    open_basis, share = _open_basis(dirs[with_hits], fade[with_hits], nrm[with_hits])
-    t = best[point, ray]
-    return _Rays(point + sl.start, hit_tri[point, ray], hit_uv[point, ray], hit_front[point, ray], fade[point, ray],
-                 at[point] + t[:, None] * dirs[point, ray], open_basis, share, 1.0 - fade.mean(axis=1))
+                     None if hidden is None else np.flatnonzero(hidden), alias, crowded_objects)
 
 
 def _candidate_pairs(index, points, normals, reach, asked, sheets, max_pairs, owner=None):
@@ -419,19 +397,7 @@ def _hidden(covered, openness, lit_if_open, sheets, hit_point, corners, points, 
     return hidden
 
 
-def _open_basis(dirs, fade, normals):
-    """What the probes' diffuse light loses at points casting rays ``dirs (m, k, 3)`` whose
-    hits weigh ``fade (m, k)``: their radiance in the hit directions, averaged as the rays
-    average, plus the hit share of the pattern's own quadrature error (so a point whose rays
-    all hit keeps no probe light, and one whose rays all leave keeps all). ``(open_basis
-    (m, 9), share (m,))``."""
-    y = sh.basis(dirs)  # (m, K, 9)
-    share = fade.mean(axis=1)
-    pattern_error = sh.diffuse_basis(normals) - y.mean(axis=1)
-    return np.einsum("mk,mkj->mj", fade, y) / dirs.shape[1] + share[:, None] * pattern_error, share
-
-
-def _uncover(index, weight, corners, hidden, tri, reach):
+def _uncover(index, weight, corners, hidden, tri, reach, ask=None):
     """Barycentric ``weight (h, 3)`` of hits on triangles ``tri`` with ``corners`` some of
     which are ``hidden`` (under another object: a floor point under a wall standing on it,
     whose light stands for no surface a ray can land on). The hit takes the other corners
@@ -440,13 +406,16 @@ def _uncover(index, weight, corners, hidden, tri, reach):
     triangle's normal: the floor beside the wall), their weights made whole; where it is
     (the floor under a block standing 2 cm above it, lit only through the gap) scaled up to
     whole only where they hold at least half of the weight (a hit deeper in the gap stays
-    darker, continuously)."""
+    darker, continuously). ``ask (h,)`` bool: the hits whose point is asked; the others'
+    is taken as not covered."""
     mixed = np.flatnonzero(hidden[corners].any(axis=1))
     if not len(mixed):
         return weight
-    k = tri[mixed]
-    at = np.einsum("hc,hcx->hx", weight[mixed], np.stack([index.a[k], index.b[k], index.c[k]], axis=1))
-    free = ~_covered_along_normal(index, at, index.unit[k], reach[mixed])
+    free = np.ones(len(mixed), dtype=bool)
+    asked = np.arange(len(mixed)) if ask is None else np.flatnonzero(ask[mixed])
+    k = tri[mixed[asked]]
+    at = np.einsum("hc,hcx->hx", weight[mixed[asked]], np.stack([index.a[k], index.b[k], index.c[k]], axis=1))
+    free[asked] = ~_covered_along_normal(index, at, index.unit[k], reach[mixed[asked]])
     kept = weight[mixed] * ~hidden[corners[mixed]]
     out = weight.copy()
     out[mixed] = kept / np.maximum(kept.sum(axis=1, keepdims=True), np.where(free, 1e-2, 0.5)[:, None])

@@ -108,11 +108,12 @@ class Transport:
     After construction every bounce is a few gathers and matrix products (float32).
     """
 
-    def __init__(self, scene, grid, capture, visibility=True, proxy=None, near_field=True):
+    def __init__(self, scene, grid, capture, visibility=True, proxy=None, near_field=True, caster=None):
         """``proxy``: the :class:`~cubegi_engine.proxy.CaptureProxy` the capture drew (its
         triangles are what the texels see), or None for the scene's own triangles.
         ``near_field``: gather each point's short-range surroundings by rays
-        (:mod:`cubegi_engine.nearfield`)."""
+        (:mod:`cubegi_engine.nearfield`); ``caster``: the host's ray caster for the near field's
+        crowded points (:func:`~cubegi_engine.gather.near_caster`), or None."""
         n = capture.size
         self.proxy = proxy
         triangles = scene.triangles if proxy is None else proxy.triangles
@@ -179,7 +180,7 @@ class Transport:
                 lit_if_open = np.zeros(len(scene.points), dtype=bool)
                 lit_if_open[spare[0]] = True
             self.near = nearfield.build(scene.points, scene.normals, reach, scene.triangles, hidden=self.covered, owner=scene.point_object,
-                                        lit_if_open=lit_if_open, sheets=scene.sheets(), keep_index=False)
+                                        lit_if_open=lit_if_open, sheets=scene.sheets(), keep_index=False, caster=caster)
         if spare is not None:
             self._light_from_behind(spare, basis, len(scene.points))
         if self.near is not None and visibility and self.covered.any():
@@ -338,8 +339,12 @@ class Transport:
         rows = np.asarray(rows, dtype=np.int64)
         if not len(rows):
             return np.zeros((0, 3))
-        g = np.asarray(coeffs, dtype=np.float64)[self.index[rows]]  # (m, 8, 9, 3)
-        return np.einsum("mj,mk,mjkc->mc", self.probe_weights(rows), basis, g)
+        flat = np.asarray(coeffs, dtype=np.float64).reshape(len(coeffs), -1)  # (p, 27)
+        weight, index = self.probe_weights(rows), self.index[rows]
+        mixed = np.zeros((len(rows), flat.shape[1]))  # each row's 8 probes mixed first: no (m, 8, 9, 3) array
+        for j in range(index.shape[1]):
+            mixed += weight[:, j, None] * flat[index[:, j]]
+        return np.einsum("mk,mkc->mc", basis, mixed.reshape(len(rows), 9, -1))
 
     def probe_weights(self, rows):
         """``(m, 8)`` float64: the (visibility-aware) weights of the points ``rows``' 8 probes,

@@ -33,13 +33,13 @@ def test_the_bake_is_the_same_on_one_core_and_on_eight(scene, cubegi, empty_scen
     """Work cut into pieces for the worker threads gives the same light, bit for bit, as the
     same work done whole in one thread: each piece's numbers are its own. (The pieces are made
     small here so that this scene is cut into many.)"""
-    from cubegi.cubegi_engine import geometry, nearfield, working
+    from cubegi.cubegi_engine import geometry, nearrays, working
 
     monkeypatch.setattr(working, "WORKERS", 1)
     alone = golden.bake_scene(scene)
     monkeypatch.setattr(working, "WORKERS", 8)
     monkeypatch.setattr(geometry, "MIN_PIECE", 64)
-    monkeypatch.setattr(nearfield, "CAST_PIECE", 8)
+    monkeypatch.setattr(nearrays, "CAST_PIECE", 8)
     pieces = []
     real = working.in_parallel
     monkeypatch.setattr(working, "in_parallel", lambda fn, items: pieces.append(len(items)) or real(fn, items))

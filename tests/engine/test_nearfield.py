@@ -4,7 +4,7 @@ brute-force ray caster."""
 import numpy as np
 import pytest
 
-from cubegi.cubegi_engine import hemisphere, nearfield, sh, spatial
+from cubegi.cubegi_engine import hemisphere, nearfield, nearrays, sh, spatial
 from cubegi.cubegi_engine.geometry import planes_of
 
 
@@ -168,7 +168,7 @@ def test_the_near_field_does_not_depend_on_the_order_of_points_or_the_scale():
 
 
 def test_rays_cast_a_few_points_at_a_time_give_the_same_near_field(monkeypatch):
-    """The per-ray arrays are made POINTS_AT_ONCE points at a time (a million points' would
+    """The per-ray arrays are made POINTS_AT_ONCE (nearrays) points at a time (a million points' would
     not fit); what is kept of them is the same however the points are split: a plate over a
     floor, points under it, beside it and in a gap, and a covered corner."""
     pts, tris = _scene(_grid(-1, 1, 0.0, 6), _quad(-0.4, 0.6, 0.08, up=False))
@@ -178,7 +178,7 @@ def test_rays_cast_a_few_points_at_a_time_give_the_same_near_field(monkeypatch):
     hidden[np.flatnonzero(np.all(np.abs(pts[:, :2] - 0.1) < 0.3, axis=1) & (pts[:, 2] == 0))] = True
 
     def build(at_once):
-        monkeypatch.setattr(nearfield, "POINTS_AT_ONCE", at_once)
+        monkeypatch.setattr(nearrays, "POINTS_AT_ONCE", at_once)
         return nearfield.build(pts, normals, 0.5, tris, hidden=hidden)
 
     whole = build(1 << 20)
@@ -500,3 +500,90 @@ def test_an_emitter_close_in_front_of_a_surface_is_found_with_its_gap():
     assert trapped_light(*scene(0.2)) == []  # out of the near field's reach
     arrays.emission[:] = 0.0
     assert trapped_light(arrays, near) == []  # a plain surface close to another: nothing trapped
+
+
+def _open_box(size, n):
+    """A box ``size`` wide and deep, open at the top, its faces cut into ``n`` x ``n`` cells
+    and facing in (a cup's inside): points, triangles, normals."""
+    parts, normals = [], []
+    base_pts, base_tris = _grid(-size / 2, size / 2, 0.0, n)
+    turns = [np.eye(3)]
+    for axis, sign in ((0, 1), (0, -1), (1, 1), (1, -1)):  # a floor turned up into each wall
+        ang = sign * np.pi / 2
+        c, s = np.cos(ang), np.sin(ang)
+        turns.append(np.array([[1, 0, 0], [0, c, -s], [0, s, c]]) if axis == 0 else np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]]))
+    for turn in turns:
+        pts = base_pts @ turn.T
+        up = turn @ [0.0, 0.0, 1.0]
+        if turn is not turns[0]:  # a wall: moved to the side it faces away from, up to the rim
+            pts = pts - up * size / 2 + [0.0, 0.0, size / 2]
+        parts.append((pts, base_tris))
+        normals.append(np.tile(up, (len(pts), 1)))
+    pts, tris = _scene(*parts)
+    return pts, tris, np.concatenate(normals)
+
+
+def test_crowded_points_share_the_rays_of_their_cluster_through_a_caster(monkeypatch):
+    """The inside of a finely cut cup is crowded (more candidate triangles than the cap): left
+    out without a caster of the host's; with one, one point per small cluster casts its rays
+    through it and the others gather exactly what it gathers, each with its own normal's
+    open basis."""
+    from cubegi.cubegi_engine.rays import NumpyRays
+
+    monkeypatch.setattr(nearfield, "MAX_CANDIDATES", 16)
+    pts, tris, normals = _open_box(0.2, 24)
+    # every normal points into the box
+    assert np.all(np.einsum("ij,ij->i", normals, [0.0, 0.0, 0.1] - pts) > -1e-9)
+    alone = nearfield.build(pts, normals, 0.2, tris)
+    assert alone.crowded > len(pts) // 2 and alone.alias is None
+    near = nearfield.build(pts, normals, 0.2, tris, caster=lambda: (NumpyRays(pts, tris), np.arange(len(tris))))
+    assert near.crowded == 0 and near.count == alone.count + alone.crowded  # every crowded point has a row
+    assert np.isin(alone.rows, near.rows).all()
+    members, theirs = near.alias
+    assert len(members) > len(np.unique(theirs)) > 10  # clusters of several points
+    radiance = np.random.default_rng(0).uniform(0.0, 1.0, (len(pts), 3))
+    gathered = near.gather(radiance)
+    np.testing.assert_array_equal(gathered[members], gathered[theirs])
+    # Every hit is on a front face inside the cup: a unit radiance gathers each row's share.
+    np.testing.assert_allclose(near.gather(np.ones((len(pts), 3)))[:, 0], near.share, atol=1e-9)
+    bottom_middle = np.argmin(np.linalg.norm(pts - [0.0, 0.0, 0.0], axis=1))
+    assert near.share[list(near.rows).index(bottom_middle)] > 0.3
+    # A member's open basis is its rep's, turned to its own normal.
+    rows = near.rows
+    turned = near.open_basis[theirs] + near.share[theirs, None] * (sh.diffuse_basis(normals[rows[members]]) - sh.diffuse_basis(normals[rows[theirs]]))
+    np.testing.assert_allclose(near.open_basis[members], turned, atol=1e-12)
+
+
+def test_a_closed_white_loop_keeps_at_most_the_loop_gain_of_its_light():
+    """Two points each of whose rays all meet the other (a pocket under a white saucer's rim,
+    closed as far as 16 rays tell): summed without end, any light reaching them would grow
+    without bound. Each keeps at most MAX_LOOP_GAIN of what it gathers, so the sum is the
+    geometric series at that gain, found in a few steps; a grey loop is summed as it is."""
+    third = np.full((2, 3), 1.0 / 3.0)
+    near = nearfield.NearField(np.array([0, 1]), np.zeros((2, 9)), np.array([0, 1]), np.array([[1, 1, 1], [0, 0, 0]]),
+                               third, rays=16, share=np.ones(2))
+    before = np.full((2, 3), 0.01)
+    zero = np.zeros((2, 3))
+    g = nearfield.MAX_LOOP_GAIN
+    assert 0.9 < g < 1.0
+    white = near.settle(zero, zero, np.ones((2, 3)), before)
+    np.testing.assert_allclose(white, 0.01 * g / (1.0 - g), rtol=1e-3)
+    grey = near.settle(zero, zero, np.full((2, 3), 0.5), before)
+    np.testing.assert_allclose(grey, 0.01, rtol=1e-3)  # L = 0.5 (0.01 + L)
+
+
+def test_a_caster_ray_that_meets_a_back_face_first_is_no_sample(monkeypatch):
+    """A ray through the host's caster that meets a back face first set out into a solid (or
+    met a face turned the wrong way): it is left out and the point's other rays stand for it,
+    so every row still gathers its whole share from the front faces it sees."""
+    from cubegi.cubegi_engine.rays import NumpyRays
+
+    monkeypatch.setattr(nearfield, "MAX_CANDIDATES", 16)
+    pts, tris, normals = _open_box(0.2, 24)
+    wall = np.flatnonzero(np.isclose(pts[tris].mean(axis=1)[:, 0], 0.1))  # the wall at x = +0.1, its faces turned out
+    tris[wall] = tris[wall][:, ::-1]
+    near = nearfield.build(pts, normals, 0.2, tris, caster=lambda: (NumpyRays(pts, tris), np.arange(len(tris))))
+    assert near.count > len(pts) // 2
+    np.testing.assert_allclose(near.gather(np.ones((len(pts), 3)))[:, 0], near.share, atol=1e-9)
+    bottom_middle = np.argmin(np.linalg.norm(pts - [0.0, 0.0, 0.0], axis=1))
+    assert 0.3 < near.share[list(near.rows).index(bottom_middle)] < 1.0

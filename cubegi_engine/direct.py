@@ -20,15 +20,15 @@ from functools import partial
 
 import numpy as np
 
-from . import cubemap, geometry, sh, spatial
+from . import cubemap, sh, spatial
 from . import eyes as eyes_mod
 from . import lights as lights_mod
 from .emitters import emitter_direct
 from .eyes import SOFT_SAMPLES, soft, soft_count
-from .gather import caster_made_by, gathered_for, light_visibility, scene_caster
+from .gather import caster_made_by, gathered_for, light_visibility, scene_caster, scene_inward
 from .penumbra import sun_visibility
 from .transport import CubeCapture, clip_planes, no_barycentrics
-from .working import CAPTURE_DRAWS_PER_STEP, WORKERS, in_background, in_batches, made_once, run, start, wait
+from .working import CAPTURE_DRAWS_PER_STEP, WORKERS, in_background, in_batches, run, start, wait
 
 __all__ = ["DirectLight", "Shadow", "draw_shadow", "visibility", "light_direct", "direct_light", "EMISSION", "SKY"]
 
@@ -187,13 +187,6 @@ def scene_occluders(scene, renderer=None) -> lights_mod.Occluders:
     make = getattr(renderer, "rays", None)
     rays = None if make is None else partial(caster_made_by, scene, make)
     return lights_mod.Occluders(scene.triangles, scene.points, scene.scale, scene.sides(), rays, partial(scene_inward, scene))
-
-
-def scene_inward(scene) -> np.ndarray:
-    """:func:`~cubegi_engine.geometry.inward` of ``scene``'s triangles, made once per snapshot
-    (where its shadow rays start: :func:`~cubegi_engine.lights.ray_starts`)."""
-    return made_once(scene, "_inward", lambda: geometry.inward(np.asarray(scene.triangles), np.asarray(scene.points)),
-                     key=(id(scene.points), id(scene.triangles)))
 
 
 def visibility(shadow, pts, nrm, ids) -> np.ndarray:

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import cubemap, sh
+from . import cubemap, geometry, sh
 from .hemisphere import TURN_HASH, hemisphere_rays
 from .nearfield import NearField
 from .penumbra import SUN_DISK_RAYS, disk_directions
@@ -38,7 +38,7 @@ from .spatial import resting
 from .working import made_once
 
 __all__ = ["large_points", "Corners", "Gathered", "gather", "gathered_for", "kept_nbytes", "light_visibility", "near_caster", "scene_caster",
-           "caster_made_by", "GATHER_SHARE", "GATHER_RAYS"]
+           "scene_inward", "caster_made_by", "GATHER_SHARE", "GATHER_RAYS"]
 
 # A point whose area is at least GATHER_SHARE of the scene's (front) surface, and at least
 # GATHER_OUTLIER times a point's mean, is gathered by rays: at most 1 / GATHER_SHARE points,
@@ -252,10 +252,19 @@ def scene_caster(scene, renderer) -> RayCaster:
 def near_caster(scene, renderer):
     """What the near field's crowded points cast their rays through
     (:func:`~cubegi_engine.nearfield.build`'s ``caster``): a callable giving the host's caster
-    over ``scene`` and its triangles' indices; None where the host has no caster of its own."""
+    over ``scene``, its triangles' indices and :func:`scene_inward`; None where the host has
+    no caster of its own."""
     if getattr(renderer, "rays", None) is None:
         return None
-    return lambda: (scene_caster(scene, renderer), _front_triangles(scene))
+    return lambda: (scene_caster(scene, renderer), _front_triangles(scene), scene_inward(scene))
+
+
+def scene_inward(scene) -> np.ndarray:
+    """:func:`~cubegi_engine.geometry.inward` of ``scene``'s triangles, made once per snapshot
+    (where its shadow rays start: :func:`~cubegi_engine.lights.ray_starts`; and the near
+    field's rays through the host's caster)."""
+    return made_once(scene, "_inward", lambda: geometry.inward(np.asarray(scene.triangles), np.asarray(scene.points)),
+                     key=(id(scene.points), id(scene.triangles)))
 
 
 def caster_made_by(scene, make) -> RayCaster:

@@ -309,7 +309,7 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     rows = cast[local_rows]
     uv = np.clip(hits.uv, 0.0, 1.0)
     weight = np.stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], axis=1)
-    corners = tri[hits.triangle]
+    corners = hits.corners
     # The caster's hits lie in dense geometry, where the voxel index's tests below would take
     # minutes: their hidden corners' weight goes to the others, and no gap darkens them.
     by_voxels = point < traced
@@ -321,7 +321,7 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
         weight = _uncover(index, weight, corners, hidden, hits.triangle, rch[point], by_voxels)
     if OPENNESS_RAYS:
         weight = _gap_darkening(index, weight, corners, openness, hits.at, hits.triangle, hits.front & by_voxels, rch[point], turn[point])
-    weight *= (hits.front * hits.fade / np.where(by_voxels, rays, CASTER_RAYS))[:, None]  # a back face occludes and sends nothing
+    weight *= (hits.front * hits.weight)[:, None]  # a back face occludes and sends nothing
     open_basis, share, hit_row = hits.open_basis, hits.share, hit_row.astype(np.int64).ravel()
     alias = None
     if len(members):

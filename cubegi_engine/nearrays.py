@@ -11,10 +11,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import sh
-from .geometry import in_pieces, inward, twin_triangles
+from .geometry import in_pieces
 from .hemisphere import TURN_HASH, hemisphere_rays
 from .spatial import COORD_SLACK, SLACK
-from .working import made_once
 
 __all__ = ["Rays", "cast_points", "cast_rays", "cast_by_caster", "clusters", "shared_rows", "open_basis_of", "FADE", "CASTER_RAYS", "CASTER_REACH"]
 
@@ -36,23 +35,26 @@ FADE = 0.25
 CLUSTERS_PER_REACH, NORMAL_BINS, CASTER_REACH = 8.0, 2, 2.0
 CASTER_RAYS, CASTER_RAYS_AT_MOST, CASTER_POINTS_AT_ONCE = 16, 250_000, 4096
 # Points whose rays are cast through the voxel index at a time (their per-ray arrays: about
-# 200 bytes a ray), and the fewest a worker thread casts as one piece.
+# 220 bytes a ray), and the fewest a worker thread casts as one piece.
 POINTS_AT_ONCE, CAST_PIECE = 1 << 15, 256
 
 
 @dataclass(frozen=True)
 class Rays:
     """The hits of some points' rays, one row each: ``point`` (the caster's index),
-    ``triangle``, ``uv`` (its barycentrics), ``front``, ``fade`` (its weight by distance),
+    ``triangle``, ``corners`` (the points whose light it takes: the triangle's, or its
+    twin's on a sheet met from behind), ``uv`` (its barycentrics), ``front``, ``weight``
+    (its share of its point's view: faded by distance, over the point's rays that count),
     ``at`` (where it lies); per point with a hit, in order, ``open_basis`` and ``share``
     (:func:`open_basis_of`); per point, ``openness`` (the share of its rays that meet nothing
     within reach, faded)."""
 
     point: np.ndarray
     triangle: np.ndarray
+    corners: np.ndarray
     uv: np.ndarray
     front: np.ndarray
-    fade: np.ndarray
+    weight: np.ndarray
     at: np.ndarray
     open_basis: np.ndarray
     share: np.ndarray
@@ -87,27 +89,23 @@ def cast_points(index, points, normals, reach, pair_p, pair_t, by_caster, caster
     # as met there: float32 meshes put points on another surface up to a few 1e-7 of their coordinates off it.
     slack = SLACK * rch + COORD_SLACK * np.abs(at).max(axis=1)
     mine = tuple(x[:traced] for x in (at, nrm, rch, slack, turn))  # (a piece's slice may run past its end)
-    hits = list(in_pieces(lambda sl: cast_rays(index, *mine, rays, pair_local, pair_t, sl),
+    hits = list(in_pieces(lambda sl: cast_rays(index, tri, *mine, rays, pair_local, pair_t, sl),
                           max(traced, 1), POINTS_AT_ONCE, least=CAST_PIECE)) if traced or not len(by_caster) else []
     if len(by_caster):
-        # From a vertex where two faces meet, a ray lifted off one face can start behind the
-        # other: the caster's rays start as far again into the vertex's own triangles.
-        into = inward(tri, points)[by_caster]
-        into -= np.einsum("kc,kc->k", into, nrm[traced:])[:, None] * nrm[traced:]
-        start = at[traced:] + slack[traced:, None] * into
-        hits += cast_by_caster(caster, tri, points, sheets, start, nrm[traced:], rch[traced:], slack[traced:], turn[traced:],
+        hits += cast_by_caster(caster, tri, sheets, by_caster, at[traced:], nrm[traced:], rch[traced:], slack[traced:], turn[traced:],
                                CASTER_RAYS, traced)
     return cast, traced, Rays.joined(hits), rch, turn
 
 
-def cast_rays(index, at, nrm, rch, slack, turn, rays, pair_local, pair_t, sl):
+def cast_rays(index, tri, at, nrm, rch, slack, turn, rays, pair_local, pair_t, sl):
     """The hits of the rays of the points ``sl`` (a slice) of ``at`` (``pair_local``: the
-    pairs' points, sorted): a :class:`Rays`, its ``point`` counted as ``at``'s."""
+    pairs' points, sorted) among ``tri``, through the voxel ``index``: a :class:`Rays`, its
+    ``point`` counted as ``at``'s."""
     first, end = np.searchsorted(pair_local, [sl.start, sl.stop])
     at, nrm, rch, slack, turn = at[sl], nrm[sl], rch[sl], slack[sl], turn[sl]
     dirs = hemisphere_rays(nrm, rays, turn)  # (c, rays, 3)
     best, hit_tri, hit_uv, hit_front = index.trace(at, nrm, dirs, rch, slack, pair_local[first:end] - sl.start, pair_t[first:end])
-    return _hits(at, nrm, rch, dirs, best, hit_tri, hit_uv, hit_front, sl.start)
+    return _hits(at, nrm, rch, dirs, best, hit_tri, tri[np.maximum(hit_tri, 0)], hit_uv, hit_front, sl.start)
 
 
 def clusters(crowded, points, normals, owner, reach, rays, caster):
@@ -166,85 +164,69 @@ def shared_rows(rows, open_basis, share, members, rep, normals):
     return np.concatenate([rows, members]), np.concatenate([open_basis, turned]), np.concatenate([share, share[q]]), alias
 
 
-def cast_by_caster(caster, tri, points, sheets, at, nrm, rch, slack, turn, rays, first):
-    """:func:`cast_rays` through the host's caster (``caster()``: ``(RayCaster, its
-    triangles' indices among tri)``) for the points ``at``, counted from ``first``: a list
-    of :class:`Rays`. A sheet is met on the side a ray comes from: a hit on a sheet's
-    triangle from behind is a hit on its twin's front."""
-    rays_by, whose = caster()
-    twins = None if sheets is None else made_once(sheets, "_twin_triangles", lambda: twin_triangles(points, tri, sheets.triangles))
+def cast_by_caster(caster, tri, sheets, ids, at, nrm, rch, slack, turn, rays, first):
+    """:func:`cast_rays` of the points ``ids`` (at ``at``, counted from ``first``) through the host's
+    caster (``caster()``: ``(RayCaster, its triangles' indices among tri, each point's
+    inward direction)``, see :func:`~cubegi_engine.gather.near_caster`): a list of
+    :class:`Rays`. A sheet is met on the side a ray comes from: a hit on a sheet's triangle
+    from behind takes its twin points' light, as :func:`~cubegi_engine.gather.gather` does."""
+    rays_by, whose, inward = caster()
+    # From a vertex where two faces meet, a ray lifted off one face can start behind the
+    # other: the rays start as far again into the vertex's own triangles (as shadow rays do:
+    # :func:`~cubegi_engine.lights.ray_starts`).
+    into = inward[ids] - np.einsum("kc,kc->k", inward[ids], nrm)[:, None] * nrm
+    at = at + slack[:, None] * into
+    twins = None if sheets is None else sheets.twins
     out = []
     for lo in range(0, len(at), CASTER_POINTS_AT_ONCE):
         sl = slice(lo, lo + CASTER_POINTS_AT_ONCE)
         a, n, r, k, tn = at[sl], nrm[sl], rch[sl], slack[sl], turn[sl]
+        c = len(a)
         dirs = hemisphere_rays(n, rays, tn)  # (c, rays, 3)
-        origin = np.repeat(a + k[:, None] * n, rays, axis=0)
-        found = rays_by.cast(origin, dirs.reshape(-1, 3), np.repeat(r, rays))
+        found = rays_by.cast(np.repeat(a + k[:, None] * n, rays, axis=0), dirs.reshape(-1, 3), np.repeat(r, rays))
         hit = found.triangle >= 0
         t_ = np.where(hit, whose[np.maximum(found.triangle, 0)], -1)
-        front = found.front.copy()
+        corners, front = tri[np.maximum(t_, 0)], found.front.copy()
         if twins is not None:
-            swap = hit & ~front & (twins[np.maximum(t_, 0)] >= 0)
-            t_[swap], front[swap] = twins[t_[swap]], True
-        uv = found.bary[:, 1:].copy()
-        if twins is not None and swap.any():
-            place = origin[swap] + found.t[swap, None] * dirs.reshape(-1, 3)[swap]
-            uv[swap] = _uv_on(points, tri[t_[swap]], place)
-        c = len(a)
+            turned = hit & ~front & (twins[corners[:, 0]] >= 0)
+            corners[turned], front[turned] = twins[corners[turned]], True
+        # A ray that meets a back face first set out into a solid (or met a face turned the
+        # wrong way): it is no sample of what the point sees, and its other rays stand for it.
+        counts = ~(hit & ~front).reshape(c, rays)
         best = np.where(hit, found.t, np.inf).reshape(c, rays)
-        # A ray that meets a back face first set out into the solid (from a vertex where a
-        # cup's rim meets its inner wall, half the smooth normal's rays do): it is no sample
-        # of what the point sees, and the point's other rays stand for it.
-        into = (hit & ~front).reshape(c, rays)
-        out.append(_hits(a, n, r, dirs, best, t_.reshape(c, rays), uv.reshape(c, rays, 2), front.reshape(c, rays), first + lo, ~into))
+        out.append(_hits(a, n, r, dirs, best, t_.reshape(c, rays), corners.reshape(c, rays, 3), found.bary[:, 1:].reshape(c, rays, 2),
+                         front.reshape(c, rays), first + lo, counts))
     return out
 
 
-def _uv_on(points, corners, at):
-    """``(k, 2)``: the weights of corners 1 and 2 of triangles ``corners (k, 3)`` that make
-    the point ``at (k, 3)`` on their plane."""
-    a, b, c = (points[corners[:, j]] for j in range(3))
-    e1, e2, r = b - a, c - a, at - a
-    d11, d12, d22 = (np.einsum("kc,kc->k", x, y) for x, y in ((e1, e1), (e1, e2), (e2, e2)))
-    r1, r2 = np.einsum("kc,kc->k", r, e1), np.einsum("kc,kc->k", r, e2)
-    det = np.maximum(d11 * d22 - d12 * d12, 1e-300)
-    return np.stack([(d22 * r1 - d12 * r2) / det, (d11 * r2 - d12 * r1) / det], axis=1)
-
-
-def _hits(at, nrm, rch, dirs, best, hit_tri, hit_uv, hit_front, first, counts=None):
+def _hits(at, nrm, rch, dirs, best, hit_tri, corners, hit_uv, hit_front, first, counts=None):
     """The :class:`Rays` of points ``at`` (counted from ``first``) whose rays ``dirs (c,
-    rays, 3)`` met ``hit_tri (c, rays)`` (-1: nothing within reach) at ``best``. ``counts
-    (c, rays)`` bool: the rays that count (None: all); a point's others are left out, and
-    its hits' ``fade`` is scaled by rays / its rays that count (the near field divides a
-    hit's weight by the rays)."""
+    rays, 3)`` met ``hit_tri (c, rays)`` (-1: nothing within reach) at ``best``, taking the
+    light of ``corners (c, rays, 3)``. ``counts (c, rays)`` bool: the rays that count (None:
+    all); a point's others are left out of its view."""
     # Hits fade out over the last FADE of the reach (their direction goes back to the
     # probes by as much): no step in the light where a surface passes out of reach.
     fade = np.clip((rch[:, None] - best) / (FADE * rch[:, None]), 0.0, 1.0)  # (c, rays); 0 where no hit
-    rays = dirs.shape[1]
     if counts is None:
         counts = np.ones(fade.shape, dtype=bool)
     fade *= counts
+    used = np.maximum(counts.sum(axis=1), 1)
     point, ray = np.nonzero((hit_tri >= 0) & counts)
     with_hits = np.unique(point)
     open_basis, share = open_basis_of(dirs[with_hits], fade[with_hits], nrm[with_hits], counts[with_hits])
     t = best[point, ray]
-    used = np.maximum(counts.sum(axis=1), 1)
-    return Rays(point + first, hit_tri[point, ray], hit_uv[point, ray], hit_front[point, ray], fade[point, ray] * (rays / used[point]),
-                 at[point] + t[:, None] * dirs[point, ray], open_basis, share, 1.0 - fade.sum(axis=1) / used)
+    return Rays(point + first, hit_tri[point, ray], corners[point, ray], hit_uv[point, ray], hit_front[point, ray],
+                fade[point, ray] / used[point], at[point] + t[:, None] * dirs[point, ray], open_basis, share, 1.0 - fade.sum(axis=1) / used)
 
 
-def open_basis_of(dirs, fade, normals, counts=None):
+def open_basis_of(dirs, fade, normals, counts):
     """What the probes' diffuse light loses at points casting rays ``dirs (m, k, 3)`` whose
-    hits weigh ``fade (m, k)``: their radiance in the hit directions, averaged as the rays
-    average, plus the hit share of the pattern's own quadrature error (so a point whose rays
-    all hit keeps no probe light, and one whose rays all leave keeps all). ``counts (m, k)``
-    bool: the rays that count (None: all). ``(open_basis (m, 9), share (m,))``."""
+    hits weigh ``fade (m, k)`` (``counts (m, k)`` bool: the rays that count): their radiance
+    in the hit directions, averaged as the rays that count average, plus the hit share of
+    the pattern's own quadrature error (so a point whose rays all hit keeps no probe light,
+    and one whose rays all leave keeps all). ``(open_basis (m, 9), share (m,))``."""
     y = sh.basis(dirs)  # (m, K, 9)
-    if counts is None:
-        used, mean = dirs.shape[1], y.mean(axis=1)
-    else:
-        used = np.maximum(counts.sum(axis=1), 1)[:, None]
-        mean = np.einsum("mk,mkj->mj", counts.astype(float), y) / used
-    share = fade.sum(axis=1) / np.ravel(used) if counts is not None else fade.mean(axis=1)
-    pattern_error = sh.diffuse_basis(normals) - mean
-    return np.einsum("mk,mkj->mj", fade, y) / used + share[:, None] * pattern_error, share
+    used = np.maximum(counts.sum(axis=1), 1)
+    share = fade.sum(axis=1) / used
+    pattern_error = sh.diffuse_basis(normals) - np.einsum("mk,mkj->mj", counts.astype(float), y) / used[:, None]
+    return np.einsum("mk,mkj->mj", fade, y) / used[:, None] + share[:, None] * pattern_error, share

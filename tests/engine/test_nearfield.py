@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from cubegi.cubegi_engine import hemisphere, nearfield, nearrays, sh, spatial
-from cubegi.cubegi_engine.geometry import planes_of
+from cubegi.cubegi_engine.geometry import inward, planes_of
 
 
 def _quad(lo, hi, z, up=True):
@@ -536,7 +536,7 @@ def test_crowded_points_share_the_rays_of_their_cluster_through_a_caster(monkeyp
     assert np.all(np.einsum("ij,ij->i", normals, [0.0, 0.0, 0.1] - pts) > -1e-9)
     alone = nearfield.build(pts, normals, 0.2, tris)
     assert alone.crowded > len(pts) // 2 and alone.alias is None
-    near = nearfield.build(pts, normals, 0.2, tris, caster=lambda: (NumpyRays(pts, tris), np.arange(len(tris))))
+    near = nearfield.build(pts, normals, 0.2, tris, caster=lambda: (NumpyRays(pts, tris), np.arange(len(tris)), inward(tris, pts)))
     assert near.crowded == 0 and near.count == alone.count + alone.crowded  # every crowded point has a row
     assert np.isin(alone.rows, near.rows).all()
     members, theirs = near.alias
@@ -582,7 +582,7 @@ def test_a_caster_ray_that_meets_a_back_face_first_is_no_sample(monkeypatch):
     pts, tris, normals = _open_box(0.2, 24)
     wall = np.flatnonzero(np.isclose(pts[tris].mean(axis=1)[:, 0], 0.1))  # the wall at x = +0.1, its faces turned out
     tris[wall] = tris[wall][:, ::-1]
-    near = nearfield.build(pts, normals, 0.2, tris, caster=lambda: (NumpyRays(pts, tris), np.arange(len(tris))))
+    near = nearfield.build(pts, normals, 0.2, tris, caster=lambda: (NumpyRays(pts, tris), np.arange(len(tris)), inward(tris, pts)))
     assert near.count > len(pts) // 2
     np.testing.assert_allclose(near.gather(np.ones((len(pts), 3)))[:, 0], near.share, atol=1e-9)
     bottom_middle = np.argmin(np.linalg.norm(pts - [0.0, 0.0, 0.0], axis=1))

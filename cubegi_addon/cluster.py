@@ -160,8 +160,10 @@ def _client(workers=None, scheduler=None):
     try:
         # One task on a worker at a time (none waits there behind a bake): the tasks a worker
         # is processing are then the bakes it runs (see _stop).
+        # Its dashboard on a free port (None means 8787: a second batch on the machine printed
+        # distributed's warning that the port is taken).
         with dask.config.set({"distributed.scheduler.worker-saturation": 1.0}):
-            cluster = LocalCluster(n_workers=int(workers or 2), threads_per_worker=1, processes=True, dashboard_address=None)
+            cluster = LocalCluster(n_workers=int(workers or 2), threads_per_worker=1, processes=True, dashboard_address=":0")
     finally:
         if ignore:
             signal.signal(signal.SIGINT, previous)

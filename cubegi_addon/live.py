@@ -150,8 +150,8 @@ def _apply_lights(state, edits):
 def _apply_materials(kept, state, edits):
     live = kept.live
     if edits.albedo is not None:
-        state.set_albedo(updates.effective_albedo(kept.bake.arrays, edits.albedo))
-        live.albedo = edits.albedo
+        state.set_albedo(edits.sent)
+        live.albedo, live.sent = edits.albedo, edits.sent
     if edits.emission is not None:
         state.set_emission(edits.emission)
         live.emission = edits.emission

@@ -1,5 +1,7 @@
 """A material as CubeGI reads it: per face corner, the albedo and the emission of its surface
-shader (Principled BSDF, Diffuse BSDF, Emission), with notes for what it cannot read.
+shader (Principled BSDF, Diffuse BSDF, Emission), with notes for what it cannot read. A
+Principled BSDF's albedo is what it sends on: its Base Color and what its specular layer
+reflects (:mod:`~cubegi_engine.specular`).
 
 Part of the scene reader (:mod:`.scene_data`); bulk data through ``foreach_get``.
 """
@@ -7,6 +9,7 @@ Part of the scene reader (:mod:`.scene_data`); bulk data through ``foreach_get``
 import numpy as np
 
 from ..cubegi_engine.cubemap import sample_image
+from ..cubegi_engine.specular import facing_reflectance, sent_on, specular_share
 from . import attributes
 
 __all__ = ["material_corners", "image_pixels", "socket_strength", "DEFAULT_ALBEDO", "WIRING_NODE"]
@@ -173,16 +176,44 @@ NOT_DIFFUSE = (("Metallic", "metallic"), ("Transmission Weight", "transmissive")
 
 
 def material_corners(material, mesh, loop_ids, loop_vertex, notes):
-    """Albedo and emission ``(k, 3)`` each for the corners ``loop_ids`` of one material."""
+    """Albedo, emission and what the surface sends on (:attr:`SceneArrays.reflectance`),
+    ``(k, 3)`` each, for the corners ``loop_ids`` of one material."""
     k = len(loop_ids)
     if material is None:
-        return _filled(DEFAULT_ALBEDO, k), _filled(0.0, k)
+        return _diffuse(_filled(DEFAULT_ALBEDO, k))
     fallback = np.asarray(material.diffuse_color[:3], dtype=np.float64)
     shader = _surface_shader(material)
     if shader is None:
         notes.append(f"material {material.name!r}: no node surface, using its viewport colour")
-        return _filled(fallback, k), _filled(0.0, k)
+        return _diffuse(_filled(fallback, k))
     return _shader_corners(material, shader, (mesh, loop_ids, loop_vertex), fallback, notes)
+
+
+def _diffuse(albedo):
+    """A diffuse surface's ``(albedo, emission, sent on)``: no emission, and it sends on its
+    albedo."""
+    return albedo, _filled(0.0, len(albedo)), albedo
+
+
+def _specular_share(material, ins, notes):
+    """What a Principled BSDF's specular layer sends on (:mod:`~cubegi_engine.specular`), from
+    its Roughness, IOR, Specular IOR Level and Specular Tint (a linked one: its own value, and
+    a note)."""
+    values = {}
+    for name, default in (("Roughness", 0.5), ("IOR", 1.5), ("Specular IOR Level", 0.5)):
+        sock = ins.get(name)
+        problems = []
+        values[name] = socket_strength(sock, problems) if sock is not None else default
+        notes += [f"material {material.name!r}: {name} {p}; using {values[name]:g}" for p in problems]
+    tint = ins.get("Specular Tint")
+    colour = np.ones(3)
+    if tint is not None and tint.type == "RGBA":
+        colour = np.asarray(tint.default_value[:3], dtype=np.float64)
+        if tint.is_linked:
+            notes.append(f"material {material.name!r}: Specular Tint is fed by a node, which CubeGI does not read; "
+                         "using its own colour")
+    f0 = facing_reflectance(values["IOR"], values["Specular IOR Level"]) * colour
+    return specular_share(f0, values["Roughness"])
 
 
 # Shaders inside Mix and Add Shader nodes are read to this depth.
@@ -194,22 +225,23 @@ def _linked_shader(socket):
 
 
 def _shader_corners(material, shader, args, fallback, notes, depth=0):
-    """Albedo and emission ``(k, 3)`` of one shader node (Mix and Add Shader: of what they
-    mix or add; Cycles mixes and adds their closures, and diffuse light is linear in them)."""
+    """Albedo, emission and what is sent on, ``(k, 3)`` each, of one shader node (Mix and Add
+    Shader: of what they mix or add; Cycles mixes and adds their closures, and diffuse light
+    is linear in them)."""
     k = len(args[1])
     zeros = _filled(0.0, k)
     if shader is None:  # an unlinked shader socket: no closure, nothing reflected or emitted
-        return zeros, zeros
+        return zeros, zeros, zeros
     if shader.type in {"MIX_SHADER", "ADD_SHADER"} and depth < MAX_SHADER_DEPTH:
         sockets = [s for s in shader.inputs if s.type == "SHADER"]
         a = _shader_corners(material, _linked_shader(sockets[0]), args, fallback, notes, depth + 1)
         b = _shader_corners(material, _linked_shader(sockets[1]), args, fallback, notes, depth + 1)
         if shader.type == "ADD_SHADER":
-            return a[0] + b[0], a[1] + b[1]
+            return tuple(x + y for x, y in zip(a, b))
         problems = []
         f = float(np.clip(socket_strength(shader.inputs["Fac"], problems), 0.0, 1.0))
         notes += [f"material {material.name!r}: a Mix Shader's Factor {p}; using {f:g}" for p in problems]
-        return (1.0 - f) * a[0] + f * b[0], (1.0 - f) * a[1] + f * b[1]
+        return tuple((1.0 - f) * x + f * y for x, y in zip(a, b))
     if shader.type == "BSDF_PRINCIPLED":
         ins = shader.inputs
         albedo = _colour_and_notes(material, "Base Color", ins["Base Color"], *args, fallback, "its viewport colour", notes)
@@ -226,22 +258,25 @@ def _shader_corners(material, shader, args, fallback, notes, depth=0):
             if sock is not None and (sock.is_linked or float(sock.default_value) > 0.0):
                 notes.append(f"material {material.name!r}: {name} is set; CubeGI bakes it as a diffuse surface, "
                              f"which a {adjective} surface is not")
-        return albedo, _scaled(emission, strength)
+        share = _specular_share(material, ins, notes)
+        if albedo.strides[0] == 0:  # one colour: kept a broadcast
+            return albedo, _scaled(emission, strength), _filled(sent_on(np.clip(albedo[0], 0.0, 1.0), share), k)
+        return albedo, _scaled(emission, strength), sent_on(np.clip(albedo, 0.0, 1.0), share)
     if shader.type == "BSDF_DIFFUSE":
-        return _colour_and_notes(material, "Color", shader.inputs["Color"], *args, fallback, "its viewport colour", notes), zeros
+        return _diffuse(_colour_and_notes(material, "Color", shader.inputs["Color"], *args, fallback, "its viewport colour", notes))
     if shader.type == "EMISSION":
         problems = []
         strength = socket_strength(shader.inputs["Strength"], problems)
         notes += [f"material {material.name!r}: Strength {p}; using {strength:g}" for p in problems]
         emission = _scaled(_colour_and_notes(material, "Color", shader.inputs["Color"], *args, np.ones(3), "white", notes), strength)
-        return zeros, emission
+        return zeros, emission, zeros
     if shader.type in GLOSSY_SHADERS and "Color" in shader.inputs:
         notes.append(f"material {material.name!r}: its {shader.bl_label} shader is baked as a diffuse reflection of its "
                      "Color (Cycles reflects that light as a mirror or a sheen would)")
-        return _colour_and_notes(material, "Color", shader.inputs["Color"], *args, fallback, "its viewport colour", notes), zeros
+        return _diffuse(_colour_and_notes(material, "Color", shader.inputs["Color"], *args, fallback, "its viewport colour", notes))
     if shader.type == "GROUP":
         notes.append(f"material {material.name!r}: its surface is a node group, which CubeGI does not read; baked with "
                      "its viewport colour and no emission (any light it emits is lost)")
     else:
         notes.append(f"material {material.name!r}: shader {shader.bl_idname} not understood, using its viewport colour")
-    return _filled(fallback, k), zeros
+    return _diffuse(_filled(fallback, k))

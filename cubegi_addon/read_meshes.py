@@ -74,14 +74,16 @@ def mesh_arrays(ob_eval, matrix, notes):
         loop_mat[tri_loops.ravel()] = np.repeat(tri_mat, 3)
         albedo = np.empty((nl, 3))
         emission = np.empty((nl, 3))
+        sent = np.empty((nl, 3))
         slots = [s.material for s in ob_eval.material_slots] or [None]
         used = np.flatnonzero(np.bincount(loop_mat))
         for mi in used:
             ids = np.arange(nl) if len(used) == 1 else np.flatnonzero(loop_mat == mi)
             mat = slots[mi] if mi < len(slots) else None
             rows = slice(None) if len(used) == 1 else ids
-            albedo[rows], emission[rows] = read_materials.material_corners(mat, mesh, ids, loop_vertex, notes)
+            albedo[rows], emission[rows], sent[rows] = read_materials.material_corners(mat, mesh, ids, loop_vertex, notes)
         np.clip(albedo, 0.0, 1.0, out=albedo)
+        np.clip(sent, 0.0, 1.0, out=sent)
         np.maximum(emission, 0.0, out=emission)
         return {
             "co": co,
@@ -93,6 +95,7 @@ def mesh_arrays(ob_eval, matrix, notes):
             "loop_mat": loop_mat,
             "albedo": albedo,
             "emission": emission,
+            "sent": sent,
             "vertex_count": nv,
         }
     finally:
@@ -118,6 +121,7 @@ def shading_points(data):
         "normals": normals,
         "albedo": mean(data["albedo"]),
         "emission": mean(data["emission"]),
+        "sent": mean(data["sent"]),
         "triangles": inverse[data["tri_loops"]],
         "loop_point": inverse,
     }
@@ -167,7 +171,7 @@ def with_back_side(pts, data):
     pts["back"] = np.zeros(n, dtype=bool)
     if not _is_open(data):
         return pts
-    for key in ("points", "albedo", "emission"):
+    for key in ("points", "albedo", "emission", "sent"):
         pts[key] = np.concatenate([pts[key], pts[key]])
     pts["normals"] = np.concatenate([pts["normals"], -pts["normals"]])
     pts["triangles"] = np.concatenate([pts["triangles"], pts["triangles"][:, ::-1] + n])

@@ -432,18 +432,15 @@ def _assemble(reading):
             targets.append(target)
         offset += len(pts["points"])
     tri_offsets = np.cumsum([0] + [len(p["points"]) for p in parts[:-1]])
+    joined = {key: np.concatenate([p[key] for p in parts]) for key in ("points", "normals", "albedo", "emission", "sent")}
     arrays = SceneArrays(
-        points=np.concatenate([p["points"] for p in parts]),
-        normals=np.concatenate([p["normals"] for p in parts]),
-        albedo=np.concatenate([p["albedo"] for p in parts]),
-        emission=np.concatenate([p["emission"] for p in parts]),
+        **{key: joined[key] for key in ("points", "normals", "albedo", "emission")},
         triangles=np.concatenate([p["triangles"] + o for p, o in zip(parts, tri_offsets)]).astype(np.int64),
-        sky=reading.sky,
-        sky_map=reading.sky_map,
-        lights=reading.lights,
+        sky=reading.sky, sky_map=reading.sky_map, lights=reading.lights,
         point_object=np.repeat(np.arange(len(parts)), [len(p["points"]) for p in parts]),
         object_names=[p["name"] for p in parts],
         back=np.concatenate([p["back"] for p in parts]) if any(p["back"].any() for p in parts) else None,
+        reflectance=None if np.array_equal(joined["sent"], joined["albedo"]) else joined["sent"],  # all diffuse: the albedo
     )
     notes = reading.notes
     arrays.dark = _set_aside_non_finite(arrays, parts, notes)
@@ -467,8 +464,8 @@ def _set_aside_non_finite(arrays, parts, notes):
         raise BakeError("no triangle of the scene has finite coordinates")
     arrays.points[bad] = arrays.points[~bad][0]
     arrays.normals[bad] = (0.0, 0.0, 1.0)
-    arrays.albedo[bad] = 0.0
-    arrays.emission[bad] = 0.0
+    for colours in (arrays.albedo, arrays.emission, arrays.reflectance if arrays.reflectance is not None else arrays.albedo):
+        colours[bad] = 0.0
     return bad
 
 

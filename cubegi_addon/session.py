@@ -77,6 +77,7 @@ class LiveState:
     light: Any = None
     renderer: Any = None
     unsettled: bool = False
+    sent: np.ndarray | None = None  # what the surfaces send on now, where a material edit changed it (else the bake's)
 
     @classmethod
     def of(cls, snapshot: BakeSnapshot, moving=(), groups=None, light=None, renderer=None, shadows=None) -> "LiveState":

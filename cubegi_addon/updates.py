@@ -62,10 +62,12 @@ class LightEdits:
 
 @dataclass(frozen=True)
 class MaterialEdits:
-    """New albedo ``(s, 3)`` (dark points zero) and emission ``(s, 3)``, each None if unchanged."""
+    """New albedo ``(s, 3)`` with what the surfaces send on (``sent``, ``SceneArrays.sent_on``),
+    and emission ``(s, 3)``, each None if unchanged."""
 
     albedo: np.ndarray | None = None
     emission: np.ndarray | None = None
+    sent: np.ndarray | None = None
 
 
 @dataclass
@@ -214,14 +216,15 @@ def _material_edits(context, kept, changed):
     arrays = scene_data.collect(context, only=bake.only, grid=bake.result.grid.whole()).arrays
     if not arrays.fingerprint().same_geometry(bake.arrays.fingerprint()):
         raise BakeError("the geometry changed since the bake: Bake again (an update keeps the capture, which only a bake redraws)")
-    albedo = emission = None
-    if not np.array_equal(effective_albedo(arrays, arrays.albedo), effective_albedo(bake.arrays, live.albedo)):
-        albedo = arrays.albedo
+    albedo = emission = sent = None
+    if not (np.array_equal(effective_albedo(arrays, arrays.albedo), effective_albedo(bake.arrays, live.albedo))
+            and np.array_equal(arrays.sent_on(), live.sent if live.sent is not None else bake.arrays.sent_on())):
+        albedo, sent = arrays.albedo, arrays.sent_on()
         changed.append("material colours")
     if not np.array_equal(arrays.emission, live.emission):
         emission = arrays.emission
         changed.append("material emission")
-    return MaterialEdits(albedo, emission)
+    return MaterialEdits(albedo, emission, sent)
 
 
 def _moved_objects(context, kept):

@@ -147,7 +147,8 @@ def _simplify_sheets(scene, sheets, budget):
     one_sided = replace(scene, points=scene.points[front], normals=scene.normals[front], albedo=scene.albedo[front],
                         emission=scene.emission[front], triangles=index[scene.triangles[~sheets.triangle_back]],
                         point_object=np.asarray(scene.point_object)[front], back=None,
-                        dark=None if scene.dark is None else scene.dark[front])
+                        dark=None if scene.dark is None else scene.dark[front],
+                        reflectance=None if scene.reflectance is None else scene.reflectance[front])
     proxy = simplify(one_sided, budget)
     if proxy is None:
         return None

@@ -120,7 +120,7 @@ def refine(scene: SceneArrays, max_edge) -> tuple[SceneArrays, np.ndarray]:
                           lights=scene.lights, point_object=out["point_object"] if scene.point_object is not None else None,
                           dark=out.get("dark"), object_names=list(scene.object_names), sky_map=scene.sky_map,
                           back=out["back"] if scene.back is not None else None, gathered=out.get("gathered"),
-                          sampled_triangles=_added(scene, lay, counts))
+                          sampled_triangles=_added(scene, lay, counts), reflectance=out.get("reflectance"))
     return refined, lay.moved
 
 
@@ -182,7 +182,7 @@ class _Layout:
 def _moved_arrays(scene, lay, back_pt) -> dict:
     """The refined arrays with the old points in their new places (the new ones to fill)."""
     out = {}
-    for name in ("points", "normals", "albedo", "emission"):
+    for name in ("normals", *_carried(scene)):
         out[name] = np.empty((lay.total, 3))
         out[name][lay.moved] = getattr(scene, name)
     out["point_object"] = np.repeat(np.arange(len(lay.out_sizes)), lay.out_sizes)
@@ -195,6 +195,11 @@ def _moved_arrays(scene, lay, back_pt) -> dict:
     return out
 
 
+def _carried(scene) -> tuple:
+    """The per-point arrays a new point takes from its triangle's corners, mixed."""
+    return ("points", "albedo", "emission") + (("reflectance",) if scene.reflectance is not None else ())
+
+
 def _split(scene, tri, lay, out, sel, n):
     """The rows ``sel`` of ``lay`` (triangles cut ``n`` ways): their new points written into
     ``out``; returns ``(their triangles (m n^2, 3), their twins' or None)``."""
@@ -204,7 +209,7 @@ def _split(scene, tri, lay, out, sel, n):
     fresh = lay.out_start[obj][:, None] + lay.own[obj][:, None] + base[:, None] + np.arange(len(weights) - 3)[None, :]
     index = np.concatenate([lay.moved[corners], fresh], axis=1)
     w = weights[3:]  # (L-3, 3)
-    for name in ("points", "albedo", "emission"):
+    for name in _carried(scene):
         out[name][fresh] = np.einsum("lk,mkc->mlc", w, np.asarray(getattr(scene, name), dtype=np.float64)[corners])
     nrm = np.einsum("lk,mkc->mlc", w, np.asarray(scene.normals, dtype=np.float64)[corners])
     out["normals"][fresh] = nrm / np.maximum(np.linalg.norm(nrm, axis=2, keepdims=True), 1e-300)
@@ -213,7 +218,7 @@ def _split(scene, tri, lay, out, sel, n):
         return index[:, sub].reshape(-1, 3), None
     shift = lay.twin_offset[obj[two]][:, None]
     tw = fresh[two] + shift
-    for name in ("points", "albedo", "emission"):
+    for name in _carried(scene):
         out[name][tw] = out[name][fresh[two]]
     out["normals"][tw] = -out["normals"][fresh[two]]
     out["back"][tw] = True

@@ -437,7 +437,7 @@ def from_bake(result, scene, light_direct, add_tail=True, conserve_energy=True, 
     emitters' and sky's direct light (no drawing). ``light_direct``, ``emitter_light``,
     ``sky_light``: for lights, emission and a sky that change later."""
     transport = result.capture.transport
-    albedo = np.where(scene.dark[:, None], 0.0, scene.albedo) if scene.dark is not None else scene.albedo
+    albedo = scene.sent_on()
     landing = transport.landing_share() if conserve_energy else None
     op = MatrixOperator(transport, albedo, landing, scene.point_areas())
     state = SceneLight(scene, transport, light_direct, op, len(result.solution.bounces), add_tail, emitter_light, sky_light)

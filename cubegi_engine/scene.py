@@ -46,7 +46,10 @@ class SceneArrays:
     """The scene as CubeGI sees it: shading points, triangles over them, lights and sky.
 
     points, normals: ``(s, 3)`` float64 world space, normals unit; albedo: ``(s, 3)``
-    diffuse colour in [0, 1]; emission: ``(s, 3)`` emitted radiance; triangles: ``(t, 3)``
+    diffuse colour in [0, 1] (what a point's baked light is lit by: its colour in a render);
+    reflectance: ``(s, 3)`` what a point sends on of the light reaching it, where that is more
+    than its albedo (a Principled BSDF's specular layer, :mod:`cubegi_engine.specular`), or
+    None (its albedo: :meth:`sent_on`); emission: ``(s, 3)`` emitted radiance; triangles: ``(t, 3)``
     int64 point indices; sky: ``(3,)`` radiance of the world background (its mean over the
     sphere); sky_map: None for a uniform sky, or its pattern: an equirectangular image ``(h,
     w, 3)`` (Cycles' mapping, :func:`cubegi_engine.cubemap.equirect_uv`) of the radiance
@@ -76,6 +79,13 @@ class SceneArrays:
     # added (:mod:`cubegi_engine.refine`): the probes' triangle budget is of the scene as
     # modelled (:func:`cubegi_engine.proxy.simplify`). None: none added.
     sampled_triangles: np.ndarray | None = None
+    reflectance: np.ndarray | None = None  # see above
+
+    def sent_on(self) -> np.ndarray:
+        """``(s, 3)``: what each point sends on of the light reaching it (:attr:`reflectance`,
+        else the albedo), zero at the dark points."""
+        out = self.albedo if self.reflectance is None else self.reflectance
+        return np.where(self.dark[:, None], 0.0, out) if self.dark is not None else out
 
     def zero_dark_points_inplace(self, light: np.ndarray) -> np.ndarray:
         """``light (s, 3)`` with the dark points' rows set to zero, in place; returned."""

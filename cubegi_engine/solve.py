@@ -133,7 +133,7 @@ def solve_steps(scene, transport, direct, settings: BakeSettings | None = None, 
     settings = settings or BakeSettings()
     total = total_steps if total_steps is not None else first_step + settings.bounces + 1
     areas = scene.point_areas()
-    albedo = scene.albedo.astype(np.float32)
+    albedo = scene.sent_on().astype(np.float32)
     op = TableOperator(scene, transport, albedo, areas, landing)
     series = bounce_series(op, direct, balanced=landing is not None)
     bounces, records = [], []

@@ -397,6 +397,23 @@ def _principled(name, **inputs):
         bsdf.inputs[key].default_value = value
 
 
+def _dark_glossy():
+    """Every surface of the box dark (base colour 0.1) at Specular IOR Level 1: its specular
+    layer sends on about a third as much again as the base colour."""
+    for mat in bpy.data.materials:
+        bsdf = next((n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED"), None)
+        if bsdf is not None:
+            bsdf.inputs["Base Color"].default_value = (0.1, 0.1, 0.1, 1.0)
+            bsdf.inputs["Specular IOR Level"].default_value = 1.0
+
+
+def _textured_roughness():
+    mat = bpy.data.objects["Tall"].active_material
+    noise = mat.node_tree.nodes.new("ShaderNodeTexNoise")
+    bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    mat.node_tree.links.new(noise.outputs["Fac"], bsdf.inputs["Roughness"])
+
+
 def _mixed(kind):
     def make(tree, output):
         a = tree.nodes.new("ShaderNodeBsdfDiffuse")
@@ -567,11 +584,14 @@ def _text():
 
 EMITTERS = ("approximated: emitters light the scene as area lights (exact form factors, shadow maps from their "
             "sample points); measured -7% to +2% here")
+SPECULAR = ("approximated: the light its specular layer reflects is sent on as a diffuse surface's (a share measured in "
+            "Cycles by Roughness and the facing reflectance: cubegi_engine/specular.py)")
 SKY_THROUGH_PROBES = "approximated: through the probes (-7% here); with Sky per Vertex exact to a few per cent"
 MATERIAL_ROWS = {
     # feature: (make the scene, the pass compared, support, tolerance of the bias)
     "Diffuse BSDF (red)": (_diffuse_bsdf, "INDIRECT", EXACT, None),
     "Principled Base Color (blue)": (lambda: _principled("Tall", **{"Base Color": (0.1, 0.2, 0.8, 1.0)}), "INDIRECT", EXACT, None),
+    "Principled specular layer (every surface base colour 0.1, Specular IOR Level 1)": (_dark_glossy, "INDIRECT", SPECULAR, None),
     "Emission shader (a glowing block)": (_emission_shader, "DIRECT", EMITTERS, 0.1),
     "Principled Emission (strength 4)": (lambda: _principled("Short", **{"Emission Color": (1.0, 0.9, 0.7, 1.0),
                                                                          "Emission Strength": 4.0}), "DIRECT", EMITTERS, 0.1),
@@ -634,6 +654,8 @@ MATERIAL_NOTES = {
     "Image texture mapped by Object coordinates": (lambda: _object_mapped("Object"), "is mapped by the Object output"),
     "Environment Texture rotated by a Mapping node": (_mapped_environment, "is mapped"),
     "Principled Subsurface Weight 1": (lambda: _principled("Tall", **{"Subsurface Weight": 1.0}), "subsurface-scattering"),
+    "Principled Roughness from a texture": (_textured_roughness, "Roughness fed by a Noise Texture node, which CubeGI does not "
+                                            "read; using 1"),
 }
 
 

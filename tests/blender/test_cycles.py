@@ -500,3 +500,23 @@ def test_a_white_cups_inside_is_lit_by_itself_as_cycles_lights_it(empty_scene, c
     assert crowded_before > inside.sum() // 2 and crowded_after < crowded_before, got
     assert abs(after) < 0.08 and abs(before) > abs(after) + 0.3, got
     assert abs(outside_after) < 0.08, got
+
+
+def test_a_dark_glossy_rooms_specular_layer_lights_the_room_as_in_cycles(empty_scene, cubegi, monkeypatch):
+    """Every surface of the box a Principled BSDF of base colour 0.1 at Specular IOR Level 1
+    (Roughness 1): its specular layer sends on about a third as much light again as the base
+    colour, and Cycles counts it in every other surface's indirect light. Read as its Base
+    Color alone, the box's indirect light is too dark by a quarter."""
+    scenes.cornell(light=True)
+    obs = [ob for ob in bpy.context.scene.objects if ob.type == "MESH"]
+    for mat in bpy.data.materials:
+        bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+        bsdf.inputs["Base Color"].default_value = (0.1, 0.1, 0.1, 1.0)
+        bsdf.inputs["Specular IOR Level"].default_value = 1.0
+    with_layer = _bake_both(cubegi, obs, ("INDIRECT",), samples=128)["INDIRECT"]
+    monkeypatch.setattr(cubegi.cubegi_addon.read_materials, "specular_share", lambda f0, roughness: 0.0)
+    cubegi.cubegi_addon.session.forget()
+    without = _bake_both(cubegi, obs, ("INDIRECT",), samples=128)["INDIRECT"]
+    print(with_layer, without)
+    assert abs(with_layer["rel_bias"]) < INDIRECT_BIAS_TOL, with_layer
+    assert without["rel_bias"] < -0.15, without

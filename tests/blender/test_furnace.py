@@ -17,7 +17,11 @@ FLOAT32_TOL = 1e-4
 
 
 def furnace(rho):
+    """The box, Lambertian: its Principled BSDF's specular layer off (Specular IOR Level 0),
+    which would otherwise send on a few per cent more than rho (cubegi_engine.specular)."""
     box = scenes.closed_box(size=2.0, cells=6, albedo=rho, emission=(1.0, 1.0, 1.0), strength=1.0)
+    bsdf = next(n for n in box.active_material.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    bsdf.inputs["Specular IOR Level"].default_value = 0.0
     scenes.set_world((0.0, 0.0, 0.0))
     return box.data
 

@@ -9,7 +9,7 @@ Part of the scene reader (:mod:`.scene_data`); bulk data through ``foreach_get``
 import numpy as np
 
 from ..cubegi_engine.cubemap import sample_image
-from ..cubegi_engine.specular import facing_reflectance, sent_on, specular_share
+from ..cubegi_engine.specular import facing_reflectance, layer, sent_on
 from . import attributes
 
 __all__ = ["material_corners", "image_pixels", "socket_strength", "DEFAULT_ALBEDO", "WIRING_NODE"]
@@ -195,8 +195,8 @@ def _diffuse(albedo):
     return albedo, _filled(0.0, len(albedo)), albedo
 
 
-def _specular_share(material, ins, notes):
-    """What a Principled BSDF's specular layer sends on (:mod:`~cubegi_engine.specular`), from
+def _specular_layer(material, ins, notes):
+    """A Principled BSDF's specular layer's ``(loss, gain)`` (:mod:`~cubegi_engine.specular`), from
     its Roughness, IOR, Specular IOR Level and Specular Tint (a linked one: its own value, and
     a note)."""
     values = {}
@@ -213,7 +213,7 @@ def _specular_share(material, ins, notes):
             notes.append(f"material {material.name!r}: Specular Tint is fed by a node, which CubeGI does not read; "
                          "using its own colour")
     f0 = facing_reflectance(values["IOR"], values["Specular IOR Level"]) * colour
-    return specular_share(f0, values["Roughness"])
+    return layer(f0, values["Roughness"])
 
 
 # Shaders inside Mix and Add Shader nodes are read to this depth.
@@ -258,10 +258,10 @@ def _shader_corners(material, shader, args, fallback, notes, depth=0):
             if sock is not None and (sock.is_linked or float(sock.default_value) > 0.0):
                 notes.append(f"material {material.name!r}: {name} is set; CubeGI bakes it as a diffuse surface, "
                              f"which a {adjective} surface is not")
-        share = _specular_share(material, ins, notes)
+        loss, gain = _specular_layer(material, ins, notes)
         if albedo.strides[0] == 0:  # one colour: kept a broadcast
-            return albedo, _scaled(emission, strength), _filled(sent_on(np.clip(albedo[0], 0.0, 1.0), share), k)
-        return albedo, _scaled(emission, strength), sent_on(np.clip(albedo, 0.0, 1.0), share)
+            return albedo, _scaled(emission, strength), _filled(sent_on(np.clip(albedo[0], 0.0, 1.0), loss, gain), k)
+        return albedo, _scaled(emission, strength), sent_on(np.clip(albedo, 0.0, 1.0), loss, gain)
     if shader.type == "BSDF_DIFFUSE":
         return _diffuse(_colour_and_notes(material, "Color", shader.inputs["Color"], *args, fallback, "its viewport colour", notes))
     if shader.type == "EMISSION":

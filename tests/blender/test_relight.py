@@ -141,6 +141,30 @@ def test_world_colour_and_material_edits_equal_a_full_bake(empty_scene, cubegi):
     wall.inputs["Emission Strength"].default_value = 0.5
     report = cubegi.cubegi_addon.live.update(bpy.context, materials=True)
     assert {"material colours", "material emission"} <= set(report.changed) and report.route == "materials"
+    _assert_like_a_full_bake(cubegi, settings)
+
+
+def test_a_specular_layer_edit_alone_is_a_material_edit_equal_to_a_full_bake(empty_scene, cubegi):
+    """The Ground's Specular IOR Level and Roughness change, its Base Color does not: what it
+    sends on changes (cubegi_engine.specular), and an update picks it up."""
+    from benchmarks.scenes import courtyard
+
+    courtyard()
+    settings = dict(grid=(4, 4, 2), cube_size=16, bounces=3)
+    assert bpy.ops.cubegi.bake(**settings) == {"FINISHED"}
+    before = cubegi.cubegi_addon.attributes.read(bpy.data.objects["Block"].data, "CubeGI")
+    ground = bpy.data.materials["Ground"].node_tree.nodes["Principled BSDF"]
+    ground.inputs["Specular IOR Level"].default_value = 1.0
+    ground.inputs["Roughness"].default_value = 0.5
+    report = cubegi.cubegi_addon.live.update(bpy.context, materials=True)
+    assert report.changed == ["material colours"] and report.route == "materials", report
+    after = cubegi.cubegi_addon.attributes.read(bpy.data.objects["Block"].data, "CubeGI")
+    assert after.mean() > 1.01 * before.mean(), (before.mean(), after.mean())
+    _assert_like_a_full_bake(cubegi, settings)
+
+
+def _assert_like_a_full_bake(cubegi, settings):
+    """Every mesh's layers now (after an update) equal a full bake's of the scene now."""
     read = cubegi.cubegi_addon.attributes.read
     names = [ob.name for ob in bpy.context.scene.objects if ob.type == "MESH"]
     updated = {(n, a): read(bpy.data.objects[n].data, a) for n in names for a in LAYERS}

@@ -280,13 +280,37 @@ def _record(src, out_dir, status, error=None):
 
 def job_key(src, options):
     """What a file's bake was made from: the input's content (SHA-256 of its bytes, not its
-    time), the bake options and CubeGI's version. A batch skips a file only while this is
-    unchanged; images or libraries the file links to are not part of it."""
+    time), the bake options, CubeGI's version and its code (:func:`code_digest`: a bake made
+    by other code is made again, whatever the version says). A batch skips a file only while
+    this is unchanged; images or libraries the file links to are not part of it."""
     digest = hashlib.sha256()
     with open(src, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):
             digest.update(block)
-    return {"input_sha256": digest.hexdigest(), "options": list(options), "cubegi_version": __version__}
+    return {"input_sha256": digest.hexdigest(), "options": list(options), "cubegi_version": __version__,
+            "cubegi_code": code_digest()}
+
+
+_CODE_DIGESTS = {}
+
+
+def code_digest(root=None):
+    """SHA-256 of CubeGI's own code: every ``.py`` file of ``cubegi_addon`` and ``cubegi_engine``
+    under ``root`` (the extension's folder; default: this one), by path and content; made once
+    per process and folder."""
+    root = os.path.realpath(root or os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    if root not in _CODE_DIGESTS:
+        digest = hashlib.sha256()
+        for package in ("cubegi_addon", "cubegi_engine"):
+            for folder, dirs, names in sorted(os.walk(os.path.join(root, package))):
+                dirs.sort()
+                for name in sorted(n for n in names if n.endswith(".py")):
+                    path = os.path.join(folder, name)
+                    digest.update(os.path.relpath(path, root).encode() + b"\0")
+                    with open(path, "rb") as fh:
+                        digest.update(hashlib.sha256(fh.read()).digest())
+        _CODE_DIGESTS[root] = digest.hexdigest()
+    return _CODE_DIGESTS[root]
 
 
 def _done_before(src, out_dir, key):

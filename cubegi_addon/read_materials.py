@@ -213,7 +213,15 @@ def _specular_layer(material, ins, notes):
             notes.append(f"material {material.name!r}: Specular Tint is fed by a node, which CubeGI does not read; "
                          "using its own colour")
     f0 = facing_reflectance(values["IOR"], values["Specular IOR Level"]) * colour
-    return layer(f0, values["Roughness"])
+    loss, gain = layer(f0, values["Roughness"])
+    # A metallic or transmissive share has no dielectric layer over a diffuse base (it is baked
+    # as diffuse, with a note): the layer weighs what is left.
+    weight = 1.0
+    for name in ("Metallic", "Transmission Weight"):
+        sock = ins.get(name)
+        if sock is not None and not sock.is_linked:
+            weight *= 1.0 - float(np.clip(sock.default_value, 0.0, 1.0))
+    return loss * weight, gain * weight
 
 
 # Shaders inside Mix and Add Shader nodes are read to this depth.

@@ -101,7 +101,8 @@ class Kept:
     def nbytes(self):
         bake, field = self.bake, self.bake.result.field
         a = bake.arrays
-        arrays = (a.points, a.normals, a.albedo, a.emission, a.triangles)
+        arrays = (a.points, a.normals, a.albedo, a.emission, a.triangles,
+                  *(x for x in (a.reflectance, self.live.sent) if x is not None))
         light = [bake.result.solution.direct, *bake.result.solution.bounces, *bake.result.direct_parts.parts.values()]
         extra = self.live.light.op.nbytes if self.live.light is not None else 0
         extra += kept_nbytes(a)  # the gathered vertices' ray caster and rays

@@ -50,7 +50,7 @@ F0_POWER = 0.8
 def facing_reflectance(ior, level) -> float:
     """F0 of a dielectric of index ``ior``, scaled by the Specular IOR Level ``level`` as
     Cycles scales it (0.5: as the IOR gives it; 0: none; 1: twice)."""
-    ior = max(float(ior), 1.0)
+    ior = max(float(ior), 1e-6)  # below 1 (a Value node can set it): as Cycles, |ior - 1| / (ior + 1)
     return ((ior - 1.0) / (ior + 1.0)) ** 2 * 2.0 * max(float(level), 0.0)
 
 

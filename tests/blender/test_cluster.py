@@ -5,6 +5,7 @@ one-machine cache."""
 
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -103,6 +104,30 @@ def test_a_batch_equals_one_machine_bakes_and_a_bad_file_stops_nothing(three_fil
     assert run(*FAST) == {"scene0.blend": "skipped", "scene1.blend": "done", "scene2.blend": "skipped"}
     assert run(*FAST[:-1], "1") == {"scene0.blend": "done", "scene1.blend": "done", "scene2.blend": "done"}  # other options
     assert not [n for n in os.listdir(out) if n.startswith(".cubegi-") or n.endswith(".blend1")]  # nothing half-written
+
+
+def test_a_batch_key_holds_the_code_that_baked_it(cubegi, tmp_path):
+    """A batch skips a file only while its key is unchanged: a bake made by other CubeGI code
+    (the same version number) is made again. The key holds a digest of the code's content,
+    not of its files' times."""
+    from cubegi.cubegi_addon import cluster as cluster_mod
+
+    root = os.path.dirname(os.path.dirname(cluster_mod.__file__))
+    copy = tmp_path / "ext"
+    for package in ("cubegi_addon", "cubegi_engine"):
+        shutil.copytree(os.path.join(root, package), copy / package, ignore=shutil.ignore_patterns("__pycache__"))
+    assert cluster_mod.code_digest(copy) == cluster_mod.code_digest(root)
+    specular = copy / "cubegi_engine" / "specular.py"
+    time.sleep(0.01)
+    os.utime(specular)  # newer, same content: the same code
+    cluster_mod._CODE_DIGESTS.clear()
+    assert cluster_mod.code_digest(copy) == cluster_mod.code_digest(root)
+    specular.write_text(specular.read_text().replace("F0_POWER = 0.8", "F0_POWER = 0.7"))
+    cluster_mod._CODE_DIGESTS.clear()
+    assert cluster_mod.code_digest(copy) != cluster_mod.code_digest(root)
+    src = tmp_path / "a.blend"
+    src.write_bytes(b"BLENDER")
+    assert cluster_mod.job_key(src, ["--fast"])["cubegi_code"] == cluster_mod.code_digest(root)
 
 
 def test_a_killed_workers_bake_is_retried_and_gives_the_same_light(three_files, tmp_path, cubegi, monkeypatch):

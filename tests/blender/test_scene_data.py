@@ -74,6 +74,30 @@ def test_albedo_from_colour_attribute_emission_and_fallback(empty_scene, cubegi)
     np.testing.assert_allclose(arr.sky, [0.2, 0.3, 0.4], atol=1e-6)
 
 
+def test_what_a_principled_bsdf_sends_on_is_read_from_its_specular_layer(empty_scene, cubegi):
+    """Beside its albedo (the Base Color), each point keeps what it sends on: its specular
+    layer's (cubegi_engine.specular) from the node's own Roughness, IOR and Specular IOR Level;
+    a metallic one's is its albedo (no dielectric layer: baked as diffuse, with a note); a
+    Diffuse BSDF's is its colour."""
+    from cubegi.cubegi_engine import specular
+
+    glossy = scenes.material("Glossy", (0.1, 0.3, 0.5))
+    bsdf = next(n for n in glossy.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    bsdf.inputs["Roughness"].default_value, bsdf.inputs["Specular IOR Level"].default_value = 0.3, 0.8
+    _quad("A", 0.0, glossy)
+    metal = scenes.material("Metal", (0.6, 0.5, 0.4))
+    next(n for n in metal.node_tree.nodes if n.type == "BSDF_PRINCIPLED").inputs["Metallic"].default_value = 1.0
+    _quad("B", 2.0, metal)
+    arr = _collect(cubegi).arrays
+    x = arr.points[:, 0]
+    layer = specular.layer(specular.facing_reflectance(bsdf.inputs["IOR"].default_value, 0.8), 0.3)
+    expected = specular.sent_on(np.array([0.1, 0.3, 0.5]), *layer)
+    assert np.all(expected > [0.1, 0.3, 0.5])
+    np.testing.assert_allclose(arr.reflectance[x < 1.5], [expected] * (x < 1.5).sum(), atol=1e-6)
+    np.testing.assert_allclose(arr.albedo[x < 1.5], [[0.1, 0.3, 0.5]] * (x < 1.5).sum(), atol=1e-6)
+    np.testing.assert_allclose(arr.sent_on()[x > 1.5], arr.albedo[x > 1.5], atol=1e-6)
+
+
 def test_modifiers_instances_and_hidden_objects(empty_scene, cubegi):
     base = _quad("Base", 0.0)
     base.modifiers.new("Subsurf", "SUBSURF").levels = 1  # changes vertex count: lights, not baked

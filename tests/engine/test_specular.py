@@ -10,6 +10,7 @@ def test_the_default_principled_bsdf_has_a_facing_reflectance_of_four_per_cent()
     assert specular.facing_reflectance(1.5, 0.5) == pytest.approx(0.04)
     assert specular.facing_reflectance(1.5, 0.0) == 0.0
     assert specular.facing_reflectance(1.5, 1.0) == pytest.approx(0.08)
+    assert specular.facing_reflectance(1.0 / 1.5, 0.5) == pytest.approx(0.04)  # an IOR below 1, as Cycles reads it
 
 
 # Cycles' furnace (see the module docstring) at base colours the table was not fitted on:

@@ -464,8 +464,9 @@ def _set_aside_non_finite(arrays, parts, notes):
         raise BakeError("no triangle of the scene has finite coordinates")
     arrays.points[bad] = arrays.points[~bad][0]
     arrays.normals[bad] = (0.0, 0.0, 1.0)
-    for colours in (arrays.albedo, arrays.emission, arrays.reflectance if arrays.reflectance is not None else arrays.albedo):
-        colours[bad] = 0.0
+    for colours in (arrays.albedo, arrays.emission, arrays.reflectance):
+        if colours is not None:
+            colours[bad] = 0.0
     return bad
 
 

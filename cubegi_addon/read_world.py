@@ -59,6 +59,8 @@ def _background_colour(world, socket, notes, pattern):
     if not socket.is_linked:
         return np.asarray(socket.default_value[:3], dtype=np.float64)
     node = socket.links[0].from_node
+    if node.type == "RGB":  # a Color node: its colour, as a material's Base Color reads it
+        return np.asarray(node.outputs[0].default_value[:3], dtype=np.float64)
     if node.type == "TEX_ENVIRONMENT" and node.image is not None:
         rgb = image_pixels(node.image)
         if rgb is not None:

@@ -439,6 +439,16 @@ def _sky_per_vertex():
     bpy.context.scene.cubegi.sky_per_vertex = True
 
 
+def _world_colour_node():
+    """The world's colour from a Color (RGB) node, its own Color a dim grey: read as the node's."""
+    world = scenes.set_world((0.05, 0.05, 0.05), 2.0)
+    tree = world.node_tree
+    rgb = tree.nodes.new("ShaderNodeRGB")
+    rgb.outputs[0].default_value = (0.2, 0.4, 0.8, 1.0)
+    tree.links.new(rgb.outputs[0], next(n for n in tree.nodes if n.type == "BACKGROUND").inputs["Color"])
+    bpy.context.scene.cubegi.sky_per_vertex = True
+
+
 def _sky_texture():
     world = scenes.set_world((0.2, 0.3, 0.5), 1.0)
     tree = world.node_tree
@@ -599,6 +609,7 @@ MATERIAL_ROWS = {
     "World colour and strength (through the open front)": (lambda: scenes.set_world((0.2, 0.4, 0.8), 2.0), "DIRECT",
                                                            SKY_THROUGH_PROBES, 0.1),
     "World colour, Sky per Vertex": (lambda: _sky_per_vertex(), "DIRECT", EXACT, None),
+    "World colour from a Color node, Sky per Vertex": (_world_colour_node, "DIRECT", EXACT, None),
     "Object Visibility > Camera off": (lambda: setattr(bpy.data.objects["Tall"], "visible_camera", False), "DIRECT", EXACT, None),
     "Attribute node (a named colour attribute)": (lambda: _attribute_node(), "INDIRECT", EXACT, None),
     "Image texture on a UV map named by a UV Map node": (_uv_map_by_name, "INDIRECT", EXACT, None),

@@ -326,7 +326,7 @@ class SceneLight:
     def _near_field(self, near):
         """Every source's light with the near field (:mod:`cubegi_engine.nearfield`), as the
         one-shot bake makes it: each bounce gathered once more from the one before, then
-        scaled per channel to the total its probe light has (with the energy balance: the
+        scaled per channel down to the total its probe light has (with the energy balance: the
         near field moves light, the balance says how much; the factors are the whole
         scene's, like the balance's). Worked on the near field's support points only, every
         source at once (their channels side by side); ``src.near``: per bounce, what it adds

@@ -53,10 +53,19 @@ def energy_factor(target, got) -> np.ndarray:
 
 def near_factor(probe_total, added_total) -> np.ndarray:
     """The near field's balance: it moves where a bounce's light lands, the energy balance
-    has said how much lands, so the gathered light is scaled back to the probes' total
-    (both ``(3,)``, area-weighted over the points a probe sees)."""
+    has said how much lands, so light the near field adds is scaled back down to the
+    probes' total (both ``(3,)``, area-weighted over the points a probe sees).
+
+    Never up: where the near field takes light away (the contact and corner shadows of
+    concave edges) the points' total is rightly below the probes'. A point's light is its
+    value at the point, and a vertex on a room's edge has its edge's shadow, which covers
+    a strip much narrower than the vertex's share of the surface: vertices sample less than
+    the light that lands on their areas (Cycles' own per-vertex bake of the thin wall scene:
+    indirect / direct light 3.91, 3.96 and 3.98 at 1x, 2x and 4x the vertices, the albedo's
+    rho / (1 - rho) = 4 in the limit). Scaled back up, every point of the scene gained what
+    the edges' vertices lost (thin wall: indirect bias +2.3%, +0.7% without it)."""
     probe_total = np.asarray(probe_total, dtype=np.float64)
-    return energy_factor(probe_total, probe_total + np.asarray(added_total, dtype=np.float64))
+    return np.minimum(energy_factor(probe_total, probe_total + np.asarray(added_total, dtype=np.float64)), 1.0)
 
 
 def area_weighted_mean(values: np.ndarray, areas: np.ndarray) -> np.ndarray:

@@ -69,8 +69,8 @@ class TableOperator:
 
 
 def keep_total(light, before, areas, unseen=None):
-    """``light (s, 3)`` scaled per channel to the area-weighted total of ``before``
-    (:func:`~cubegi_engine.series.near_factor`). ``unseen (s,)``: points no probe sees (a
+    """``light (s, 3)`` scaled per channel down to the area-weighted total of ``before``
+    where it is above it (:func:`~cubegi_engine.series.near_factor`). ``unseen (s,)``: points no probe sees (a
     ceiling 1 cm above a lamp), whose near-field light the balance knows nothing of:
     neither counted nor scaled (the light trapped in a gap)."""
     weights = areas if unseen is None else areas * ~unseen

@@ -27,7 +27,7 @@ import numpy as np
 
 from . import cubemap, nearfield, sh
 from .nearfield import NEAR_REACH
-from .visibility import Cover, PointProbes, Probes, probes_in_front, visibility_weights
+from .visibility import Cover, PointProbes, Probes, probes_in_front, seen_corners_only, visibility_weights
 
 # A covered point in the open (see Transport._light_under) casts rays this many cells long,
 # and is lit through the gap where at least this share of them meets what covers it.
@@ -186,6 +186,8 @@ class Transport:
         if self.near is not None and visibility and self.covered.any():
             self._light_under(scene, grid, index, trilinear_weight, basis, positions)
         self.own_near = self.near
+        if proxy is None:  # (a proxy's clusters have no covered flag of their own)
+            self.bary = seen_corners_only(self.bary, self.corners, self.covered)
 
     def take_gathered(self, gathered):
         """Light the points of ``gathered`` (a :class:`~cubegi_engine.gather.Gathered`) by their

@@ -12,7 +12,7 @@ import numpy as np
 from . import cubemap
 from .geometry import cut_planes, edge_neighbours, in_pieces, piece_size, sorted_unique, triangle_planes
 
-__all__ = ["visibility_weights", "probes_in_front", "Cover", "Probes", "PointProbes", "ProbeWeights", "BEHIND"]
+__all__ = ["visibility_weights", "probes_in_front", "seen_corners_only", "Cover", "Probes", "PointProbes", "ProbeWeights", "BEHIND"]
 
 
 @dataclass(frozen=True)
@@ -151,6 +151,33 @@ def visibility_weights(grid, probes: Probes, at: PointProbes, cover=None, both=F
     if not both:
         return ProbeWeights(settled(fallback))
     return ProbeWeights(settled(fallback), settled(np.where(fallback.sum(axis=1, keepdims=True) > 1e-9, fallback, seen_by)))
+
+
+def seen_corners_only(bary, corners, covered):
+    """``bary (p, t, 3)`` (each texel's barycentric weights of its triangle's ``corners (p,
+    t, 3)``) with the weight of the corners no probe sees (``covered (s,)``) moved to the
+    triangle's other corners, in their proportions (evenly where they had none).
+
+    A covered corner's light is that of the side no probe sees: a ceiling point 1 cm above
+    a lamp has the light trapped in the gap, a floor point under a wall the light inside
+    the wall. The part of its triangle a probe does see lies on the seen corners' side, so
+    it takes their light, not a blend that carries the hidden side's (the gap's light
+    spread along every ceiling triangle around the lamp; the thin wall's floor and walls
+    darkened towards the dark inside of the partition)."""
+    if not covered.any():
+        return bary
+    hidden = covered[corners]  # (p, t, 3)
+    mixed = hidden.any(axis=-1) & ~hidden.all(axis=-1)
+    if not mixed.any():
+        return bary
+    b, h = bary[mixed], hidden[mixed]
+    total = b.sum(axis=-1, keepdims=True)
+    seen = np.where(h, 0.0, b)
+    share = seen.sum(axis=-1, keepdims=True)
+    even = (~h).astype(np.float32) / (~h).sum(axis=-1, keepdims=True)
+    out = bary.copy()
+    out[mixed] = np.where(share > 1e-6, seen / np.maximum(share, 1e-30), even) * total
+    return out
 
 
 def _depth_test(probes: Probes, at: PointProbes, cell):

@@ -79,7 +79,11 @@ def test_draw_every_bounce_matches_capture_once(empty_scene, cubegi):
     near, far = transport.clip_planes(arrays.scale)
     n = 32
     cap = transport.capture_cubes(renderer, g.positions(), n, near, far)
-    operators = transport.Transport(arrays, g, cap)
+    # Without the visibility test no point is covered, so every texel mixes its triangle's
+    # corners as the rasterizer does (with it, the floor under the block is covered, and its
+    # triangles are seen by their other corners: visibility.seen_corners_only).
+    operators = transport.Transport(arrays, g, cap, visibility=False)
+    assert not operators.covered.any()
     linear = operators.project(operators.texel_radiance(radiance))
     drawn = transport.reference_coefficients(renderer, g, arrays, radiance, n, near, far)
     scale = np.abs(drawn[:, 0]).mean()

@@ -587,3 +587,35 @@ def test_a_caster_ray_that_meets_a_back_face_first_is_no_sample(monkeypatch):
     np.testing.assert_allclose(near.gather(np.ones((len(pts), 3)))[:, 0], near.share, atol=1e-9)
     bottom_middle = np.argmin(np.linalg.norm(pts - [0.0, 0.0, 0.0], axis=1))
     assert 0.3 < near.share[list(near.rows).index(bottom_middle)] < 1.0
+
+
+def test_the_near_fields_balance_scales_added_light_down_and_never_up():
+    from cubegi.cubegi_engine.series import near_factor
+
+    probe = np.array([2.0, 1.0, 4.0])
+    # Light added: the points' total goes back to the probes'.
+    added = np.array([0.5, 0.25, 1.0])
+    assert np.allclose(near_factor(probe, added) * (probe + added), probe)
+    # Light taken away (a concave edge's shadow): kept as gathered, not scaled back up.
+    assert np.array_equal(near_factor(probe, -0.1 * probe), np.ones(3))
+    # Per channel: one of each.
+    mixed = near_factor(probe, np.array([1.0, -0.2, 0.0]))
+    assert np.allclose(mixed, [2.0 / 3.0, 1.0, 1.0])
+
+
+def test_a_probe_sees_a_triangle_with_a_covered_corner_by_its_seen_corners():
+    from cubegi.cubegi_engine.visibility import seen_corners_only
+
+    covered = np.array([False, False, True, True])
+    corners = np.array([[[0, 1, 2], [0, 1, 3], [2, 3, 1], [0, 1, 0], [2, 3, 2]]])  # (1 probe, 5 texels, 3)
+    bary = np.array([[[0.2, 0.3, 0.5], [0.6, 0.4, 0.0], [0.7, 0.3, 0.0], [0.3, 0.3, 0.4], [0.1, 0.1, 0.8]]], dtype=np.float32)
+    out = seen_corners_only(bary, corners, covered)
+    assert np.allclose(out.sum(axis=-1), bary.sum(axis=-1))  # every texel keeps its whole weight
+    assert np.allclose(out[0, 0], [0.4, 0.6, 0.0])  # the covered corner's 0.5 shared 2 : 3
+    assert np.allclose(out[0, 1], bary[0, 1])  # its covered corner had no weight
+    assert np.allclose(out[0, 2], [0.0, 0.0, 1.0])  # at the covered corners: the seen one's light
+    assert np.allclose(out[0, 3], bary[0, 3])  # nothing covered
+    assert np.allclose(out[0, 4], bary[0, 4])  # all covered: nothing to move to
+    corner_light = np.array([1.0, 2.0, 50.0, 80.0])  # the hidden side's light
+    seen = (out[0] * corner_light[corners[0]]).sum(axis=-1)
+    assert seen[0] <= 2.0 and seen[2] == pytest.approx(2.0)

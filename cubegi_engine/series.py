@@ -63,7 +63,7 @@ def near_factor(probe_total, added_total) -> np.ndarray:
     the light that lands on their areas (Cycles' own per-vertex bake of the thin wall scene:
     indirect / direct light 3.91, 3.96 and 3.98 at 1x, 2x and 4x the vertices, the albedo's
     rho / (1 - rho) = 4 in the limit). Scaled back up, every point of the scene gained what
-    the edges' vertices lost (thin wall: indirect bias +2.3%, +0.7% without it)."""
+    the edges' vertices lost (thin wall: indirect bias +2.3%, +0.5% without it)."""
     probe_total = np.asarray(probe_total, dtype=np.float64)
     return np.minimum(energy_factor(probe_total, probe_total + np.asarray(added_total, dtype=np.float64)), 1.0)
 

@@ -197,13 +197,12 @@ def unshadowed(light, points, normals):
     raise ValueError(f"unknown light kind {light.kind!r}")
 
 
-# Shadow test margins (see _occluded): in texel footprints, as a share of the receiver's
-# distance along the ray, and as a share of the scene's size (GPU float32 distances); the
-# cosine below which the slope term stops growing.
+# Shadow test margins (see _occluded): in texel footprints, as a share of the receiver's distance
+# along the ray, and as a share of the scene's size (GPU float32 distances); the cosine below which
+# the slope term stops growing.
 BIAS_FOOTPRINTS, BIAS_OF_DEPTH, SLOPE_OF_SCALE, MIN_COS = 0.1, 1e-5, 1e-4, 0.2
-# How far (in texel footprints at the receiver) a receiver is lifted along its normal
-# before its shadow-map lookup: enough to step off its own curved surface, well below the
-# gap under a rug.
+# How far (in texel footprints at the receiver) a receiver is lifted along its normal before its
+# shadow-map lookup: enough to step off its own curved surface, well below the gap under a rug.
 LIFT = 0.25
 
 
@@ -252,10 +251,9 @@ class Occluders:
     vertices: np.ndarray
     scale: float
     sides: tuple | None = None
-    # A callable giving the host's ray caster over the same surfaces (made when first
-    # needed), or None: a receiver the map cannot decide is asked by one ray (see _occluded).
-    # (direct.scene_occluders holds the host's ``rays`` function: a static one, so that a
-    # kept shadow keeps no renderer.)
+    # A callable giving the host's ray caster over the same surfaces (made when first needed), or
+    # None: a receiver the map cannot decide is asked by one ray (see _occluded). It is a static
+    # function (direct.scene_occluders: the host's ``rays``), so a kept shadow keeps no renderer.
     rays: object = None
     # A callable giving geometry.inward of these surfaces, made once per scene (not per light).
     inward: object = None
@@ -321,20 +319,20 @@ def _occluded(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occlud
     """Whether something lies between the light and each (lifted) receiver.
 
     The map says which triangles lie towards the light in the receiver's texel and its
-    neighbours within ``reach`` texels (on the same face); each one's depth is its plane intersected with the
-    receiver's exact ray, not the texel's depth. So an occluder closer to the receiver than
-    a texel's footprint (a rug on a floor) still shadows it, and a receiver on the line
-    where two surfaces meet is decided by the surface's plane, not by which side of a
-    texel edge it falls. A triangle of the receiver's own never shadows it.
+    neighbours within ``reach`` texels (on the same face); each one's depth is its plane cut by
+    the receiver's exact ray, not the texel's depth. So an occluder closer to the receiver than
+    a texel's footprint (a rug on a floor) still shadows it, and a receiver on the line where
+    two surfaces meet is decided by the surface's plane, not by which side of a texel edge it
+    falls. A triangle of the receiver's own never shadows it.
 
     * A front face in the receiver's own texel shadows it if its plane is nearer along the
       ray by more than a small slope-scaled bias (which keeps a curved surface from
       shadowing itself) and the texel's depth is not clearly behind the receiver. (Front
       faces in the neighbouring texels are not asked: they would widen every shadow.)
-    * A back face: a receiver the light reaches faces it, so a texel that sees a surface
-      from behind sees another surface; up to the receiver's depth that surface shadows it
-      (a wall's edge under a ceiling, a floor's edge under a wall the light is behind), as
-      it does a ray leaving that point.
+    * A back face: a receiver the light reaches faces it, so a texel that sees a surface from
+      behind sees another surface; up to the receiver's depth that surface shadows it (a wall's
+      edge under a ceiling, a floor's edge under a wall the light is behind), as it does a ray
+      leaving that point.
 
     Returns ``(occluded, doubt)``, both ``(s,)`` bool: ``doubt`` marks the receivers the map
     cannot vouch for, where the occluders have a ray caster (:func:`_doubtful`; a shadow cast
@@ -359,8 +357,11 @@ def _occluded(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occlud
         ts = tri_side[np.maximum(tid, 0)]
         ps = np.where(point_ids >= 0, point_side[np.maximum(point_ids, 0)], 0)[:, None]
         back = back | ((tid >= 0) & (ts > 0) & ((ts == 2) != (ps == 2)))
-    plane, on = cut_triangles(lookup.origins[:, None, :], lookup.u[:, None, :], tid, triangles, occluders.vertices)
-    own = np.any(triangles[np.maximum(tid, 0)] == point_ids[:, None, None], axis=2)
+    centre = np.all(offsets == 0, axis=1)[None, :]
+    k, j = np.nonzero((tid >= 0) & (centre | back))  # the only pairs that can shadow (above): cut those alone
+    plane, on, own = np.full(tid.shape, np.nan), np.zeros(tid.shape, dtype=bool), np.zeros(tid.shape, dtype=bool)
+    plane[k, j], on[k, j] = cut_triangles(lookup.origins[k], lookup.u[k], tid[k, j], triangles, occluders.vertices)
+    own[k, j] = np.any(triangles[tid[k, j]] == point_ids[k, None], axis=1)
     depth = lookup.depth[:, None]
     # ``nearer`` and ``depth`` are exact (float64 plane cuts): their margin is a tenth of a
     # texel's footprint (slope-scaled) and a hundred-thousandth of the receiver's own distance,
@@ -370,7 +371,6 @@ def _occluded(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occlud
     bias = (BIAS_FOOTPRINTS * footprint / np.maximum(cos, MIN_COS) + BIAS_OF_DEPTH * depth[:, 0])[:, None]
     slope = (footprint / np.maximum(cos, MIN_COS) + SLOPE_OF_SCALE * occluders.scale)[:, None]
     nearer = np.where(np.isnan(plane), seen, plane)
-    centre = np.all(offsets == 0, axis=1)[None, :]
     front_occ = centre & ~back & (nearer < depth - bias) & (seen < depth + slope)
     back_occ = back & (nearer < depth + bias)
     occluding = (tid >= 0) & ~own & (front_occ | back_occ)

@@ -338,7 +338,7 @@ class SceneLight:
         weights = np.stack([s.weight for s in sources])  # (n, 3)
         albedo = np.tile(self.op.albedo[sup], (1, n))
         area = self.op.areas[sup]
-        unseen = np.asarray(self.transport.exact, dtype=bool)[sup]  # as solve.keep_total: not balanced
+        unseen = np.asarray(self.transport.exact, dtype=bool)[sup]  # as solve.near_field_balanced: not balanced
         balanced = area * ~unseen
 
         def side_by_side(arrays):  # n arrays (r, 3) -> (r, 3n)
@@ -358,7 +358,7 @@ class SceneLight:
                 d = near.delta(base, part, albedo * prev)
             else:  # the tail: the sum of the bounces after the last, each from the one before
                 d = near.settle(base, part, albedo, prev, clamp=False)
-            if self.op.landing is not None:  # as solve.keep_total: over the points a probe sees
+            if self.op.landing is not None:  # as solve.near_field_balanced: over the points a probe sees
                 probe = ((seen_total @ c).reshape(n, 3) * weights).sum(axis=0)
                 added = ((balanced @ d).reshape(n, 3) * weights).sum(axis=0)
                 scale[k] = near_factor(probe, added)

@@ -24,7 +24,7 @@ from .series import Bounce, area_weighted_mean, bounce_series, conserve_energy, 
 from .settings import BakeSettings
 from .working import in_background
 
-__all__ = ["LightSolution", "TableOperator", "solve_steps", "keep_total", "SOLVE_GIVE_UP",
+__all__ = ["LightSolution", "TableOperator", "solve_steps", "near_field_balanced", "SOLVE_GIVE_UP",
            "area_weighted_mean", "conserve_energy"]
 
 # A tail solve that ends with a larger relative residual than this is not trusted.
@@ -68,10 +68,11 @@ class TableOperator:
         return self.transport.gather_project(self.albedo * light).astype(np.float64)
 
 
-def keep_total(light, before, areas, unseen=None):
-    """``light (s, 3)`` scaled per channel down to the area-weighted total of ``before``
-    where it is above it (:func:`~cubegi_engine.series.near_factor`). ``unseen (s,)``: points no probe sees (a
-    ceiling 1 cm above a lamp), whose near-field light the balance knows nothing of:
+def near_field_balanced(light, before, areas, unseen=None):
+    """``light (s, 3)`` (a bounce's light gathered with the near field) scaled per channel
+    down to the area-weighted total of ``before`` (its probe light) where it is above it,
+    never up (:func:`~cubegi_engine.series.near_factor`). ``unseen (s,)``: points no probe
+    sees (a ceiling 1 cm above a lamp), whose near-field light the balance knows nothing of:
     neither counted nor scaled (the light trapped in a gap)."""
     weights = areas if unseen is None else areas * ~unseen
     out = light * near_factor((weights[:, None] * before).sum(axis=0), (weights[:, None] * (light - before)).sum(axis=0))
@@ -224,7 +225,7 @@ def _one_bounce(series, scene, transport, albedo, areas, landing, seen_before) -
     part = transport.near_part(bounce.balanced, light)
     gathered = scene.zero_dark_points_inplace(near.correct(light, part, albedo * seen_before))
     if landing is not None:
-        gathered = keep_total(gathered, light, areas, transport.exact)
+        gathered = near_field_balanced(gathered, light, areas, transport.exact)
     return bounce, gathered
 
 
@@ -234,7 +235,7 @@ def _near_tail(transport, tail, tail_coeffs, albedo, seen_before, areas, balance
     near = transport.near
     part = transport.near_part(tail_coeffs, tail)
     fixed = near.correct_sum(tail, part, albedo, seen_before)
-    return keep_total(fixed, tail, areas, transport.exact) if balanced else fixed
+    return near_field_balanced(fixed, tail, areas, transport.exact) if balanced else fixed
 
 
 def _tail(op, last: Bounce | None, bounces, records, remaining, areas, settings):

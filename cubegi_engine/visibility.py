@@ -237,57 +237,72 @@ def _covered(cover, at: PointProbes, eyes, texels: _Texels, cell, ask):
     for the pairs ``ask (s, 8)`` (False elsewhere).
 
     The texel towards the point and its 8 neighbours are asked which triangles they see;
-    the exact ray from the probe to the point is cut with each one's plane, and it covers
-    the point if the cut lies inside that triangle or one across its edges, in front of the
-    point. (At a grazing angle the texels around the ray may all see neighbours of the
-    triangle it really crosses, near a rug's edge; a cut near but outside the other object
-    must not count, or the floor around a rug would go dark.)
+    the exact ray from the probe to the point is cut with each one's plane (each triangle
+    once per pair), and it covers the point if the cut lies inside that triangle or one
+    across its edges, in front of the point. (At a grazing angle the texels around the ray
+    may all see neighbours of the triangle it really crosses, near a rug's edge; a cut near
+    but outside the other object must not count, or the floor around a rug would go dark.)
     """
-    points, normals, index = at.points, at.normals, at.index
-    face, row, col, n = texels.face, texels.row, texels.col, texels.n
-    q = points[:, None, :] + 1e-3 * cell[..., None] * normals[:, None, :]
-    ray = q - eyes
+    covered = np.zeros(ask.shape, dtype=bool)
+    rows, cols = np.nonzero(ask)
+    if not len(rows):
+        return covered
+    normals = at.normals[rows]
+    eye = eyes[rows, cols]
+    ray = at.points[rows] + 1e-3 * cell[rows] * normals - eye
     d = np.linalg.norm(ray, axis=-1)
-    u = ray / np.maximum(d, 1e-300)[..., None]
-    depth = d - 1e-4 * cell  # a cut this far along the ray lies in front of the point
-    covered = np.zeros(index.shape, dtype=bool)
-    # Per pair and texel: a seen candidate of another object the ray's plane cut lies ahead of
-    # but outside of.
-    missed = np.full(index.shape + (9,), -1, dtype=np.int32)
-    for j, (dr, dc) in enumerate((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)):
-        tid = cover.probe_tid[index, face, np.clip(row + dr, 0, n - 1), np.clip(col + dc, 0, n - 1)]
-        candidate = ask & (tid >= 0) & ~covered
-        rows = np.nonzero(candidate)[0]
-        candidate[candidate] = _blocks(cover, tid[candidate], cover.point_object[rows], normals[rows])
-        pick = np.nonzero(candidate)
-        if not len(pick[0]):
-            continue
-        t, inside = cut_planes(eyes[pick], u[pick], tid[pick], cover.planes)
-        ahead = (t > 0) & (t < depth[pick])
-        covered[pick] = inside & ahead
-        # Another object's triangles only (a rug over a floor): a thin part's far side is seen
-        # whole by the texels around the ray.
-        miss = ahead & ~inside & (cover.triangle_object[tid[pick]] != cover.point_object[pick[0]])
-        missed[pick[0][miss], pick[1][miss], j] = tid[pick][miss]
-    # Where no seen triangle holds the cut: the same objects' triangles up to COVER_RINGS edges
-    # around the seen ones, each tried once per pair.
-    need = np.nonzero(~covered & (missed >= 0).any(axis=2))
-    for start in range(0, len(need[0]) if COVER_RINGS else 0, RING_CHUNK):  # bounded temporaries
-        pairs = (need[0][start : start + RING_CHUNK], need[1][start : start + RING_CHUNK])
-        found = _ring_search(cover, missed[pairs], eyes[pairs], u[pairs], depth[pairs])
-        covered[pairs[0][found], pairs[1][found]] = True
+    u = ray / np.maximum(d, 1e-300)[:, None]
+    depth = d - 1e-4 * cell[rows, 0]  # a cut this far along the ray lies in front of the point
+    tid = _texel_triangles(cover.probe_tid, at.index[rows, cols], texels[rows, cols])
+    pair, slot = np.nonzero(tid >= 0)
+    tid = tid[pair, slot]
+    owner = cover.point_object[rows[pair]]
+    keep = _blocks(cover, tid, owner, normals[pair])
+    pair, tid, owner = pair[keep], tid[keep], owner[keep]
+    t, inside = cut_planes(eye[pair], u[pair], tid, cover.planes)
+    ahead = (t > 0) & (t < depth[pair])
+    hit = np.zeros(len(rows), dtype=bool)
+    hit[pair[inside & ahead]] = True
+    # Where no seen triangle holds the cut, but another object's one (a rug over a floor: a
+    # thin part's far side is seen whole by the texels around the ray) lies ahead outside
+    # of it: the same objects' triangles up to COVER_RINGS edges around the seen ones, each
+    # tried once per pair.
+    missed = ahead & ~inside & (cover.triangle_object[tid] != owner)
+    missed &= ~hit[pair]
+    need, local = np.unique(pair[missed], return_inverse=True)
+    local, seen = local.ravel(), tid[missed]
+    for start in range(0, len(need) if COVER_RINGS else 0, RING_CHUNK):  # bounded temporaries
+        lo, hi = np.searchsorted(local, [start, start + RING_CHUNK])
+        some = need[start : start + RING_CHUNK]
+        found = _ring_search(cover, local[lo:hi] - start, seen[lo:hi], eye[some], u[some], depth[some])
+        hit[some[found]] = True
+    covered[rows[hit], cols[hit]] = True
     return covered
 
 
-def _ring_search(cover, seen, eye, u, depth):
+def _texel_triangles(probe_tid, probe, texels: _Texels):
+    """``(m, 9)``: the triangles (``probe_tid``, see :class:`Cover`) that the 3 x 3 texels
+    around each of ``texels (m,)`` of ``probe (m,)`` see, each once (-1: none, or seen
+    before in the row)."""
+    n = texels.n
+    base = (probe * 6 + texels.face) * n
+    flat = probe_tid.reshape(-1)
+    tid = np.empty((len(probe), 9), dtype=flat.dtype)
+    for j, (dr, dc) in enumerate((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)):
+        tid[:, j] = flat[(base + np.clip(texels.row + dr, 0, n - 1)) * n + np.clip(texels.col + dc, 0, n - 1)]
+    tid.sort(axis=1)
+    tid[:, 1:][tid[:, 1:] == tid[:, :-1]] = -1
+    return tid
+
+
+def _ring_search(cover, ray_of, seen, eye, u, depth):
     """``(m,)``: whether each ray ``eye + t u`` (0 < t < depth) crosses a triangle up to
-    COVER_RINGS edges from its ``seen (m, k)`` ones (-1: none) and of the same object.
-    The (ray, triangle) pairs are kept flat, as keys ``ray * t + triangle``."""
+    COVER_RINGS edges from its seen ones (``seen (k,)``, of the rays ``ray_of (k,)``) and of
+    the same object. The (ray, triangle) pairs are kept flat, as keys ``ray * t + triangle``."""
     count = np.int64(len(cover.planes))
-    rows, cols = np.nonzero(seen >= 0)
-    tried = sorted_unique(rows * count + seen[rows, cols])
+    tried = sorted_unique(np.asarray(ray_of, dtype=np.int64) * count + seen)
     frontier = tried
-    found = np.zeros(len(seen), dtype=bool)
+    found = np.zeros(len(eye), dtype=bool)
     for _ in range(COVER_RINGS):
         ray, parent = np.divmod(frontier, count)
         ring = cover.neighbours[parent]  # (f, 3)

@@ -317,11 +317,11 @@ def test_the_cover_ring_search_finds_the_crossed_triangle_up_to_two_edges_away()
     eye = np.array([[3.6, 0.2, 5.0]] * 4)  # down onto triangle 6 (x in [3, 4], below the diagonal)
     u = np.array([[0.0, 0.0, -1.0]] * 4)
     depth = np.array([10.0, 10.0, 10.0, 4.0])  # the last stops above the strip
-    seen = np.array([[4, -1], [2, 2], [-1, 4], [4, 4]])
+    ray_of, seen = np.array([0, 1, 2, 3]), np.array([4, 2, 4, 4])  # each ray's seen triangle
     one = Cover(None, np.zeros(12, int), triangle_planes(triangles, vertices), edge_neighbours(triangles), None)
-    assert _ring_search(one, seen, eye, u, depth).tolist() == [True, False, True, False]
+    assert _ring_search(one, ray_of, seen, eye, u, depth).tolist() == [True, False, True, False]
     split = Cover(None, (np.arange(12) >= 5).astype(int), one.planes, one.neighbours, None)
-    assert _ring_search(split, seen, eye, u, depth).tolist() == [False, False, False, False]
+    assert _ring_search(split, ray_of, seen, eye, u, depth).tolist() == [False, False, False, False]
 
 
 def test_sorted_unique_and_membership():

@@ -25,8 +25,12 @@ class BvhRays:
     def __init__(self, points, triangles):
         self.points = np.asarray(points, dtype=np.float64)
         self.triangles = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
-        used = np.unique(self.triangles)  # the tree holds only the points its triangles use
-        local = np.searchsorted(used, self.triangles)
+        # The tree holds only the points its triangles use (marked, not sorted: a million
+        # vertices' np.unique took most of a second).
+        used = np.flatnonzero(np.bincount(self.triangles.ravel(), minlength=len(self.points)))
+        renumber = np.zeros(len(self.points), dtype=np.int64)
+        renumber[used] = np.arange(len(used))
+        local = renumber[self.triangles]
         kept = self.points[used]
         self.centre = 0.5 * (kept.min(axis=0) + kept.max(axis=0)) if len(kept) else np.zeros(3)
         self.tree = BVHTree.FromPolygons((kept - self.centre).tolist(), local.tolist(), all_triangles=True)

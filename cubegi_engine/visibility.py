@@ -121,16 +121,17 @@ def visibility_weights(grid, probes: Probes, at: PointProbes, cover=None, both=F
         # whose own twin point it lights (the depth test cannot tell the two apart).
         visible &= ~sheet[:, None] | (height > 0)
     valid = probes.valid[index]
-    covered = np.zeros_like(visible)
+    hidden = np.zeros(len(at), dtype=bool)
     if cover is not None:
         # The pairs that light the point are asked first; a point that none of them lights
         # after that is dark if any other probe's ray to it is covered too (see ``dark``).
         ask = visible & valid & (weight > 0)
         covered = _covered(cover, at, eyes, texels, cell, ask)
-        unlit = np.flatnonzero((weight * (ask & ~covered)).sum(axis=1) <= 1e-9)
-        if len(unlit):
-            covered[unlit] |= _covered(cover.rows(unlit), at[unlit], eyes[unlit], texels[unlit], cell[unlit], ~ask[unlit])
         visible &= ~covered
+        hidden = covered.any(axis=1)
+        # (The other pairs light no point whatever their cover: only whether one is covered counts.)
+        unlit = np.flatnonzero((weight * (ask & ~covered)).sum(axis=1) <= 1e-9)
+        hidden[unlit] |= _any_covered(cover.rows(unlit), at[unlit], eyes[unlit], texels[unlit], cell[unlit], ~ask[unlit])
     # A probe more than BEHIND cells behind the point's tangent plane sees its hemisphere from
     # the far side: at a convex edge nothing hides it.
     seen_by = weight * (visible & valid)
@@ -140,7 +141,7 @@ def visibility_weights(grid, probes: Probes, at: PointProbes, cover=None, both=F
     # corner too tight for the grid); none behind it (the outer face of a wall, whose probes
     # are all inside the room: their light would leak out).
     fallback = probes_in_front(probes.positions, probes.valid, points, normals, index, weight)
-    dark = (seen_by.sum(axis=1) <= 1e-9) & covered.any(axis=1)  # no probe, on either side, sees it
+    dark = (seen_by.sum(axis=1) <= 1e-9) & hidden  # no probe, on either side, sees it
 
     def settled(fallback):
         out = np.where(total > 1e-9, w, fallback)
@@ -278,6 +279,19 @@ def _covered(cover, at: PointProbes, eyes, texels: _Texels, cell, ask):
         hit[some[found]] = True
     covered[rows[hit], cols[hit]] = True
     return covered
+
+
+def _any_covered(cover, at: PointProbes, eyes, texels: _Texels, cell, ask):
+    """``(s,)``: whether any of each point's pairs ``ask (s, 8)`` is covered (:func:`_covered`),
+    asked a probe at a time, a point no more once one is."""
+    found = np.zeros(len(ask), dtype=bool)
+    for k in range(ask.shape[1]):
+        rows = np.flatnonzero(ask[:, k] & ~found)
+        if len(rows):
+            one = np.zeros((len(rows), ask.shape[1]), dtype=bool)
+            one[:, k] = True
+            found[rows] = _covered(cover.rows(rows), at[rows], eyes[rows], texels[rows], cell[rows], one).any(axis=1)
+    return found
 
 
 def _texel_triangles(probe_tid, probe, texels: _Texels):

@@ -97,15 +97,21 @@ class VoxelIndex:
         if self._made_list:
             return
         lo, hi = self.lo, self.hi
-        box_lo = np.floor((lo - self.origin) / self.h).astype(np.int64)
-        span = np.floor((hi - self.origin) / self.h).astype(np.int64) - box_lo + 1
-        count = np.prod(span, axis=1)
-        tri = np.repeat(np.arange(len(lo)), count)
-        k = np.arange(len(tri)) - np.repeat(np.cumsum(count) - count, count)
+        # The listing's temporaries in 32 bits where they fit (a voxel's coordinates are
+        # under 260 each way, and its key under 260^3): at two million triangles they were
+        # the bake's high-water mark of memory.
+        box_lo = np.floor((lo - self.origin) / self.h).astype(np.int32)
+        span = np.floor((hi - self.origin) / self.h).astype(np.int32) - box_lo + 1
+        count = np.prod(span, axis=1, dtype=np.int64)
+        small = np.int32 if count.sum() < 2**31 else np.int64
+        tri = np.repeat(np.arange(len(lo), dtype=small), count)
+        k = np.arange(len(tri), dtype=small) - np.repeat((np.cumsum(count) - count).astype(small), count)
         sx, sy = span[tri, 0], span[tri, 1]
-        key = self._key(box_lo[tri, 0] + k % sx, box_lo[tri, 1] + (k // sx) % sy, box_lo[tri, 2] + k // (sx * sy))
+        key = self._key(box_lo[tri, 0] + k % sx, box_lo[tri, 1] + (k // sx) % sy, box_lo[tri, 2] + k // (sx * sy), small)
+        del k, sx, sy
         order = np.argsort(key, kind="stable")
-        key, self.tri = key[order], tri[order]
+        key, self.tri = key[order].astype(np.int64), tri[order].astype(np.int64)
+        del order
         self.start = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]])) if len(key) else np.zeros(0, dtype=np.int64)
         self.keys = key[self.start]
         self.end = np.append(self.start[1:], len(key))
@@ -173,9 +179,11 @@ class VoxelIndex:
             hit_front[p, k] = front[nearer]
         return best, hit_tri, hit_uv, hit_front
 
-    def _key(self, ix, iy, iz):
-        d = self.dims
-        return (np.clip(iz, 0, d[2] - 1) * d[1] + np.clip(iy, 0, d[1] - 1)) * d[0] + np.clip(ix, 0, d[0] - 1)
+    def _key(self, ix, iy, iz, dtype=np.int64):
+        """Each voxel's key (its index in the grid of :attr:`dims`), as ``dtype``."""
+        d0, d1, d2 = (int(x) for x in self.dims)
+        ix, iy, iz = (np.asarray(i).astype(dtype, copy=False) for i in (ix, iy, iz))
+        return (np.clip(iz, 0, d2 - 1) * d1 + np.clip(iy, 0, d1 - 1)) * d0 + np.clip(ix, 0, d0 - 1)
 
     def _voxels(self, pt, key):
         """The points ``pt`` and the slots (indices into :attr:`keys`) of their voxel ``key``s

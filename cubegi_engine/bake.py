@@ -33,7 +33,7 @@ from .records import Progress, Stage
 from .settings import BakeSettings
 from .solve import LightSolution, area_weighted_mean, solve_steps
 from .spatial import forget_indexes
-from .working import in_background, run  # noqa: F401 (bake.run: the one driver)
+from .working import in_background, run, start, wait  # noqa: F401 (bake.run: the one driver)
 
 __all__ = ["Renderer", "BakeResult", "bake_steps", "run", "check_memory", "memory_estimate", "area_weighted_mean"]
 
@@ -174,6 +174,9 @@ def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field):
     used = np.ones(grid.count, dtype=bool) if whole_field else (
         yield from in_background(probes_used, working(Stage.CAPTURE, 0)("finding the probes the points use"), grid, scene.points))
     yield from in_background(scene.point_areas, working(Stage.CAPTURE, 0)("the area of each point"))  # kept for the rest
+    # A new capture's simplified scene does not depend on the probes: made while they are
+    # placed (two threads of numpy work; a kept capture that turns out valid drops it).
+    simplifying = start(simplify, scene, settings.capture_triangles) if capture is None else None
     placement = None
     if settings.move_probes:
         placement = yield from in_background(place, working(Stage.CAPTURE, 0)("placing the probes"), grid, scene.points,
@@ -195,7 +198,7 @@ def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field):
         yield Progress(Stage.CAPTURE, 0, total, f"re-captured {redrawn} of {grid.count} probes (the ones a moved object concerns)")
         timings["capture"], timings["tables"] = capture.capture_seconds, capture.tables_seconds
     else:
-        capture = yield from _new_capture(scene, grid, renderer, settings, working, timings, total)
+        capture = yield from _new_capture(scene, grid, renderer, settings, working, timings, total, simplifying)
         timings["capture"], timings["tables"] = capture.capture_seconds, capture.tables_seconds
     assert capture is not None  # reused, patched or new
     transport = capture.transport
@@ -236,14 +239,16 @@ def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field):
 SMALL_OBJECT_TEXELS = 1.0
 
 
-def _new_capture(scene, grid, renderer, settings, working, timings, total):
+def _new_capture(scene, grid, renderer, settings, working, timings, total, simplifying=None):
     """A new capture of ``scene`` on ``grid`` (a generator of Progress, returning the
-    ProbeCapture): the scene simplified to the capture's triangle budget, objects under a
-    texel from every probe left out of the drawing, the probes drawn and the tables built."""
+    ProbeCapture): the scene simplified to the capture's triangle budget (``simplifying``:
+    that work already started, see :func:`~.working.start`), objects under a texel from
+    every probe left out of the drawing, the probes drawn and the tables built. The
+    simplify timing is what the bake waited for it."""
     check_memory(grid.count, settings.cube_size, len(scene.points))
     t = time.perf_counter()
-    proxy = yield from in_background(simplify, working(Stage.CAPTURE, 0)("simplifying the scene for the probes"), scene,
-                                     settings.capture_triangles)
+    simplifying = simplifying or start(simplify, scene, settings.capture_triangles)
+    proxy = yield from wait(simplifying, working(Stage.CAPTURE, 0)("simplifying the scene for the probes"))
     shown = (scene.points, scene.triangles, scene.triangle_object()) if proxy is None else (
         proxy.points, proxy.triangles, proxy.triangle_object)
     small = small_objects(shown[0], shown[1], shown[2], grid.positions(), settings.cube_size)

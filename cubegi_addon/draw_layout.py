@@ -105,7 +105,7 @@ def _spatial_order(centres):
     """An order of points ``(t, 3)`` along a Morton (Z-order) curve of a 1024^3 grid over
     their box: neighbours in space end up near each other in the order."""
     lo, hi = centres.min(axis=0), centres.max(axis=0)
-    q = ((centres - lo) / np.maximum(hi - lo, 1e-30) * 1023.0).astype(np.int64)
+    q = ((centres - lo) / np.maximum(hi - lo, 1e-30) * 1023.0).astype(np.uint64) & np.uint64(1023)  # (a NaN: its low bits)
     code = _SPREAD[q[:, 0]] | (_SPREAD[q[:, 1]] << np.uint64(1)) | (_SPREAD[q[:, 2]] << np.uint64(2))
     return np.argsort(code, kind="stable")
 

@@ -175,7 +175,8 @@ def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field):
         yield from in_background(probes_used, working(Stage.CAPTURE, 0)("finding the probes the points use"), grid, scene.points))
     yield from in_background(scene.point_areas, working(Stage.CAPTURE, 0)("the area of each point"))  # kept for the rest
     # A new capture's simplified scene does not depend on the probes: made while they are
-    # placed (two threads of numpy work; a kept capture that turns out valid drops it).
+    # placed (two threads of numpy work), where no capture is kept (one that is kept is
+    # reused or patched, or else simplifies after).
     simplifying = start(simplify, scene, settings.capture_triangles) if capture is None else None
     placement = None
     if settings.move_probes:

@@ -581,14 +581,17 @@ def test_the_scene_is_simplified_for_the_probes_while_they_are_placed(empty_scen
     other, it would wait in vain. The proxy drawn is the one made alone."""
     _large_room()
     bake = cubegi.cubegi_engine.bake
-    started, drawn = threading.Event(), []
+    started, drawn, done = threading.Event(), [], threading.Semaphore(0)
     place, simplify = bake.place, bake.simplify
 
     def simplifying(scene, budget):
         started.set()
-        proxy = simplify(scene, budget)
-        drawn.append((proxy, scene, budget))
-        return proxy
+        try:
+            proxy = simplify(scene, budget)
+            drawn.append((proxy, scene, budget))
+            return proxy
+        finally:
+            done.release()
 
     def placing(*args, **kwargs):
         assert started.wait(30.0), "the scene was not being simplified while the probes were placed"
@@ -604,8 +607,16 @@ def test_the_scene_is_simplified_for_the_probes_while_they_are_placed(empty_scen
     assert proxy is not None and np.array_equal(proxy.triangles, alone.triangles) and np.array_equal(proxy.points, alone.points)
     # Esc while the probes are placed (the simplification running beside them) leaves the
     # scene as it was.
-    before, release = scene_state(), threading.Event()
-    monkeypatch.setattr(bake, "place", lambda *a, **k: (release.wait(30.0), place(*a, **k))[1])
+    before, release, placed = scene_state(), threading.Event(), threading.Event()
+
+    def held(*args, **kwargs):
+        release.wait(30.0)
+        try:
+            return place(*args, **kwargs)
+        finally:
+            placed.set()
+
+    monkeypatch.setattr(bake, "place", held)
     cubegi.cubegi_addon.session.forget()  # a new capture, not the kept one
     job = cubegi.cubegi_addon.operators.BakeJob(bpy.context, cubegi.cubegi_addon.props.bake_settings(bpy.context.scene, {}),
                                                 progressive=True)
@@ -616,6 +627,8 @@ def test_the_scene_is_simplified_for_the_probes_while_they_are_placed(empty_scen
     finally:
         release.set()
     assert scene_state() == before
+    # The cancelled bake's threads end on their own (not in the tests after this one).
+    assert placed.wait(60.0) and done.acquire(timeout=60.0) and done.acquire(timeout=60.0)
 
 # --- every bake setting declared once ------------------------------------------------------
 

@@ -324,6 +324,64 @@ def test_the_cover_ring_search_finds_the_crossed_triangle_up_to_two_edges_away()
     assert _ring_search(split, ray_of, seen, eye, u, depth).tolist() == [False, False, False, False]
 
 
+
+def _random_cover(rng, s=40, p=3, n=4, objects=3):
+    """A cover test's inputs over random triangles of a few objects (seen by random texels)."""
+    from cubegi.cubegi_engine.geometry import edge_neighbours, triangle_planes
+    from cubegi.cubegi_engine.visibility import Cover, PointProbes, _Texels
+
+    vertices, triangles = rng.uniform(0, 1, (40, 3)), rng.integers(0, 40, (60, 3))
+    cover = Cover(rng.integers(-1, 60, (p, 6, n, n)).astype(np.int32), rng.integers(0, objects, 60),
+                  triangle_planes(triangles, vertices), edge_neighbours(triangles), rng.integers(0, objects, s))
+    normals = rng.normal(size=(s, 3))
+    index = rng.integers(0, p, (s, 8))
+    at = PointProbes(rng.uniform(0, 1, (s, 3)), normals / np.linalg.norm(normals, axis=1)[:, None], index, rng.uniform(0, 1, (s, 8)))
+    texels = _Texels(rng.integers(0, 6, (s, 8)), rng.integers(0, n, (s, 8)), rng.integers(0, n, (s, 8)), n)
+    return cover, at, rng.uniform(-1, 2, (p, 3))[index], texels, rng.uniform(0.01, 0.1, (s, 1)), rng.uniform(size=(s, 8)) < 0.5
+
+
+def test_the_cover_test_is_each_pairs_own_and_cut_into_chunks_alike(monkeypatch):
+    """Each (point, probe) pair's cover is found from its own ray and texels: asked pair by
+    pair (each texel's triangle cut with the ray, then the rings around the ones it missed)
+    the answers are the same as asked all at once, whatever the ring search's chunks; and
+    asking a point's probes one at a time until one is covered says the same as asking all."""
+    from cubegi.cubegi_engine import visibility
+    from cubegi.cubegi_engine.geometry import cut_planes
+
+    rng = np.random.default_rng(5)
+    found = rings = 0
+    for _ in range(20):
+        cover, at, eyes, texels, cell, ask = _random_cover(rng)
+        whole = visibility._covered(cover, at, eyes, texels, cell, ask)
+        monkeypatch.setattr(visibility, "RING_CHUNK", int(rng.integers(1, 4)))
+        assert np.array_equal(visibility._covered(cover, at, eyes, texels, cell, ask), whole)
+        monkeypatch.undo()
+        n = texels.n
+        for i, k in zip(*np.nonzero(ask)):  # pair by pair
+            q = at.points[i] + 1e-3 * cell[i, 0] * at.normals[i]
+            u = (q - eyes[i, k]) / np.linalg.norm(q - eyes[i, k])
+            depth = np.linalg.norm(q - eyes[i, k]) - 1e-4 * cell[i, 0]
+            tids = {int(cover.probe_tid[at.index[i, k], texels.face[i, k], min(max(texels.row[i, k] + dr, 0), n - 1),
+                                        min(max(texels.col[i, k] + dc, 0), n - 1)]) for dr in (-1, 0, 1) for dc in (-1, 0, 1)}
+            tids = np.array(sorted(t for t in tids if t >= 0), dtype=np.int64)
+            tids = tids[visibility._blocks(cover, tids, np.full(len(tids), cover.point_object[i]), np.tile(at.normals[i], (len(tids), 1)))]
+            t, inside = cut_planes(np.tile(eyes[i, k], (len(tids), 1)), np.tile(u, (len(tids), 1)), tids, cover.planes)
+            ahead = (t > 0) & (t < depth)
+            one = bool((inside & ahead).any())
+            missed = tids[ahead & ~inside & (cover.triangle_object[tids] != cover.point_object[i])]
+            if not one and len(missed):
+                one = bool(visibility._ring_search(cover, np.zeros(len(missed), dtype=np.int64), missed, eyes[i, k][None], u[None],
+                                                   np.array([depth]))[0])
+                rings += one
+            assert whole[i, k] == one
+            found += one
+        assert not whole[~ask].any()
+        rows = np.flatnonzero(rng.uniform(size=len(ask)) < 0.5)
+        sub = visibility._covered(cover.rows(rows), at[rows], eyes[rows], texels[rows], cell[rows], ~ask[rows])
+        assert np.array_equal(visibility._any_covered(cover.rows(rows), at[rows], eyes[rows], texels[rows], cell[rows], ~ask[rows]),
+                              sub.any(axis=1))
+    assert found > 50 and rings > 0  # both ways of being covered were met
+
 def test_sorted_unique_and_membership():
     from cubegi.cubegi_engine.geometry import sorted_unique
     from cubegi.cubegi_engine.visibility import _in_sorted

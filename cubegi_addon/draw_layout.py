@@ -113,8 +113,8 @@ def _spatial_order(centres):
 def _chunk_boxes(corners, starts):
     """The 8 corners ``(c, 8, 4)`` (homogeneous) of the box of each run of triangles
     ``corners (t, 3, 3)`` from each of ``starts (c,)`` to the next."""
-    lo = np.minimum.reduceat(corners.min(axis=1), starts, axis=0)
-    hi = np.maximum.reduceat(corners.max(axis=1), starts, axis=0)
+    lo, hi = geometry.corner_box(corners)
+    lo, hi = np.minimum.reduceat(lo, starts, axis=0), np.maximum.reduceat(hi, starts, axis=0)
     pick = np.array([[i >> 0 & 1, i >> 1 & 1, i >> 2 & 1] for i in range(8)], dtype=bool)  # (8, 3)
     xyz = np.where(pick[None], hi[:, None, :], lo[:, None, :]).astype(np.float64)
     return np.concatenate([xyz, np.ones(xyz.shape[:2] + (1,))], axis=2)

@@ -7,7 +7,7 @@ import numpy as np
 from . import working
 
 __all__ = ["sorted_unique", "triangle_planes", "planes_of", "ray_cut", "cut_planes", "cut_triangles", "near_any_triangle", "edge_neighbours",
-           "chunks", "POINT_CHUNK", "GRAZING", "twin_triangles", "mix64", "position_hash"]
+           "chunks", "POINT_CHUNK", "GRAZING", "twin_triangles", "mix64", "position_hash", "corner_box"]
 
 # Per-point tests that make several (s, 9, 3) float64 arrays run this many points at a time:
 # a million points then need tens of megabytes, not gigabytes, and stay in cache.
@@ -55,6 +55,14 @@ def sorted_unique(keys):
     millions of keys)."""
     keys = np.sort(keys, kind="stable")
     return keys[np.concatenate([[True], keys[1:] != keys[:-1]])] if len(keys) else keys
+
+
+def corner_box(corners):
+    """``(lo, hi)``, each ``(t, 3)``: the box of each triangle's corners ``(t, 3, 3)``, by
+    elementwise minimum and maximum (the same numbers as ``corners.min(axis=1)``; numpy's
+    reduction over an axis of three took twice as long: 0.76 -> 0.37 s at 2.7M triangles)."""
+    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
+    return np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
 
 
 def triangle_planes(triangles, vertices):

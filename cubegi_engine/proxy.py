@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import near_any_triangle
+from .geometry import corner_box, near_any_triangle
 
 __all__ = ["CaptureProxy", "simplify"]
 
@@ -185,8 +185,9 @@ class _Prepared:
         self.members = np.split(np.argsort(owner, kind="stable"), np.cumsum(np.bincount(owner, minlength=objects))[:-1])
         self.tri_owner = owner[tris[:, 0]]
         corners = points[tris]
-        self.tri_lo, self.tri_hi = corners.min(axis=1), corners.max(axis=1)
-        self.tri_extent = np.max(self.tri_hi - self.tri_lo, axis=1)
+        self.tri_lo, self.tri_hi = corner_box(corners)
+        size = self.tri_hi - self.tri_lo
+        self.tri_extent = np.maximum(np.maximum(size[:, 0], size[:, 1]), size[:, 2])
         n = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
         length = np.linalg.norm(n, axis=1)
         self.tri_area = 0.5 * length

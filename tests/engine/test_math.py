@@ -382,6 +382,18 @@ def test_the_cover_test_is_each_pairs_own_and_cut_into_chunks_alike(monkeypatch)
                               sub.any(axis=1))
     assert found > 50 and rings > 0  # both ways of being covered were met
 
+
+def test_a_triangles_box_is_its_corners_least_and_greatest():
+    """geometry.corner_box gives numpy's own reduction over the corners, NaN and dtype kept."""
+    from cubegi.cubegi_engine.geometry import corner_box
+
+    corners = np.random.default_rng(2).normal(size=(500, 3, 3))
+    corners[7, 1, 2] = np.nan
+    for c in (corners, corners.astype(np.float32)):
+        lo, hi = corner_box(c)
+        assert lo.dtype == c.dtype and np.array_equal(lo, c.min(axis=1), equal_nan=True)
+        assert np.array_equal(hi, c.max(axis=1), equal_nan=True) and np.isnan(lo[7, 2]) and (hi[:7] > lo[:7]).all()
+
 def test_sorted_unique_and_membership():
     from cubegi.cubegi_engine.geometry import sorted_unique
     from cubegi.cubegi_engine.visibility import _in_sorted

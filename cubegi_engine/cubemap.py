@@ -20,7 +20,7 @@ Conventions (fixed here, used by the GPU capture and by every look-up):
 
 import numpy as np
 
-__all__ = ["sample_image", "equirect_uv", "texel_uv", "texel_directions", "texel_solid_angles", "direction_to_texel", "perspective_90", "orthographic", "look_matrix", "cube_view_projections", "any_perpendicular", "square_filter"]
+__all__ = ["sample_image", "equirect_uv", "texel_uv", "texel_directions", "texel_solid_angles", "direction_to_texel", "perspective_90", "orthographic", "look_matrix", "cube_view_projections", "any_perpendicular", "square_filter", "texels_around"]
 
 FACE_FORWARD = np.array(
     [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.float64
@@ -196,6 +196,15 @@ def equirect_uv(dirs):
 
 # The rotation part of each face's view matrix (the same at every eye).
 _FACE_ROTATIONS = np.stack([look_matrix(np.zeros(3), FACE_FORWARD[f], FACE_UP[f])[:3, :3] for f in range(6)])
+
+
+def texels_around(row, col, n, reach=1):
+    """``(rows, cols)``, each ``(m, (2 reach + 1)^2)``: the texels within ``reach`` of each
+    texel ``row, col (m,)`` on its face of edge ``n``, row by row (the texel itself in the
+    middle column), held at the face's edges."""
+    steps = np.arange(-reach, reach + 1)
+    dr, dc = np.repeat(steps, len(steps)), np.tile(steps, len(steps))
+    return np.clip(np.asarray(row)[:, None] + dr, 0, n - 1), np.clip(np.asarray(col)[:, None] + dc, 0, n - 1)
 
 
 def square_filter(values, reach, pick):

@@ -341,10 +341,7 @@ def _occluded(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occlud
     face, row, col, footprint, cos = lookup.face, lookup.row, lookup.col, lookup.footprint, lookup.cos
     triangles, sides = occluders.triangles, occluders.sides
     n = depth_map.size
-    steps = range(-reach, reach + 1)
-    offsets = np.array([(dr, dc) for dr in steps for dc in steps])
-    r = np.clip(row[:, None] + offsets[None, :, 0], 0, n - 1)
-    c = np.clip(col[:, None] + offsets[None, :, 1], 0, n - 1)
+    r, c = cubemap.texels_around(row, col, n, reach)
     f = face[:, None]
     tid = depth_map.tid[f, r, c]
     seen = depth_map.dist[f, r, c].astype(np.float64)
@@ -357,7 +354,7 @@ def _occluded(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occlud
         ts = tri_side[np.maximum(tid, 0)]
         ps = np.where(point_ids >= 0, point_side[np.maximum(point_ids, 0)], 0)[:, None]
         back = back | ((tid >= 0) & (ts > 0) & ((ts == 2) != (ps == 2)))
-    centre = np.all(offsets == 0, axis=1)[None, :]
+    centre = (np.arange(r.shape[1]) == r.shape[1] // 2)[None, :]  # the receiver's own texel
     k, j = np.nonzero((tid >= 0) & (centre | back))  # the only pairs that can shadow (above): cut those alone
     plane, on, own = np.full(tid.shape, np.nan), np.zeros(tid.shape, dtype=bool), np.zeros(tid.shape, dtype=bool)
     plane[k, j], on[k, j] = cut_triangles(lookup.origins[k], lookup.u[k], tid[k, j], triangles, occluders.vertices)
@@ -410,8 +407,7 @@ def _doubtful(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occlud
     if not len(ask):
         return doubt
     n = depth_map.size
-    r = np.clip(lookup.row[ask, None] + np.repeat([-1, 0, 1], 3)[None, :], 0, n - 1)
-    c = np.clip(lookup.col[ask, None] + np.tile([-1, 0, 1], 3)[None, :], 0, n - 1)
+    r, c = cubemap.texels_around(lookup.row[ask], lookup.col[ask], n)
     f = lookup.face[ask, None]
     tid, depth, b = depth_map.tid[f, r, c], lookup.depth[ask, None], bias[ask, None]
     near = (tid >= 0) & ~depth_map.back[f, r, c] & (depth_map.dist[f, r, c] < depth - b)

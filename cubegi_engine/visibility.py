@@ -270,8 +270,8 @@ def _covered(cover, at: PointProbes, eyes, texels: _Texels, cell, ask):
     # tried once per pair.
     missed = ahead & ~inside & (cover.triangle_object[tid] != owner)
     missed &= ~hit[pair]
-    need, local = np.unique(pair[missed], return_inverse=True)
-    local, seen = local.ravel(), tid[missed]
+    need = sorted_unique(pair[missed])  # (pair comes sorted)
+    local, seen = np.searchsorted(need, pair[missed]), tid[missed]
     for start in range(0, len(need) if COVER_RINGS else 0, RING_CHUNK):  # bounded temporaries
         lo, hi = np.searchsorted(local, [start, start + RING_CHUNK])
         some = need[start : start + RING_CHUNK]
@@ -299,11 +299,8 @@ def _texel_triangles(probe_tid, probe, texels: _Texels):
     around each of ``texels (m,)`` of ``probe (m,)`` see, each once (-1: none, or seen
     before in the row)."""
     n = texels.n
-    base = (probe * 6 + texels.face) * n
-    flat = probe_tid.reshape(-1)
-    tid = np.empty((len(probe), 9), dtype=flat.dtype)
-    for j, (dr, dc) in enumerate((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)):
-        tid[:, j] = flat[(base + np.clip(texels.row + dr, 0, n - 1)) * n + np.clip(texels.col + dc, 0, n - 1)]
+    r, c = cubemap.texels_around(texels.row, texels.col, n)
+    tid = probe_tid.reshape(-1)[(((probe * 6 + texels.face) * n)[:, None] + r) * n + c]
     tid.sort(axis=1)
     tid[:, 1:][tid[:, 1:] == tid[:, :-1]] = -1
     return tid

@@ -262,7 +262,7 @@ class NearField:
 
 
 def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PAIRS, hidden=None, lit_if_open=None, which=None,
-          hidden_as_given=False, sheets=None, owner=None, keep_index=True, caster=None, emitting=None):
+          hidden_as_given=False, sheets=None, owner=None, keep_index=True, caster=None):
     """The near field of ``points``/``normals`` ``(s, 3)`` among ``triangles (t, 3)``
     (indices into points), rays reaching ``reach`` (one length, or ``(s,)``). ``hidden``:
     ``(s,)`` bool, points covered by another object (their light is no sample of the
@@ -275,9 +275,7 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     (:class:`~cubegi_engine.scene.Sheets`): a ray meets a sheet's twin's front where it meets
     its back, so back faces of sheets are not hit, and a ray from a sheet never meets the
     sheet's own far side (a slightly bent wall's twin lies in front of its points); a sheet's
-    back side, and a covered point whose rays meet one, are never hidden; nor are
-    ``emitting`` ``(s,)`` points and the covered points whose rays meet one (a box lamp 1 cm
-    under a ceiling: its top and the ceiling over it light each other). ``owner``: each
+    back side, and a covered point whose rays meet one, are never hidden. ``owner``: each
     point's object (see :func:`_candidate_pairs`); ``keep_index``: see :func:`~.spatial.voxel_index`.
     ``caster``: where given, a callable giving ``(RayCaster, its triangles' indices among
     triangles)``, the host's ray caster over the scene (Blender's BVH tree): the crowded
@@ -318,7 +316,7 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     if hidden is not None:
         hidden = np.asarray(hidden, dtype=bool).copy()
         if not hidden_as_given:
-            hidden = _hidden(hidden, openness, lit_if_open, sheets, cast[point], corners, points, normals, tri, emitting)
+            hidden = _hidden(hidden, openness, lit_if_open, sheets, cast[point], corners, points, normals, tri)
         hidden[members] = False  # lit by their own rays: a surface's light
         weight = _uncover(index, weight, corners, hidden, hits.triangle, rch[point], by_voxels)
     if OPENNESS_RAYS:
@@ -372,7 +370,7 @@ def _candidate_pairs(index, points, normals, reach, asked, sheets, max_pairs, ow
     return pair_p, pair_t, crowded
 
 
-def _hidden(covered, openness, lit_if_open, sheets, hit_point, corners, points, normals, tri, emitting=None):
+def _hidden(covered, openness, lit_if_open, sheets, hit_point, corners, points, normals, tri):
     """``(s,)`` bool: the ``covered`` points that are hidden from the near field's hits.
 
     Hidden: covered (no probe light) and closed in or lying on another surface (under a wall
@@ -382,20 +380,16 @@ def _hidden(covered, openness, lit_if_open, sheets, hit_point, corners, points, 
     facing one across a gap (``hit_point``, ``corners``: each hit's point and triangle
     corners): the ceiling 1 cm over a lamp's quad, lit by its top, which it lights back
     (McGuire's Cornell box: the ceiling's indirect light 0.10 -> 0.40 against Cycles' 0.56).
-    A floor under a block standing 2 cm above it faces the block's own underside: hidden.
-    So are an emitter's points (``emitting (s,)``) and a point facing one across a gap: a
-    box lamp's top 1 cm under a ceiling sends its light up, and the ceiling over it sends it
-    back (the gap holds a source, unlike the one under a block)."""
+    A floor under a block standing 2 cm above it faces the block's own underside: hidden."""
     hidden = covered.copy()
     open_ = openness >= 1.0 - HIDDEN_SHARE
     if lit_if_open is not None:
         hidden &= ~(open_ & lit_if_open)
-    # A sheet's back side, an emitter, and a point facing either across a gap, are surfaces.
-    for surface in (None if sheets is None else sheets.back, emitting):
-        if surface is not None:
-            facing = np.asarray(surface, dtype=bool).copy()
-            facing[hit_point[facing[corners].any(axis=1)]] = True
-            hidden &= ~facing
+    if sheets is not None:
+        # A sheet's back side, and a point facing one across a gap, are surfaces.
+        facing = sheets.back.copy()
+        facing[hit_point[sheets.back[corners].any(axis=1)]] = True
+        hidden &= ~facing
     ask = np.flatnonzero(hidden & open_)
     if len(ask):
         scale = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))

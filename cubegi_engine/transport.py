@@ -175,10 +175,12 @@ class Transport:
         self.own_near = None  # the near field of its own (what a report says of it), without them
         if near_field:
             reach = NEAR_REACH * grid.point_cell_edge(scene.points)
-            lit_if_open = None if spare is None else np.isin(np.arange(len(scene.points)), spare[0])
+            lit_if_open = None
+            if spare is not None:
+                lit_if_open = np.zeros(len(scene.points), dtype=bool)
+                lit_if_open[spare[0]] = True
             self.near = nearfield.build(scene.points, scene.normals, reach, scene.triangles, hidden=self.covered, owner=scene.point_object,
-                                        lit_if_open=lit_if_open, sheets=scene.sheets(), keep_index=False, caster=caster,
-                                        emitting=np.any(scene.emission > 0, axis=1))
+                                        lit_if_open=lit_if_open, sheets=scene.sheets(), keep_index=False, caster=caster)
         if spare is not None:
             self._light_from_behind(spare, basis, len(scene.points))
         if self.near is not None and visibility and self.covered.any():

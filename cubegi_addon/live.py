@@ -316,9 +316,12 @@ def run_pending():
         materials, rebake = pending.materials, pending.rebake
         pending.clear()
         if rebake:
-            scene.cubegi.last_update = _rebake(context)
+            scene.cubegi.last_update = _rebake(context, "geometry moved")
         else:
-            scene.cubegi.last_update = update(context, materials=materials, geometry=False).line()
+            try:
+                scene.cubegi.last_update = update(context, materials=materials, geometry=False).line()
+            except updates.TablesChanged:
+                scene.cubegi.last_update = _rebake(context, "a surface across a covered gap started or stopped emitting")
     except BakeError as exc:
         scene.cubegi.last_update = f"not updated: {exc}"
     finally:
@@ -326,16 +329,17 @@ def run_pending():
     return None
 
 
-def _rebake(context):
-    """Static geometry moved: bake again with the kept settings; the kept capture is patched
-    (only the probes the moved objects concern are drawn again)."""
+def _rebake(context, why):
+    """Bake again with the kept settings, for ``why``: static geometry moved (the kept
+    capture is patched: only the probes the moved objects concern are drawn again), or
+    the tables changed (the cube maps are kept)."""
     from . import pipeline
 
     bake = session.kept(context.scene).bake
     t = time.perf_counter()
     report = pipeline.bake(context, bake.settings, bake.resolution, lit=bake.lit, only=bake.only)
     drawn = report.probes_recaptured if report.probes_recaptured is not None else report.grid.probes
-    return f"baked again in {1000 * (time.perf_counter() - t):.0f} ms: geometry moved, {drawn} of {report.grid.probes} probes re-captured"
+    return f"baked again in {1000 * (time.perf_counter() - t):.0f} ms: {why}, {drawn} of {report.grid.probes} probes re-captured"
 
 
 def stop():

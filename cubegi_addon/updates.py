@@ -224,7 +224,22 @@ def _material_edits(context, kept, changed):
     if not np.array_equal(arrays.emission, live.emission):
         emission = arrays.emission
         changed.append("material emission")
+        _refuse_new_tables(arrays, bake.result.capture.transport.emitters_changed(arrays))
     return MaterialEdits(albedo, emission, sent)
+
+
+class TablesChanged(BakeError):
+    """An edit the kept tables do not hold (:func:`_refuse_new_tables`): a bake takes it,
+    reusing the probes' cube maps (Live bakes again by itself)."""
+
+
+def _refuse_new_tables(arrays, points):
+    """Refuse (TablesChanged) an emission edit where ``points`` (from
+    :meth:`~cubegi_engine.transport.Transport.emitters_changed`) started or stopped emitting."""
+    if len(points):
+        names = sorted({arrays.object_names[k] for k in np.unique(arrays.point_object[points])})
+        raise TablesChanged(f"{', '.join(names)} started or stopped emitting across a covered gap, which the tables hold: "
+                            "Bake again (the probes' cube maps are kept; only the tables are built again)")
 
 
 def _moved_objects(context, kept):

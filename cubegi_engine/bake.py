@@ -189,14 +189,17 @@ def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field):
 
     reused = capture is not None and capture.valid_for(scene, grid, settings)
     patched = None
-    if not reused and capture is not None:
+    if not reused and capture is not None and capture.valid_for(scene, grid, settings, tables=False):
+        patched = (yield from capture.retabled_steps(scene, renderer, settings, working(Stage.CAPTURE, 0))), 0
+    elif not reused and capture is not None:
         patched = capture.patched(scene, grid, renderer, settings)
     if reused:
         yield Progress(Stage.CAPTURE, 0, total, f"reusing the capture of {grid.count} probes (the geometry is unchanged)")
         timings["capture"] = timings["tables"] = 0.0
     elif patched is not None:
         capture, redrawn = patched
-        yield Progress(Stage.CAPTURE, 0, total, f"re-captured {redrawn} of {grid.count} probes (the ones a moved object concerns)")
+        yield Progress(Stage.CAPTURE, 0, total, f"re-captured {redrawn} of {grid.count} probes (the ones a moved object concerns)"
+                       if redrawn else f"the capture of {grid.count} probes kept, its tables built again")
         timings["capture"], timings["tables"] = capture.capture_seconds, capture.tables_seconds
     else:
         capture = yield from _new_capture(scene, grid, renderer, settings, working, timings, total, simplifying)

@@ -6,7 +6,7 @@ depend on them); :meth:`ProbeCapture.valid_for` says whether it still applies to
 """
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -75,14 +75,27 @@ class ProbeCapture:
         return cls(grid, cube_size, visibility, scene.fingerprint(), cubes, transport, t_capture,
                    time.perf_counter() - t, proxy, settings.capture_key())
 
-    def valid_for(self, scene, grid, settings) -> bool:
+    def valid_for(self, scene, grid, settings, tables=True) -> bool:
         """True if this capture applies to ``scene`` baked on ``grid`` at ``settings`` (and
-        its sky pattern, which the tables hold)."""
+        its sky pattern, which the tables hold); with ``tables``, its tables too (they also
+        hold which points emit across a covered gap: :meth:`Transport.emitters_changed`)."""
         return (
             self.key == settings.capture_key()
             and _same_grid(self.grid, grid) and not self.fingerprint.changed(scene.fingerprint())
             and _same_sky(self.transport, scene)
+            and (not tables or not len(self.transport.emitters_changed(scene)))
         )
+
+    def retabled_steps(self, scene, renderer, settings, step):
+        """This capture's cube maps with the tables built anew for ``scene`` (whose geometry
+        it was drawn of, :meth:`valid_for` without ``tables``): a generator of working steps
+        (``step(message)``, in a thread) returning the ProbeCapture."""
+        t = time.perf_counter()
+        transport = yield from in_background(
+            lambda: Transport(scene, self.grid, self.cubes, visibility=self.visibility, proxy=self.proxy,
+                              near_field=settings.near_field, caster=near_caster(scene, renderer)),
+            step("building the tables again (a surface across a covered gap started or stopped emitting)"))
+        return replace(self, transport=transport, capture_seconds=0.0, tables_seconds=time.perf_counter() - t)
 
     def patched(self, scene, grid, renderer, settings):
         """This capture brought up to date for ``scene`` whose geometry moved but kept its

@@ -109,6 +109,17 @@ class NearField:
     hidden: np.ndarray | None = None
     alias: tuple | None = None  # (rows (a,), theirs (a,)): rows (places) that gather what other rows gather
     crowded_objects: tuple = ()  # the objects (``owner`` indices) of the crowded points left out
+    # (points (w,), whether each emitted (w,)): the points whose emitting or not decides which
+    # points are hidden (:func:`_hidden`), or None where nothing was decided
+    emitters: tuple | None = None
+
+    def emitters_changed(self, emitting) -> np.ndarray:
+        """The points :attr:`hidden` depends on that started or stopped emitting, where the
+        points ``emitting (s,)`` bool emit (none: it still holds)."""
+        if self.emitters is None:
+            return np.zeros(0, dtype=np.int64)
+        watched, was = self.emitters
+        return watched[np.asarray(emitting, dtype=bool)[watched] != was]
 
     def enclosed(self, count, at_least=0.5):
         """``(count,)`` bool: points whose near surroundings cover at least ``at_least`` of
@@ -143,7 +154,7 @@ class NearField:
             np.concatenate([renumber[self.hit_row[hits]], other.hit_row + n]), np.concatenate([self.hit_corner[hits], other.hit_corner]),
             np.concatenate([self.hit_weight[hits], other.hit_weight]), self.rays, self.reach,
             self.pairs, self.crowded, self.skipped, self.seconds + other.seconds, share,
-            self.hidden, alias, self.crowded_objects,
+            self.hidden, alias, self.crowded_objects, self.emitters,
         )
 
     @classmethod
@@ -262,7 +273,7 @@ class NearField:
 
 
 def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PAIRS, hidden=None, lit_if_open=None, which=None,
-          hidden_as_given=False, sheets=None, owner=None, keep_index=True, caster=None):
+          hidden_as_given=False, sheets=None, owner=None, keep_index=True, caster=None, emitting=None):
     """The near field of ``points``/``normals`` ``(s, 3)`` among ``triangles (t, 3)``
     (indices into points), rays reaching ``reach`` (one length, or ``(s,)``). ``hidden``:
     ``(s,)`` bool, points covered by another object (their light is no sample of the
@@ -275,7 +286,8 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     (:class:`~cubegi_engine.scene.Sheets`): a ray meets a sheet's twin's front where it meets
     its back, so back faces of sheets are not hit, and a ray from a sheet never meets the
     sheet's own far side (a slightly bent wall's twin lies in front of its points); a sheet's
-    back side, and a covered point whose rays meet one, are never hidden. ``owner``: each
+    back side, and a covered point whose rays meet one, are never hidden; nor, across a gap,
+    are ``emitting (s,)`` points and those whose rays meet one (:func:`_hidden`). ``owner``: each
     point's object (see :func:`_candidate_pairs`); ``keep_index``: see :func:`~.spatial.voxel_index`.
     ``caster``: where given, a callable giving ``(RayCaster, its triangles' indices among
     triangles)``, the host's ray caster over the scene (Blender's BVH tree): the crowded
@@ -313,10 +325,11 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     # The caster's hits lie in dense geometry, where the voxel index's tests below would take
     # minutes: their hidden corners' weight goes to the others, and no gap darkens them.
     by_voxels = point < traced
+    emitters = None
     if hidden is not None:
         hidden = np.asarray(hidden, dtype=bool).copy()
         if not hidden_as_given:
-            hidden = _hidden(hidden, openness, lit_if_open, sheets, cast[point], corners, points, normals, tri)
+            hidden, emitters = _hidden(hidden, openness, lit_if_open, sheets, cast[point], corners, points, normals, tri, emitting)
         hidden[members] = False  # lit by their own rays: a surface's light
         weight = _uncover(index, weight, corners, hidden, hits.triangle, rch[point], by_voxels)
     if OPENNESS_RAYS:
@@ -328,7 +341,7 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
         rows, open_basis, share, alias = shared_rows(rows, open_basis, share, members, by_caster[member_of], normals)
     return NearField(rows.astype(np.int64), open_basis, hit_row, corners, weight,
                      rays, float(reach.max()), len(pair_p), int(crowded.sum()), "", time.perf_counter() - t0, share,
-                     None if hidden is None else np.flatnonzero(hidden), alias, crowded_objects)
+                     None if hidden is None else np.flatnonzero(hidden), alias, crowded_objects, emitters)
 
 
 def _candidate_pairs(index, points, normals, reach, asked, sheets, max_pairs, owner=None):
@@ -370,8 +383,10 @@ def _candidate_pairs(index, points, normals, reach, asked, sheets, max_pairs, ow
     return pair_p, pair_t, crowded
 
 
-def _hidden(covered, openness, lit_if_open, sheets, hit_point, corners, points, normals, tri):
-    """``(s,)`` bool: the ``covered`` points that are hidden from the near field's hits.
+def _hidden(covered, openness, lit_if_open, sheets, hit_point, corners, points, normals, tri, emitting=None):
+    """``((s,) bool, ((w,) int, (w,) bool))``: the ``covered`` points hidden from the near
+    field's hits, and the points whose emitting or not that depends on, with whether each
+    emits (:attr:`NearField.emitters`: while none of them starts or stops, the set holds).
 
     Hidden: covered (no probe light) and closed in or lying on another surface (under a wall
     standing on it, a block's underside). A covered point open to its own view (a thick
@@ -380,21 +395,37 @@ def _hidden(covered, openness, lit_if_open, sheets, hit_point, corners, points, 
     facing one across a gap (``hit_point``, ``corners``: each hit's point and triangle
     corners): the ceiling 1 cm over a lamp's quad, lit by its top, which it lights back
     (McGuire's Cornell box: the ceiling's indirect light 0.10 -> 0.40 against Cycles' 0.56).
-    A floor under a block standing 2 cm above it faces the block's own underside: hidden."""
+    A floor under a block standing 2 cm above it faces the block's own underside: hidden.
+    Not so an emitter's points (``emitting (s,)``) and a point facing one across a gap
+    (neither lying on another surface): a box lamp's top 1 cm under a ceiling lights it, and
+    the ceiling lights it back; a glowing wall's foot on the ground stays hidden."""
     hidden = covered.copy()
     open_ = openness >= 1.0 - HIDDEN_SHARE
     if lit_if_open is not None:
         hidden &= ~(open_ & lit_if_open)
-    if sheets is not None:
-        # A sheet's back side, and a point facing one across a gap, are surfaces.
-        facing = sheets.back.copy()
-        facing[hit_point[sheets.back[corners].any(axis=1)]] = True
-        hidden &= ~facing
-    ask = np.flatnonzero(hidden & open_)
+    if sheets is not None:  # a sheet's back side, and a point facing one across a gap, are surfaces
+        hidden &= ~_facing(sheets.back, hit_point, corners)
+    ask = np.flatnonzero(hidden)
+    rest = np.zeros(len(hidden), dtype=bool)
     if len(ask):
         scale = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
-        hidden[ask] = resting(points, normals, tri, scale, ask, sheets)
-    return hidden
+        rest[ask] = resting(points, normals, tri, scale, ask, sheets)
+    gap = hidden & ~rest & ~open_  # where an emitter across the gap counts: those points, and their hits' corners
+    watched = gap.copy()
+    watched[corners[gap[hit_point]].ravel()] = True
+    emitting = np.zeros(len(hidden), dtype=bool) if emitting is None else np.asarray(emitting, dtype=bool)
+    hidden &= ~(gap & _facing(emitting, hit_point, corners))
+    hidden[hidden & open_] = rest[hidden & open_]
+    watched = np.flatnonzero(watched)
+    return hidden, (watched, emitting[watched])
+
+
+def _facing(surface, hit_point, corners):
+    """``(s,)`` bool: the ``surface`` points and the points whose rays meet one of them
+    (``hit_point``, ``corners``: each hit's point and triangle corners)."""
+    facing = np.asarray(surface, dtype=bool).copy()
+    facing[hit_point[facing[corners].any(axis=1)]] = True
+    return facing
 
 
 def _uncover(index, weight, corners, hidden, tri, reach, ask=None):

@@ -187,7 +187,8 @@ class BakeReport:
     def summary_lines(self) -> list:
         """The report in a few lines of text (the CLI prints them; the add-on shows them)."""
         reused = ", capture reused" if self.capture_reused else (
-            f", {self.probes_recaptured} re-captured" if self.probes_recaptured is not None else "")
+            "" if self.probes_recaptured is None else f", {self.probes_recaptured} re-captured" if self.probes_recaptured
+            else ", capture kept, tables built again")
         lines = [
             f"baked {len(self.meshes_baked)} meshes, {self.grid.probes} probes{reused}, "
             f"{len(self.bounces)} bounces in {self.total_seconds:.3f} s"

@@ -175,12 +175,10 @@ class Transport:
         self.own_near = None  # the near field of its own (what a report says of it), without them
         if near_field:
             reach = NEAR_REACH * grid.point_cell_edge(scene.points)
-            lit_if_open = None
-            if spare is not None:
-                lit_if_open = np.zeros(len(scene.points), dtype=bool)
-                lit_if_open[spare[0]] = True
+            lit_if_open = None if spare is None else np.isin(np.arange(len(scene.points)), spare[0])
             self.near = nearfield.build(scene.points, scene.normals, reach, scene.triangles, hidden=self.covered, owner=scene.point_object,
-                                        lit_if_open=lit_if_open, sheets=scene.sheets(), keep_index=False, caster=caster)
+                                        lit_if_open=lit_if_open, sheets=scene.sheets(), keep_index=False, caster=caster,
+                                        emitting=np.any(scene.emission > 0, axis=1))
         if spare is not None:
             self._light_from_behind(spare, basis, len(scene.points))
         if self.near is not None and visibility and self.covered.any():
@@ -200,6 +198,12 @@ class Transport:
         near = _same_side(gathered.near, self.covered)
         self.near = near if self.near is None or not self.near.count else self.near.replaced_rows(near)
         self.gathered = gathered
+
+    def emitters_changed(self, scene) -> np.ndarray:
+        """The points whose emitting these tables hold and ``scene`` changed (none: they
+        still hold): the near field's hidden points depend on which points across a gap
+        emit (:func:`.nearfield._hidden`)."""
+        return np.zeros(0, dtype=np.int64) if self.own_near is None else self.own_near.emitters_changed(np.any(scene.emission > 0, axis=1))
 
     @property
     def exact(self) -> np.ndarray:

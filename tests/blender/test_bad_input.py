@@ -505,16 +505,22 @@ def test_meshes_too_coarse_for_vertex_light_are_named(empty_scene, cubegi):
     assert len(coarse) == 1 and coarse[0].startswith("Slab:") and "Fine" not in coarse[0], notes
 
 
-def test_a_lamp_close_under_a_ceiling_is_named_with_the_gap(empty_scene, cubegi):
+@pytest.mark.parametrize("shape", ["quad", "box"])
+def test_a_lamp_close_under_a_ceiling_is_named_with_the_gap(empty_scene, cubegi, shape):
     """An emissive panel 1 cm under a ceiling traps light in a gap no probe resolves: the
     bake names the panel, the ceiling and the gap, and still gives the ceiling over it the
     light bouncing between them (more indirect light there than beside the panel). The same
-    panel half a metre down is not named."""
+    panel half a metre down is not named. A quad, or a closed box 2 cm thick whose top no
+    probe sees either (its top and the ceiling over it were hidden from each other's rays
+    as the floor under a block is: the ceiling there got no indirect light, and no note)."""
     v, f = scenes.box_mesh((-1, -1, 0), (1, 1, 2), (8, 8, 8), inward=True)
     scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
     ceiling_v, ceiling_f = scenes.grid_patch((-1, -1, 1.99), (0, 2, 0), (2, 0, 0), 16, 16)  # faces down
     ceiling = scenes.mesh_object("Ceiling", ceiling_v, ceiling_f, scenes.material("Plaster", (0.8, 0.8, 0.8)))
-    lamp_v, lamp_f = scenes.grid_patch((-0.25, -0.25, 1.98), (0, 0.5, 0), (0.5, 0, 0), 4, 4)
+    if shape == "quad":
+        lamp_v, lamp_f = scenes.grid_patch((-0.25, -0.25, 1.98), (0, 0.5, 0), (0.5, 0, 0), 4, 4)
+    else:
+        lamp_v, lamp_f = scenes.box_mesh((-0.25, -0.25, 1.96), (0.25, 0.25, 1.98), (4, 4, 1), inward=False)
     lamp = scenes.mesh_object("Panel", lamp_v, lamp_f, scenes.material("Glow", (0.8, 0.8, 0.8), emission=(1, 1, 1), strength=10.0))
     assert bpy.ops.cubegi.bake(bounces=3, cube_size=8) == {"FINISHED"}
     trapped = [n for n in _notes() if "gathered by the near field alone" in n]

@@ -2,6 +2,8 @@
 light, the world, a material's colour or emission) gives what a full bake of the changed
 scene gives, without drawing a probe; Live applies edits as the user makes them."""
 
+import json
+
 import bmesh
 import bpy
 import numpy as np
@@ -488,3 +490,54 @@ def test_lamps_sharing_their_shadow_eyes_update_as_a_full_bake(lamp_room, edit):
     report = _update(lamp_room)
     assert report.route == ("weights" if edit == "power" else "lights"), report
     _assert_same(_light(), _full_bake(lamp_room))
+
+
+def test_a_lamp_lit_across_a_covered_gap_after_the_bake_builds_the_tables_again(empty_scene, cubegi):
+    """A box lamp 1 cm under a ceiling (as test_bad_input's), baked dark and then made to
+    glow: which points emit across that gap decides what the near field hides (the lamp's
+    top and the ceiling over it light each other; cubegi_engine.nearfield._hidden), so the
+    kept tables no longer hold. An update refuses, naming the lamp, and writes nothing; a
+    bake keeps the cube maps and builds the tables again, equal to a bake from nothing; Live
+    makes that bake by itself. (A glowing wall's foot on the ground is no such gap: the
+    world-and-material test above stays an update.)"""
+    v, f = scenes.box_mesh((-1, -1, 0), (1, 1, 2), (8, 8, 8), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    ceiling_v, ceiling_f = scenes.grid_patch((-1, -1, 1.99), (0, 2, 0), (2, 0, 0), 16, 16)  # faces down
+    scenes.mesh_object("Ceiling", ceiling_v, ceiling_f, scenes.material("Plaster", (0.8, 0.8, 0.8)))
+    lamp_v, lamp_f = scenes.box_mesh((-0.25, -0.25, 1.96), (0.25, 0.25, 1.98), (4, 4, 1), inward=False)
+    scenes.mesh_object("Panel", lamp_v, lamp_f, scenes.material("Glow", (0.8, 0.8, 0.8), emission=(1, 1, 1), strength=0.0))
+    scenes.add_light("POINT", (0.3, 0.4, 0.8), 60.0)
+    settings = dict(bounces=3, cube_size=8)
+    live, session = cubegi.cubegi_addon.live, cubegi.cubegi_addon.session
+    read = cubegi.cubegi_addon.attributes.read
+    assert bpy.ops.cubegi.bake(**settings) == {"FINISHED"}
+    dark = {n: read(bpy.data.objects[n].data, "CubeGI") for n in ("Ceiling", "Panel")}
+    bpy.data.materials["Glow"].node_tree.nodes["Principled BSDF"].inputs["Emission Strength"].default_value = 10.0
+    with pytest.raises(cubegi.cubegi_engine.errors.BakeError, match="Panel started or stopped emitting across a covered gap"):
+        live.update(bpy.context, materials=True)
+    for name, light in dark.items():
+        np.testing.assert_array_equal(read(bpy.data.objects[name].data, "CubeGI"), light)
+    capture = session.kept(bpy.context.scene).bake.result.capture
+    assert bpy.ops.cubegi.bake(**settings) == {"FINISHED"}
+    report = json.loads(bpy.context.scene.cubegi.last_report)
+    assert report["probes_recaptured"] == 0 and report["timings"]["capture"] == 0.0, report
+    kept = session.kept(bpy.context.scene).bake.result.capture
+    assert kept is not capture and kept.cubes is capture.cubes and kept.transport is not capture.transport
+    retabled = {n: read(bpy.data.objects[n].data, "CubeGI") for n in ("Ceiling", "Panel")}
+    session.forget()
+    assert bpy.ops.cubegi.bake(**settings) == {"FINISHED"}
+    for name, light in retabled.items():
+        np.testing.assert_allclose(light, read(bpy.data.objects[name].data, "CubeGI"), rtol=0, atol=1e-6 * light.max(), err_msg=name)
+    assert retabled["Ceiling"].max() > 2 * dark["Ceiling"].max()
+    # Live: the glow off again is the same refusal, and Live bakes again by itself.
+    bpy.data.materials["Glow"].node_tree.nodes["Principled BSDF"].inputs["Emission Strength"].default_value = 0.0
+    scene = bpy.context.scene
+    scene.cubegi.live = True
+    live.stop()
+    live.pending.scene, live.pending.settle, live.pending.materials = scene, True, True
+    assert live.run_pending() is None
+    assert scene.cubegi.last_update.startswith("baked again in") and "across a covered gap" in scene.cubegi.last_update, (
+        scene.cubegi.last_update)
+    scene.cubegi.live = False
+    for name, light in dark.items():
+        np.testing.assert_allclose(read(bpy.data.objects[name].data, "CubeGI"), light, rtol=0, atol=1e-6 * light.max(), err_msg=name)

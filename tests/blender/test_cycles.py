@@ -149,6 +149,30 @@ def test_an_emissive_panel_lights_both_ways_as_cycles_does(empty_scene, cubegi):
     assert ceiling[above].mean() > 0.2  # the panel's back lights the ceiling (Cycles: about 0.3)
 
 
+def test_a_box_lamp_under_a_ceiling_is_shadowed_face_by_face_as_cycles_does(empty_scene, cubegi):
+    """A glowing box 2 cm thick, 1 cm under a ceiling: the ceiling over it sees the box's top
+    and not its bottom, whose light the top stops. Each face is shadowed by the samples on
+    it (cubegi_engine.emitters.emitter_direct); one share for the whole box, weighted by
+    each sample's nearness, gave the ceiling's vertices over the box anything from none to
+    twice Cycles' light, as the nearest sample lay on the top or the bottom."""
+    v, f = scenes.box_mesh((-1, -1, 0), (1, 1, 2), (8, 8, 8), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    ceiling_v, ceiling_f = scenes.grid_patch((-1, -1, 1.99), (0, 2, 0), (2, 0, 0), 16, 16)  # faces down
+    ceiling = scenes.mesh_object("Ceiling", ceiling_v, ceiling_f, scenes.material("Plaster", (0.8, 0.8, 0.8)))
+    lamp_v, lamp_f = scenes.box_mesh((-0.3, -0.2, 1.96), (0.3, 0.2, 1.98), (1, 1, 1), inward=False)
+    scenes.mesh_object("Lamp", lamp_v, lamp_f, scenes.material("Glow", (0.8, 0.8, 0.8), emission=(1, 1, 1), strength=4.0))
+    scenes.set_world((0.0, 0.0, 0.0))
+    assert bpy.ops.cubegi.bake(bounces=1, grid=(4, 4, 4), cube_size=16) == {"FINISHED"}
+    ours = cubegi.cubegi_addon.attributes.read(ceiling.data, "CubeGI_direct").mean(axis=1)
+    ref, _ = cubegi.cubegi_addon.reference.bake_reference(bpy.context, [ceiling], passes=("DIRECT",), samples=64)
+    theirs = ref["DIRECT"]["Ceiling"].mean(axis=1)
+    co = np.array([vv.co for vv in ceiling.data.vertices])
+    over = (np.abs(co[:, 0]) < 0.25) & (np.abs(co[:, 1]) < 0.15)  # over the top, off its edges
+    ratio = ours[over] / theirs[over]
+    print(over.sum(), ratio)
+    assert over.sum() >= 8 and np.all(np.abs(ratio - 1.0) < 0.12), ratio
+
+
 def _env_image(name="Sky"):
     """An equirectangular sky: blue, brighter overhead and towards one side, over a brown
     ground half."""

@@ -428,11 +428,12 @@ def test_an_emitter_with_few_triangles_spreads_its_shadow_points_inside_them():
 
     quad = np.array([[[0, 0, 0], [1, 0, 0], [1, 1, 0]], [[0, 0, 0], [1, 1, 0], [0, 1, 0]]], dtype=float)
     radiance = np.array([[1.0, 1.0, 1.0], [3.0, 3.0, 3.0]])  # the second sends 3x the power
-    pts, nrm = emitters._samples(quad, radiance, 16)
+    pts, nrm, tri = emitters._samples(quad, radiance, 16)
     assert len(pts) == 16 and len(np.unique(np.round(pts, 9), axis=0)) == 16
     np.testing.assert_allclose(nrm, np.broadcast_to([0, 0, 1], (16, 3)))
     first = pts[:, 0] >= pts[:, 1]  # the first triangle is x >= y
     assert first.sum() == 4 and (~first).sum() == 12
+    np.testing.assert_array_equal(tri, np.where(first, 0, 1))  # each point's own triangle
     assert (pts[:, :2] >= 0).all() and (pts[:, :2] <= 1).all()
 
 

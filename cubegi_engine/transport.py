@@ -26,8 +26,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import cubemap, nearfield, sh
+from .grid import points_by_cell
 from .nearfield import NEAR_REACH
-from .visibility import Cover, PointProbes, Probes, probes_in_front, seen_corners_only, visibility_weights
+from .visibility import Cover, PointProbes, Probes, probes_in_front, seen_corners_only, seen_from_behind, visibility_weights
 
 # A covered point in the open (see Transport._light_under) casts rays this many cells long,
 # and is lit through the gap where at least this share of them meets what covers it.
@@ -142,7 +143,7 @@ class Transport:
         if scene.point_object is not None:
             self.triangle_object = scene.triangle_object() if proxy is None else proxy.triangle_object
             count = int(scene.point_object.max()) + 1
-            self.seen_from_behind = _seen_from_behind(self.triangle_object, count, tid, back, solid, self.probe_valid)
+            self.seen_from_behind = seen_from_behind(self.triangle_object, count, tid, back, solid, self.probe_valid)
 
         positions = grid.positions()
         index, weight = grid.trilinear(scene.points)
@@ -163,12 +164,14 @@ class Transport:
         self.index = index
         # Per point: trilinear weight x diffuse SH basis of its normal, (s, 8 * 9).
         basis = sh.diffuse_basis(scene.normals)
-        self.point_weights = _outer_float32(weight, basis)
+        self._cells = points_by_cell(index)  # the points grouped by their 8 probes (or None): how the weights are kept
+        self._weights = np.empty((len(index), COEFFS_PER_POINT), dtype=np.float32)  # see point_weights
+        self._put_weights(np.arange(len(index)), weight, basis)
         self._dense = None  # the gather-project matrix, once made (gather_project_matrix)
         # (s,) points another object covers (no probe sees them: a floor point under a wall
         # standing on it, the underside of a block on the ground): they get no probe light,
         # and no sky.
-        self.covered = _weightless(self.point_weights) & ~self.no_probe
+        self.covered = self._weightless() & ~self.no_probe
         # The near field (a final gather of each point's short-range surroundings), or None.
         self.near = None
         self.gathered = None  # the points gathered by rays over their whole view (take_gathered)
@@ -187,22 +190,38 @@ class Transport:
         if proxy is None:  # (a proxy's clusters have no covered flag of their own)
             self.bary = seen_corners_only(self.bary, self.corners, self.covered)
 
+    @property
+    def point_weights(self) -> np.ndarray:
+        """``(s, 72)`` float32: each point's 8 probes' weights x its normal's diffuse basis, in
+        the points' order (a copy where they are kept by cell, :func:`.grid.points_by_cell`)."""
+        return self._weights if self._cells is None else self._weights[self._cells.rank]
+
+    def _put_weights(self, rows, weight, basis):
+        """The weights of the points ``rows (m,)``: their 8 probes' ``weight (m, 8)`` x their
+        diffuse ``basis (m, 9)`` (in chunks: no second (s, 72) array)."""
+        at = rows if self._cells is None else self._cells.rank[rows]
+        for k in range(0, len(rows), INTERPOLATE_CHUNK):
+            self._weights[at[k:k + INTERPOLATE_CHUNK]] = _outer_float32(weight[k:k + INTERPOLATE_CHUNK], basis[k:k + INTERPOLATE_CHUNK])
+
+    def _weightless(self, rows=None) -> np.ndarray:
+        """``(m,)`` bool: which of the points ``rows`` (all: None) no probe light reaches."""
+        w = self._weights if rows is None else self._weights[rows if self._cells is None else self._cells.rank[rows]]
+        out = np.maximum(w.max(axis=1), -w.min(axis=1)) < 1e-6
+        return out if rows is not None or self._cells is None else out[self._cells.rank]
+
     def take_gathered(self, gathered):
         """Light the points of ``gathered`` (a :class:`~cubegi_engine.gather.Gathered`) by their
         own rays from now on: their rows join the near field in place of any they had (every
         probe light of theirs taken away). Once per Gathered."""
-        if gathered is None or gathered is self.gathered:
-            return
-        if not gathered.count:
+        if gathered is None or gathered is self.gathered or not gathered.count:
             return
         near = _same_side(gathered.near, self.covered)
         self.near = near if self.near is None or not self.near.count else self.near.replaced_rows(near)
         self.gathered = gathered
 
     def emitters_changed(self, scene) -> np.ndarray:
-        """The points whose emitting these tables hold and ``scene`` changed (none: they
-        still hold): the near field's hidden points depend on which points across a gap
-        emit (:func:`.nearfield._hidden`)."""
+        """The points whose emitting these tables hold (which points emit across a gap
+        decides the near field's hidden ones) that ``scene`` changed (none: they hold)."""
         return np.zeros(0, dtype=np.int64) if self.own_near is None else self.own_near.emitters_changed(np.any(scene.emission > 0, axis=1))
 
     @property
@@ -249,8 +268,8 @@ class Transport:
         if self.near is not None:
             keep = ~self.near.enclosed(count)[rows]
             rows, w = rows[keep], w[keep]
-        self.point_weights[rows] = (w[:, :, None] * basis[rows][:, None, :]).reshape(len(rows), COEFFS_PER_POINT)
-        self.covered[rows] = _weightless(self.point_weights[rows])
+        self._put_weights(rows, w, basis[rows])
+        self.covered[rows] = self._weightless(rows)
 
     def _light_under(self, scene, grid, index, weight, basis, positions):
         """Covered points in the open (the floor under a sofa: every probe's view of it is
@@ -289,7 +308,7 @@ class Transport:
             far = rays(open_[under])
         open_, w = open_[under], w[under]
         self.near = self.near.replaced_rows(far)
-        self.point_weights[open_] = (w[:, :, None] * basis[open_][:, None, :]).reshape(len(open_), COEFFS_PER_POINT)
+        self._put_weights(open_, w, basis[open_])
         self.covered[open_] = False
 
     def gather_project_matrix(self):
@@ -356,7 +375,8 @@ class Transport:
         """``(m, 8)`` float64: the (visibility-aware) weights of the points ``rows``' 8 probes,
         read back from :attr:`point_weights` (weight x diffuse basis, whose band-0 entry
         is the constant ``sh.C0``)."""
-        return self.point_weights[rows].reshape(len(rows), 8, 9)[:, :, 0].astype(np.float64) / sh.C0
+        at = rows if self._cells is None else self._cells.rank[rows]
+        return self._weights[at].reshape(len(rows), 8, 9)[:, :, 0].astype(np.float64) / sh.C0
 
     def arrays(self):
         """The tables' arrays (for memory accounting)."""
@@ -364,7 +384,7 @@ class Transport:
         extra += [] if self.sky_projection_map is None else [self.sky_projection_map]
         extra += [] if self._dense is None else [self._dense]
         extra += [] if self.near is None else [self.near.rows, self.near.open_basis, self.near.hit_row, self.near.hit_corner, self.near.hit_weight]
-        return [self.sh_weights, self.corners, self.bary, self.sky_projection, self.probe_valid, self.index, self.point_weights, *extra]
+        return [self.sh_weights, self.corners, self.bary, self.sky_projection, self.probe_valid, self.index, self._weights, *extra]
 
     def landing_share(self):
         """Per point, the cosine-weighted share of its view that is surface, not sky:
@@ -374,7 +394,7 @@ class Transport:
         light mostly leaves through the sky, or lands where no probe looks)."""
         unit = np.repeat(self.sky_projection[:, :, None], 3, axis=2)  # geometric: a uniform unit sky
         landing = np.clip(1.0 - self.interpolate(unit).astype(np.float64), 0.0, 1.0)
-        landing[_weightless(self.point_weights)] = 0.0
+        landing[self._weightless()] = 0.0
         if self.gathered is not None:  # their own rays say it
             landing[self.gathered.rows] = self.gathered.near.share[:, None]
         return landing
@@ -416,13 +436,15 @@ class Transport:
         flat = np.ascontiguousarray(coeffs, dtype=np.float32).reshape(len(coeffs), -1)  # (p, 27)
         s = len(self.index)
         out = np.empty((s, 3), dtype=np.float32)
-        # In chunks (the gathered coefficients stay in cache, and a million points never
-        # make a (s, 72, 3) array): each point's 72 weights times its 72 x 3 coefficients,
-        # one small matrix product per point (batched).
-        for start in range(0, s, INTERPOLATE_CHUNK):
-            sl = slice(start, start + INTERPOLATE_CHUNK)
-            g = np.take(flat, self.index[sl], axis=0).reshape(-1, COEFFS_PER_POINT, 3)
-            out[sl] = np.matmul(self.point_weights[sl, None, :], g)[:, 0]
+        if self._cells is not None:  # one matrix product per cell: its points' weights x its probes' 72 x 3
+            probes = flat[self._cells.probes].reshape(-1, COEFFS_PER_POINT, 3)
+            for k, (a, b) in enumerate(zip(self._cells.bounds[:-1], self._cells.bounds[1:])):
+                out[self._cells.order[a:b]] = self._weights[a:b] @ probes[k]
+        else:  # in chunks (no (s, 72, 3) array): each point's 72 weights x its 72 x 3 coefficients, batched
+            for start in range(0, s, INTERPOLATE_CHUNK):
+                sl = slice(start, start + INTERPOLATE_CHUNK)
+                g = np.take(flat, self.index[sl], axis=0).reshape(-1, COEFFS_PER_POINT, 3)
+                out[sl] = np.matmul(self._weights[sl, None, :], g)[:, 0]
         return np.maximum(out, 0.0) if clamp else out
 
 
@@ -452,12 +474,6 @@ def _outer_float32(weight, basis):
     return out.reshape(len(weight), COEFFS_PER_POINT)
 
 
-def _weightless(point_weights):
-    """``(s,)`` bool: the rows of ``point_weights`` no probe light reaches (every entry
-    under 1e-6 in size), by two reductions rather than an absolute copy of the array."""
-    return np.maximum(point_weights.max(axis=1), -point_weights.min(axis=1)) < 1e-6
-
-
 def _gather_matrix(transport, s):
     """``(9p, s)`` float32 over ``s`` gathered points (the scene's, or a proxy's clusters)."""
     p = transport.probe_count
@@ -469,20 +485,6 @@ def _gather_matrix(transport, s):
     for j in range(9):
         out[:, j, :] = np.bincount(flat, (bary * w[None, :, j, None]).ravel(), minlength=p * s).reshape(p, s)
     return out.reshape(p * 9, s)
-
-
-def _seen_from_behind(triangle_object, count, tid, back, solid, probe_valid):
-    """Per object (``scene.point_object`` index, ``count`` of them): the share of the solid
-    angle in which the valid probes see it that shows its back faces, ``(objects,)``. A large
-    share means flipped normals, or a one-sided surface seen from its back: such faces get
-    and pass on no light."""
-    use = probe_valid if probe_valid.any() else np.ones_like(probe_valid)  # none valid: all
-    seen = (tid >= 0) & use[:, None]
-    obj = triangle_object[np.maximum(tid, 0)]
-    w = solid[None, :] * seen
-    total = np.bincount(obj.ravel(), w.ravel(), minlength=count)
-    behind = np.bincount(obj.ravel(), (w * back).ravel(), minlength=count)
-    return np.where(total > 0, behind / np.maximum(total, 1e-300), 0.0)
 
 
 def reference_coefficients(renderer, grid, scene, radiance, size, near, far):

@@ -12,7 +12,8 @@ import numpy as np
 from . import cubemap
 from .geometry import cut_planes, edge_neighbours, in_pieces, piece_size, sorted_unique, triangle_planes
 
-__all__ = ["visibility_weights", "probes_in_front", "seen_corners_only", "Cover", "Probes", "PointProbes", "ProbeWeights", "BEHIND"]
+__all__ = ["visibility_weights", "probes_in_front", "seen_corners_only", "Cover", "Probes", "PointProbes", "ProbeWeights", "BEHIND",
+           "seen_from_behind"]
 
 
 @dataclass(frozen=True)
@@ -335,3 +336,17 @@ def _in_sorted(keys, sorted_keys):
     """Whether each of ``keys`` is in the sorted array ``sorted_keys``."""
     at = np.minimum(np.searchsorted(sorted_keys, keys), max(len(sorted_keys) - 1, 0))
     return sorted_keys[at] == keys if len(sorted_keys) else np.zeros(len(keys), dtype=bool)
+
+
+def seen_from_behind(triangle_object, count, tid, back, solid, probe_valid):
+    """Per object (``scene.point_object`` index, ``count`` of them): the share of the solid
+    angle in which the valid probes see it that shows its back faces, ``(objects,)``. A large
+    share means flipped normals, or a one-sided surface seen from its back: such faces get
+    and pass on no light."""
+    use = probe_valid if probe_valid.any() else np.ones_like(probe_valid)  # none valid: all
+    seen = (tid >= 0) & use[:, None]
+    obj = triangle_object[np.maximum(tid, 0)]
+    w = solid[None, :] * seen
+    total = np.bincount(obj.ravel(), w.ravel(), minlength=count)
+    behind = np.bincount(obj.ravel(), (w * back).ravel(), minlength=count)
+    return np.where(total > 0, behind / np.maximum(total, 1e-300), 0.0)

@@ -507,3 +507,35 @@ def test_the_one_ray_kernel_cuts_as_moller_trumbore_and_leaves_grazing_rays_to_i
     assert ray_cut(np.array([[0.2, 0.2, -1e-5]]), along, flat, grazing=0.0)[3][0]
     line = planes_of(np.zeros((1, 3)), np.array([[1.0, 0, 0]]), np.array([[2.0, 0, 0]]))
     assert not ray_cut(np.array([[0.5, 0, -1.0]]), np.array([[0.0, 0, 1.0]]), line, grazing=0.0)[3][0]
+
+
+def test_points_interpolated_cell_by_cell_equal_point_by_point():
+    """The probe light at points grouped by their 8 probes (one matrix product per cell,
+    cubegi_engine.grid.points_by_cell) equals the per-point products; the weights read back
+    in the points' order are the ones given; rows sharing their first and last probes but
+    not the others are groups of their own; scattered probes are left ungrouped."""
+    from cubegi.cubegi_engine.grid import CELL_POINTS, points_by_cell
+    from cubegi.cubegi_engine.transport import Transport
+
+    rng = np.random.default_rng(11)
+    s, p = 6000, 60
+    rows = np.stack([rng.choice(p, 8, replace=False) for _ in range(12)])
+    rows[1, [0, -1]] = rows[0, [0, -1]]  # the same first and last probes as row 0
+    index = rows[rng.integers(0, len(rows), s)]
+    weights = rng.uniform(-0.1, 1.0, (s, 72)).astype(np.float32)
+    coeffs = rng.uniform(-0.2, 1.0, (p, 9, 3))
+    plain = Transport.__new__(Transport)
+    plain.index, plain._weights, plain._cells = index, weights.copy(), None
+    cells = points_by_cell(index)
+    assert cells is not None and len(cells.probes) == len(rows) and cells.bounds[-1] == s
+    for k in range(len(cells.probes)):
+        assert (index[cells.order[cells.bounds[k]:cells.bounds[k + 1]]] == cells.probes[k]).all()
+    grouped = Transport.__new__(Transport)
+    grouped.index, grouped._weights, grouped._cells = index, weights[cells.order], cells
+    for clamp in (False, True):
+        np.testing.assert_allclose(grouped.interpolate(coeffs, clamp), plain.interpolate(coeffs, clamp), rtol=1e-5, atol=1e-5)
+    np.testing.assert_array_equal(grouped.point_weights, weights)
+    some = rng.integers(0, s, 50)
+    np.testing.assert_array_equal(grouped.probe_weights(some), plain.probe_weights(some))
+    scattered = np.stack([rng.choice(p, 8, replace=False) for _ in range(s)])
+    assert points_by_cell(scattered) is None and points_by_cell(index[: CELL_POINTS - 1]) is None

@@ -115,7 +115,9 @@ def resolve_grid(scene, arrays, resolution=None, cells=8, spacing=None, notes=No
             # A solid seen from outside (a block on a room's floor): the finer grid reaches a
             # coarse cell beyond it, so its probes stand round it, not all inside it (fitted
             # tight, every probe was inside the block, and the block, lit by none, went black).
-            dlo, dhi = np.maximum(dense[0] - whole.cell_size, lo), np.minimum(dense[1] + whole.cell_size, hi)
+            # (At most its own size beyond it: a coarse cell of a 400 m ground is 50 m.)
+            grow = np.minimum(whole.cell_size, np.max(dense[1] - dense[0]))
+            dlo, dhi = np.maximum(dense[0] - grow, lo), np.minimum(dense[1] + grow, hi)
         fine = ProbeGrid(dlo, dhi, fit_bounds(dlo, dhi, float(np.max(dhi - dlo)) / cells, max_probes=MAX_FITTED_PROBES))
         return GridSet([whole, fine]), "fitted to scene bounds, and finer over where most of its geometry is", 0.0
     return whole, "fitted to scene bounds", 0.0
@@ -140,10 +142,23 @@ def dense_region(arrays):
         return None
     q_lo, q_hi = np.quantile(arrays.points, DENSE_QUANTILES, axis=0)
     inside = np.all((arrays.points >= q_lo) & (arrays.points <= q_hi), axis=1)
-    count = int(arrays.point_object.max()) + 1
-    share = np.bincount(arrays.point_object, inside, minlength=count) / np.maximum(np.bincount(arrays.point_object, minlength=count), 1)
-    keep = np.isin(arrays.point_object, np.nonzero(share >= 0.5)[0])
-    if not keep.any() or keep.all():
+    owner = arrays.point_object
+    count = int(owner.max()) + 1
+    share = np.bincount(owner, inside, minlength=count) / np.maximum(np.bincount(owner, minlength=count), 1)
+    kept = share >= 0.5
+    if not kept.any():
+        return None
+    lo, hi = arrays.points[kept[owner]].min(axis=0), arrays.points[kept[owner]].max(axis=0)
+    # A room round them whose walls lie outside the middle of the points (a cup of 2,000
+    # points on its counter holds half of them) is kept too, where it is small enough for a
+    # region: else the region is its furniture, a solid, grown by a coarse cell of the ground's.
+    o_lo, o_hi = np.full((count, 3), np.inf), np.full((count, 3), -np.inf)
+    np.minimum.at(o_lo, owner, arrays.points)
+    np.maximum.at(o_hi, owner, arrays.points)
+    extent = float(np.max(arrays.points.max(axis=0) - arrays.points.min(axis=0)))
+    kept |= np.all(o_lo <= lo, axis=1) & np.all(o_hi >= hi, axis=1) & (np.max(o_hi - o_lo, axis=1) < DENSE_SHARE * extent)
+    keep = kept[owner]
+    if keep.all():
         return None
     pts = arrays.points[keep]
     lo, hi = pts.min(axis=0), pts.max(axis=0)

@@ -31,9 +31,7 @@ def _light(ob_eval, matrix, key, notes):
     colour = colour * _light_node_factor(ob_eval.name, data, notes)
     if getattr(data, "use_temperature", False):  # Blender 4.5 and later
         colour = colour * blackbody_rgb(data.temperature)
-        if data.temperature < BLACKBODY_ACCURATE_FROM:
-            notes.append(f"light {ob_eval.name}: its Temperature ({data.temperature:g} K) is approximated; below "
-                         f"{BLACKBODY_ACCURATE_FROM:g} K its colour drifts from Cycles' (too much green: 3x at 1000 K)")
+        _note_approximate_temperature(ob_eval.name, data.temperature, notes)
     _note_unread_light_options(ob_eval, data, notes)
     own = getattr(data.original, "cubegi", None)
     common = dict(colour=colour, position=pos, direction=direction, casts_shadow=bool(data.use_shadow), name=ob_eval.name,
@@ -60,8 +58,9 @@ def _light(ob_eval, matrix, key, notes):
 
 def _light_node_factor(name, data, notes):
     """What a light's node tree multiplies its power and colour by ``(3,)``: an Emission
-    node's Color x Strength into the Light Output (ones without nodes). A tree CubeGI cannot
-    read gets a note and ones."""
+    node's Color x Strength into the Light Output (ones without nodes), each a constant or
+    what Blackbody, RGB, Value and Math nodes make of constants (:func:`_constant`). A tree
+    CubeGI cannot read gets a note and ones."""
     tree = compat.light_node_tree(data)
     if tree is None:
         return np.ones(3)
@@ -72,11 +71,54 @@ def _light_node_factor(name, data, notes):
         return np.ones(3)  # Cycles' default emission
     node = surface.links[0].from_node
     colour, strength = (node.inputs.get(k) for k in ("Color", "Strength")) if node.type == "EMISSION" else (None, None)
-    if colour is None or strength is None or colour.is_linked or strength.is_linked:
-        what = "its Emission node's inputs are linked" if node.type == "EMISSION" else f"its output is a {node.bl_label} node"
+    colour, strength = (None if k is None else _constant(k, name, notes) for k in (colour, strength))
+    if colour is None or strength is None or np.ndim(strength):
+        what = "its Emission node's inputs are linked to nodes it does not read" if node.type == "EMISSION" else (
+            f"its output is a {node.bl_label} node")
         notes.append(f"light {name}: its node tree is not read ({what}); baked with its Power and Color alone")
         return np.ones(3)
-    return np.asarray(colour.default_value[:3], dtype=np.float64) * float(strength.default_value)
+    return np.broadcast_to(np.asarray(colour, dtype=np.float64), (3,)) * float(strength)
+
+
+_MATH = {"ADD": np.add, "SUBTRACT": np.subtract, "MULTIPLY": np.multiply, "DIVIDE": lambda a, b: a / b if b else 0.0,
+         "POWER": np.power, "MINIMUM": np.minimum, "MAXIMUM": np.maximum}
+
+
+def _constant(socket, name, notes, depth=0):
+    """The constant a light's node input holds: ``(3,)`` for a colour, a float for a value,
+    or None where it is linked to a node other than Blackbody, RGB, Value or a Math node of
+    ADD, SUBTRACT, MULTIPLY, DIVIDE, POWER, MINIMUM or MAXIMUM over constants (as Cycles
+    evaluates them: a Blackbody node as the light's own Temperature does)."""
+    if not socket.is_linked:
+        value = socket.default_value
+        return float(value) if np.ndim(value) == 0 else np.asarray(value[:3], dtype=np.float64)
+    node = socket.links[0].from_node
+    if depth > 16:
+        return None
+    if node.type == "REROUTE":
+        return _constant(node.inputs[0], name, notes, depth + 1)
+    if node.type in ("RGB", "VALUE"):
+        value = node.outputs[0].default_value
+        return float(value) if np.ndim(value) == 0 else np.asarray(value[:3], dtype=np.float64)
+    if node.type == "BLACKBODY":
+        kelvin = _constant(node.inputs["Temperature"], name, notes, depth + 1)
+        if kelvin is None or np.ndim(kelvin):
+            return None
+        _note_approximate_temperature(name, kelvin, notes)
+        return blackbody_rgb(kelvin)
+    if node.type == "MATH" and node.operation in _MATH:
+        a, b = (_constant(node.inputs[k], name, notes, depth + 1) for k in (0, 1))
+        if a is None or b is None or np.ndim(a) or np.ndim(b):
+            return None
+        value = float(_MATH[node.operation](a, b))
+        return float(np.clip(value, 0.0, 1.0)) if node.use_clamp else value
+    return None
+
+
+def _note_approximate_temperature(name, kelvin, notes):
+    if kelvin < BLACKBODY_ACCURATE_FROM:
+        notes.append(f"light {name}: its Temperature ({kelvin:g} K) is approximated; below "
+                     f"{BLACKBODY_ACCURATE_FROM:g} K its colour drifts from Cycles' (too much green: 3x at 1000 K)")
 
 
 def _note_unread_light_options(ob, data, notes):

@@ -19,7 +19,8 @@ conformance suite (`tests/blender/test_conformance.py`; this page is written fro
 run by `scripts/support_table.py`). *Read exactly*: CubeGI reads the feature; the error is
 its direct light against Cycles' at 64 samples (Cycles' own noise there is about 1-3%), or
 for a material its indirect light (which CubeGI bakes here with few probes and one bounce
-plus the tail: -7% to -10% whatever the material).
+plus the tail: -9% to -12% whatever the diffuse material; a Principled BSDF, whose specular
+layer sends on light too, -5% to +1%).
 *Approximated*: read, by the model named, with the error measured.
 *Not supported*: CubeGI does not read it, and every bake of a file that uses it says so in a
 note, quoted here, naming the object and what the bake does instead.

@@ -134,9 +134,25 @@ LIGHT_ROWS = {
     "Light Exposure": (lambda: setattr(_point(240.0).data, "exposure", -2.0), EXACT),
     "Area light, Normalize off": (lambda: _area_not_normalised(), EXACT),
     "Light node tree (Emission Strength 0.1, orange)": (lambda: _set_emission_node(_point(600.0), 0.1, (1.0, 0.5, 0.2)), EXACT),
+    # A Blackbody node (3000 K) into its Emission Color, a Math node (2 x 0.25) into its Strength.
+    "Light node tree with Blackbody and Math nodes": (lambda: _node_blackbody(), BLACKBODY),
     "Light Temperature (1800 K)": (lambda: _warm(1800.0), BLACKBODY),
     "Light Temperature (4000 K, area light)": (lambda: _warm(4000.0, "AREA"), BLACKBODY),
 }
+
+
+def _node_blackbody():
+    ob = _point(240.0)
+    _set_emission_node(ob, 1.0)
+    tree = ob.data.node_tree
+    emission = next(n for n in tree.nodes if n.type == "EMISSION")
+    body = tree.nodes.new("ShaderNodeBlackbody")
+    body.inputs["Temperature"].default_value = 3000.0
+    tree.links.new(body.outputs["Color"], emission.inputs["Color"])
+    half = tree.nodes.new("ShaderNodeMath")
+    half.operation = "MULTIPLY"
+    half.inputs[0].default_value, half.inputs[1].default_value = 2.0, 0.25
+    tree.links.new(half.outputs[0], emission.inputs["Strength"])
 
 
 def _warm(kelvin, kind="POINT"):

@@ -117,9 +117,13 @@ def _corner_colour(socket, mesh, loop_ids, loop_vertex, fallback, problems):
                 mapped = f"{link.from_socket.name} output of a {link.from_node.bl_label} node"
         if uv_layer is None:
             uv_layer = next((u for u in mesh.uv_layers if u.active_render), None)
-        if rgb is None or uv_layer is None:
-            problems.append(f"image {node.image.name!r} has no pixels (missing file?)" if rgb is None else "no UV map for its image")
+        if rgb is None:
+            problems.append(f"image {node.image.name!r} has no pixels (missing file?)")
             return _filled(fallback, k)
+        if uv_layer is None:  # Cycles reads a UV map the mesh lacks as (0, 0): one colour
+            problems.append((f"image {node.image.name!r} is on mesh {mesh.name!r}, which has no UV map",
+                             "read at UV (0, 0) as Cycles reads it: one colour for the whole surface"))
+            return _filled(sample_image(rgb, np.zeros((1, 2)))[0], k)
         if mapped:  # (what is wrong, what the bake does instead)
             problems.append((f"image {node.image.name!r} is mapped by the {mapped}, which CubeGI does not read",
                              f"sampled at the UV map {uv_layer.name!r} instead"))

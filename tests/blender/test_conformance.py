@@ -555,6 +555,21 @@ def _uv_map_by_name():
     tree.links.new(tex.outputs["Color"], next(n for n in tree.nodes if n.type == "BSDF_PRINCIPLED").inputs["Base Color"])
 
 
+def _image_without_uv_map():
+    """The floor (no UV map) dark in the viewport, its Base Color a light image: Cycles reads
+    the image at UV (0, 0), and so does CubeGI (it took the viewport colour)."""
+    floor = bpy.data.objects["Floor"]
+    assert not floor.data.uv_layers
+    image = bpy.data.images.new("Light", 2, 2, float_buffer=True)
+    image.pixels.foreach_set(np.tile(np.array([0.9, 0.85, 0.8, 1.0], dtype=np.float32), 4))
+    floor.active_material = floor.active_material.copy()
+    floor.active_material.diffuse_color = (0.05, 0.05, 0.05, 1.0)
+    tree = floor.active_material.node_tree
+    tex = tree.nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    tree.links.new(tex.outputs["Color"], next(n for n in tree.nodes if n.type == "BSDF_PRINCIPLED").inputs["Base Color"])
+
+
 def _geometry_nodes_instances():
     v, f = scenes.grid_patch((-0.6, 0.2, 0.05), (1.2, 0, 0), (0, 0.4, 0), 2, 1)
     ob = scenes.mesh_object("Scatter", v, f, scenes.material("Scatter", (0.5, 0.5, 0.5)))
@@ -629,6 +644,7 @@ MATERIAL_ROWS = {
     "Object Visibility > Camera off": (lambda: setattr(bpy.data.objects["Tall"], "visible_camera", False), "DIRECT", EXACT, None),
     "Attribute node (a named colour attribute)": (lambda: _attribute_node(), "INDIRECT", EXACT, None),
     "Image texture on a UV map named by a UV Map node": (_uv_map_by_name, "INDIRECT", EXACT, None),
+    "Image texture on a mesh with no UV map": (lambda: _image_without_uv_map(), "INDIRECT", EXACT, None),
     # (the area light is the only light the surfaces get; the world, 4x brighter, lights none)
     "World Ray Visibility > Diffuse off": (_world_unseen_by_diffuse, "DIRECT", EXACT, None),
 }

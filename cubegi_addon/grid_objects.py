@@ -115,9 +115,7 @@ def resolve_grid(scene, arrays, resolution=None, cells=8, spacing=None, notes=No
             # A solid seen from outside (a block on a room's floor): the finer grid reaches a
             # coarse cell beyond it, so its probes stand round it, not all inside it (fitted
             # tight, every probe was inside the block, and the block, lit by none, went black).
-            # (At most its own size beyond it: a coarse cell of a 400 m ground is 50 m.)
-            grow = np.minimum(whole.cell_size, np.max(dense[1] - dense[0]))
-            dlo, dhi = np.maximum(dense[0] - grow, lo), np.minimum(dense[1] + grow, hi)
+            dlo, dhi = np.maximum(dense[0] - whole.cell_size, lo), np.minimum(dense[1] + whole.cell_size, hi)
         fine = ProbeGrid(dlo, dhi, fit_bounds(dlo, dhi, float(np.max(dhi - dlo)) / cells, max_probes=MAX_FITTED_PROBES))
         return GridSet([whole, fine]), "fitted to scene bounds, and finer over where most of its geometry is", 0.0
     return whole, "fitted to scene bounds", 0.0

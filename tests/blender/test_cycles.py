@@ -173,6 +173,29 @@ def test_a_box_lamp_under_a_ceiling_is_shadowed_face_by_face_as_cycles_does(empt
     assert over.sum() >= 8 and np.all(np.abs(ratio - 1.0) < 0.12), ratio
 
 
+def test_a_rug_5_mm_over_the_floor_shadows_it(empty_scene, cubegi):
+    """A rug 5 mm above a floor, under an area light (coarse shadow maps, 64^2 per sample
+    point at 2.4 m: a receiver is lifted 2 cm before its look-up, over the rug): the floor
+    under it is dark, as in Cycles. A front face between the lifted receiver and its
+    own surface is asked by a ray (lights._occluded); the area light lit the floor under the
+    rug fully (2.16 where Cycles has 0)."""
+    v, f = scenes.box_mesh((-3, -3, 0), (3, 3, 2.6), (24, 24, 10), inward=True)
+    room = scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    rv, rf = scenes.grid_patch((-1.0, -0.7, 0.005), (2.0, 0, 0), (0, 1.4, 0), 4, 4)
+    scenes.mesh_object("Rug", rv, rf, scenes.material("Red", (0.6, 0.08, 0.06)))
+    scenes.add_light("AREA", (0.3, 0.2, 2.4), 150.0, shape="SQUARE", size=1.0)
+    scenes.set_world((0.0, 0.0, 0.0))
+    assert bpy.ops.cubegi.bake(bounces=1) == {"FINISHED"}
+    ours = cubegi.cubegi_addon.attributes.read(room.data, "CubeGI_direct").mean(axis=1)
+    ref, _ = cubegi.cubegi_addon.reference.bake_reference(bpy.context, [room], passes=("DIRECT",), samples=16)
+    theirs = ref["DIRECT"]["Room"].mean(axis=1)
+    co = np.array([vv.co for vv in room.data.vertices])
+    floor = co[:, 2] < 1e-3
+    under = floor & (np.abs(co[:, 0]) < 0.95) & (np.abs(co[:, 1]) < 0.65)
+    lit = ours[floor & ~under].max()
+    assert under.sum() >= 20 and theirs[under].max() < 0.01 * lit and ours[under].max() < 0.01 * lit, (ours[under], lit)
+
+
 def _env_image(name="Sky"):
     """An equirectangular sky: blue, brighter overhead and towards one side, over a brown
     ground half."""

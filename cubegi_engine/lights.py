@@ -204,7 +204,7 @@ BIAS_FOOTPRINTS, BIAS_OF_DEPTH, SLOPE_OF_SCALE, MIN_COS = 0.1, 1e-5, 1e-4, 0.2
 # How far (in texel footprints at the receiver) a receiver is lifted along its normal before its
 # shadow-map lookup: enough to step off its own curved surface, well below the gap under a rug.
 LIFT = 0.25
-OWN_PLANE = 1e-3  # a front face this share of the lift off the receiver's plane is its own surface (_occluded)
+OWN_PLANE = 1e-3  # a plane this share of the lift off either end of it passes through that end (_occluded)
 
 
 @dataclass(frozen=True)
@@ -383,8 +383,8 @@ def _occluded(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occlud
     sure = np.any(occluding & (back_occ | on), axis=1)
     sure |= _around(depth_map, np.maximum)[face, row, col] < lookup.depth - bias[:, 0]
     # A front face between the lifted receiver and its own surface (a rug 5 mm over a floor a coarse map lifts 2 cm): a ray decides.
-    below = (LIFT * footprint / np.maximum(cos, MIN_COS))[:, None] * (1.0 - OWN_PLANE)
-    under = ~occluded & np.any(centre & ~back & (tid >= 0) & ~own & (plane >= depth - bias) & (plane < depth + below), axis=1)
+    lift = (LIFT * footprint / np.maximum(cos, MIN_COS))[:, None]
+    under = ~occluded & np.any(centre & ~back & (tid >= 0) & ~own & (plane > depth + OWN_PLANE * lift) & (plane < depth + lift * (1 - OWN_PLANE)), 1)
     return occluded, _doubtful(depth_map, lookup, point_ids, occluders, occluded, bias[:, 0]) | (occluded & ~sure) | under
 
 

@@ -310,6 +310,7 @@ class PointCells:
     rank: np.ndarray
 
 
+CHECK_CHUNK = 65536
 _PROBE_HASH = np.random.default_rng(0x5EED).integers(1, 2**62, 8, dtype=np.int64) | 1
 # Points are interpolated cell by cell (:meth:`~.transport.Transport.interpolate`) (one matrix product each, 3x faster than one per
 # point at a million points) where their groups average at least this many points.
@@ -322,14 +323,20 @@ def points_by_cell(index):
     s = len(index)
     if s < CELL_POINTS:
         return None
-    index = np.asarray(index, dtype=np.int64)
-    # Sorted by a hash of the 8 probes (int64, wrapping); rows that differ start groups of their own.
-    order = np.argsort(index @ _PROBE_HASH[: index.shape[1]], kind="stable")
-    rows = index[order]
-    starts = np.flatnonzero(np.any(rows[1:] != rows[:-1], axis=1)) + 1
+    index = np.asarray(index)
+    # Grouped by a hash of the 8 probes (int64, wrapping), checked row by row in chunks (no
+    # second (s, 8) array): rows that differ under one hash leave the points ungrouped.
+    key = np.asarray(index, dtype=np.int64) @ _PROBE_HASH[: index.shape[1]]
+    order = np.argsort(key, kind="stable")
+    starts = np.flatnonzero(key[order[1:]] != key[order[:-1]]) + 1
     if (len(starts) + 1) * CELL_POINTS > s:
         return None
     bounds = np.concatenate([[0], starts, [s]])
+    probes = index[order[bounds[:-1]]]
+    group = np.repeat(np.arange(len(probes)), np.diff(bounds))
+    for a in range(0, s, CHECK_CHUNK):
+        if not np.array_equal(index[order[a:a + CHECK_CHUNK]], probes[group[a:a + CHECK_CHUNK]]):
+            return None
     rank = np.empty(s, dtype=np.int64)
     rank[order] = np.arange(s)
-    return PointCells(order, bounds, rows[bounds[:-1]], rank)
+    return PointCells(order, bounds, probes, rank)

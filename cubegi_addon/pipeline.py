@@ -398,11 +398,12 @@ def _reference_report(targets, arrays, ours, theirs, samples, ref_seconds, cubeg
     def stack(layers, name):
         return np.concatenate([layer[name] for layer in layers])
 
-    errors = metrics.compare(
-        stack(ours, attributes.DIRECT), stack(ours, attributes.INDIRECT),
-        stack(theirs, attributes.REF_DIRECT), stack(theirs, attributes.REF_INDIRECT), areas,
-    )
-    return ReferenceReport(int(samples), ref_seconds, cubegi_seconds, [attributes.REF_DIRECT, attributes.REF_INDIRECT], errors)
+    light = {"direct": stack(ours, attributes.DIRECT), "indirect": stack(ours, attributes.INDIRECT)}
+    reference = {"direct": stack(theirs, attributes.REF_DIRECT), "indirect": stack(theirs, attributes.REF_INDIRECT)}
+    errors = metrics.compare(light["direct"], light["indirect"], reference["direct"], reference["indirect"], areas)
+    furthest = metrics.furthest_off([t.object_name for t in targets], [len(scored[t.object_name]) for t in targets], light, reference, areas)
+    return ReferenceReport(int(samples), ref_seconds, cubegi_seconds, [attributes.REF_DIRECT, attributes.REF_INDIRECT], errors,
+                           objects=furthest)
 
 
 def write_all(targets, layers_per_target):

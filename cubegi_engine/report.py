@@ -49,10 +49,12 @@ class ReferenceReport(Record):
     attributes: list
     errors: dict
     renderer: str = "cycles"
+    objects: list = field(default_factory=list)  # the objects furthest off (metrics.furthest_off)
 
     def to_dict(self) -> dict:
         return {"renderer": self.renderer, "samples": self.samples, "seconds": self.seconds,
-                "cubegi_seconds": self.cubegi_seconds, "attributes": self.attributes, "errors": self.errors}
+                "cubegi_seconds": self.cubegi_seconds, "attributes": self.attributes, "errors": self.errors,
+                "objects": self.objects}
 
 
 @dataclass(frozen=True)
@@ -212,6 +214,8 @@ class BakeReport:
                 lines.append(
                     f"  {part:8s} rel. RMSE {100 * e['rel_rmse']:6.2f}%  bias {100 * e['rel_bias']:+6.2f}%  p95 {100 * e['p95_rel']:6.2f}%"
                 )
+            lines += [f"  {o['name']}: {100 * o['error_share']:.0f}% of the error; mean direct {_percent(o['direct_bias'])}, "
+                      f"indirect {_percent(o['indirect_bias'])} against Cycles" for o in ref.objects]
         if self.grid.probes_moved:
             lines.append(f"probes: {self.grid.probes_moved} found inside geometry were moved out of it, within their cells")
         near = self.near_field
@@ -242,3 +246,7 @@ def _finite(value):
     if isinstance(value, (list, tuple)):
         return [_finite(v) for v in value]
     return value
+
+
+def _percent(bias):
+    return "n/a (none in Cycles)" if bias is None else f"{100 * bias:+.1f}%"

@@ -138,3 +138,23 @@ def test_squared_error_says_which_points_hold_the_error():
     assert metrics.error_holders(est, ref, areas, share=0.8)["points"] == 2  # 10/14 < 0.8
     assert metrics.error_holders(ref, ref, areas) == {"points": 0, "area_share": 0.0}
     assert not metrics.squared_error(ref, ref, areas).any()
+
+
+def test_the_objects_furthest_off_are_named_with_their_share_and_mean_bias():
+    """Three objects: a large ground right on, a room whose indirect light is 30% too bright,
+    a glass case that Cycles gives no light: the case and the room hold the error, in that
+    order, each with its mean direct and indirect bias (none where the reference has none);
+    the ground, under the least share, is not listed; ``most`` caps the list."""
+    areas = np.array([100.0, 100.0, 1.0, 1.0, 1.0, 1.0, 0.5])
+    light = {"direct": np.zeros((7, 3)), "indirect": np.zeros((7, 3))}
+    reference = {"direct": np.zeros((7, 3)), "indirect": np.zeros((7, 3))}
+    reference["indirect"][:6], light["indirect"][:2] = 1.0, 1.0  # the ground: 2 points, right
+    light["indirect"][2:6] = 1.3  # the room: 4 points, +30%
+    light["direct"][6] = 1.0  # the case: none in Cycles
+    found = metrics.furthest_off(["Ground", "Room", "Case"], [2, 4, 1], light, reference, areas)
+    assert [o["name"] for o in found] == ["Case", "Room"]
+    case, room = found
+    assert case["direct_bias"] is None and case["indirect_bias"] is None
+    assert room["indirect_bias"] == pytest.approx(0.3) and room["direct_bias"] is None
+    assert case["error_share"] + room["error_share"] == pytest.approx(1.0) and case["error_share"] > room["error_share"]
+    assert [o["name"] for o in metrics.furthest_off(["Ground", "Room", "Case"], [2, 4, 1], light, reference, areas, most=1)] == ["Case"]

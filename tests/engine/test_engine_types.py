@@ -95,7 +95,9 @@ def _report(**kw):
         timings={"total": 1.5},
         near_field=NearFieldReport(5, 40, 60, 1, 0.25, 0.01),
         reference=ReferenceReport(16, 2.0, 0.5, ["CubeGI_ref_direct"],
-                                  {part: {"rel_rmse": 0.1, "rel_bias": 0.0, "p95_rel": 0.2} for part in ("direct", "indirect", "total")}),
+                                  {part: {"rel_rmse": 0.1, "rel_bias": 0.0, "p95_rel": 0.2} for part in ("direct", "indirect", "total")},
+                                  objects=[{"name": "Shop", "error_share": 0.61, "direct_bias": -0.001, "indirect_bias": 0.336},
+                                           {"name": "Case", "error_share": 0.2, "direct_bias": None, "indirect_bias": None}]),
         left_out=[LeftOut(LeftOutKind.LIGHT, "Away: reaches no surface", names=("Away",)),
                   LeftOut(LeftOutKind.PROBES, "3 of 8 light no vertex", 3)],
     )
@@ -114,6 +116,8 @@ def test_the_report_round_trips_through_strict_json():
     assert d["grid"]["probes_moved"] == 2 and "probes_left_inside" not in d["grid"] and d["near_field"]["hits"] == 40
     assert d["reference"]["renderer"] == "cycles" and d["capture_geometry"] is None
     assert "probes: 2 found inside geometry were moved out of it, within their cells" in report.summary_lines()
+    assert "  Shop: 61% of the error; mean direct -0.1%, indirect +33.6% against Cycles" in report.summary_lines()
+    assert "  Case: 20% of the error; mean direct n/a (none in Cycles), indirect n/a (none in Cycles) against Cycles" in report.summary_lines()
     # What was left out: typed in the report, lines in its text and its JSON's "left_out".
     assert d["left_out"] == ["light Away: reaches no surface", "probes: 3 of 8 light no vertex"]
     assert d["left_out_items"][1] == {"kind": "probes", "count": 3, "names": [], "text": "3 of 8 light no vertex"}

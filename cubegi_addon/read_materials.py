@@ -292,3 +292,45 @@ def _shader_corners(material, shader, args, fallback, notes, depth=0):
     else:
         notes.append(f"material {material.name!r}: shader {shader.bl_idname} not understood, using its viewport colour")
     return _diffuse(_filled(fallback, k))
+
+
+# Shaders with no diffuse closure: Cycles' Diffuse bake gives their surfaces no light.
+NO_DIFFUSE_SHADERS = {"BSDF_GLASS", "BSDF_REFRACTION", "BSDF_GLOSSY", "BSDF_ANISOTROPIC", "BSDF_TRANSPARENT", "EMISSION",
+                      "HOLDOUT", "BSDF_METALLIC"}
+
+
+def no_diffuse(material, shader=None, depth=0) -> bool:
+    """Whether ``material``'s surface has no diffuse closure for Cycles: a glass, glossy,
+    refraction, transparent, metallic or emission shader alone, a Principled BSDF at Metallic
+    or Transmission Weight 1, a Mix or Add Shader of two such (what CubeGI still bakes as
+    diffuse, with a note, but Cycles' Diffuse bake gives no light)."""
+    shader = _surface_shader(material) if shader is None else shader
+    if shader is None or depth > MAX_SHADER_DEPTH:
+        return False
+    if shader.type in NO_DIFFUSE_SHADERS:
+        return True
+    if shader.type == "BSDF_PRINCIPLED":
+        ins = shader.inputs
+        return any(ins.get(k) is not None and not ins[k].is_linked and float(ins[k].default_value) >= 1.0
+                   for k in ("Metallic", "Transmission Weight"))
+    if shader.type in {"MIX_SHADER", "ADD_SHADER"}:
+        sides = [_linked_shader(i) for i in shader.inputs if i.type == "SHADER"]
+        return all(side is not None and no_diffuse(material, side, depth + 1) for side in sides) and bool(sides)
+    return False
+
+
+def no_diffuse_vertices(ob) -> np.ndarray:
+    """``(v,)`` bool: the vertices of mesh object ``ob`` whose every face has a material with
+    no diffuse closure (:func:`no_diffuse`)."""
+    mesh = ob.data
+    flags = np.array([no_diffuse(slot.material) for slot in ob.material_slots] or [False])
+    if not flags.any() or not len(mesh.polygons):
+        return np.zeros(len(mesh.vertices), dtype=bool)
+    index, total = np.empty(len(mesh.polygons), dtype=np.int32), np.empty(len(mesh.polygons), dtype=np.int32)
+    mesh.polygons.foreach_get("material_index", index)
+    mesh.polygons.foreach_get("loop_total", total)
+    vertex = np.empty(len(mesh.loops), dtype=np.int32)
+    mesh.loops.foreach_get("vertex_index", vertex)
+    none = np.repeat(flags[np.clip(index, 0, len(flags) - 1)], total)
+    count = np.bincount(vertex, minlength=len(mesh.vertices))
+    return (count > 0) & (np.bincount(vertex, none, minlength=len(mesh.vertices)) == count)

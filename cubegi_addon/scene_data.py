@@ -16,7 +16,7 @@ import numpy as np
 from ..cubegi_engine import working as working_steps
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.scene import SceneArrays
-from . import attributes, read_lights, read_meshes, read_world
+from . import attributes, read_lights, read_materials, read_meshes, read_world
 from .sampling import sampled
 
 
@@ -486,13 +486,13 @@ def vertex_areas(ob):
 
 def scored_areas(targets, arrays):
     """Per target (by object name), each vertex's area (:func:`vertex_areas`), zero where its
-    material is black: Cycles' Diffuse bake reports no light there (a black surface has no
-    diffuse closure), so comparisons with it leave those vertices out."""
+    material is black or has no diffuse closure (metal, glass: ``read_materials.no_diffuse``):
+    Cycles' Diffuse bake reports no light there, so comparisons with it leave them out."""
     import bpy
 
     out = {}
     for target in targets:
-        areas = vertex_areas(bpy.data.objects[target.object_name])
+        ob = bpy.data.objects[target.object_name]
         albedo = attributes.vertex_values(target, arrays.albedo)
-        out[target.object_name] = np.where(albedo.max(axis=1) > 0.0, areas, 0.0)
+        out[target.object_name] = np.where((albedo.max(axis=1) > 0.0) & ~read_materials.no_diffuse_vertices(ob), vertex_areas(ob), 0.0)
     return out

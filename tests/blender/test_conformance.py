@@ -766,3 +766,28 @@ def test_keyframed_light_world_and_material_are_read_each_frame_by_bake_animatio
             "colour and emission, an object's place and render visibility (bake-animation)", EXACT,
             note=f"every frame equals a still bake of it (largest difference {100 * worst:.2g}% of the peak)")
     assert worst < 1e-3, worst
+
+
+def test_surfaces_with_no_diffuse_closure_are_left_out_of_the_errors(empty_scene, cubegi):
+    """A block at Metallic 1 and one at Transmission Weight 1: Cycles' Diffuse bake gives them
+    no light (no diffuse closure), CubeGI bakes them as diffuse (with a note), so the errors
+    against Cycles leave their vertices out (scene_data.scored_areas), as they leave out
+    black ones; the other surfaces count. (A new user's shop scored its metal shelf: the
+    bake's p95 error 159,425%.)"""
+    obs = _box()
+    _light("AREA", shape="SQUARE", size=0.6)
+    for name, inputs in (("Tall", {"Metallic": 1.0}), ("Short", {"Transmission Weight": 1.0})):
+        ob = bpy.data.objects[name]
+        ob.active_material = ob.active_material.copy()
+        _principled(name, **inputs)
+    assert bpy.ops.cubegi.bake(**FAST) == {"FINISHED"}
+    addon = cubegi.cubegi_addon
+    kept = addon.session.kept(bpy.context.scene)
+    scored = addon.scene_data.scored_areas(kept.bake.targets, kept.bake.arrays)
+    baked, _ = addon.reference.bake_reference(bpy.context, obs, passes=("DIRECT", "INDIRECT"), samples=4)
+    for ob in obs:
+        none_in_cycles = ob.name in ("Tall", "Short")
+        assert (scored[ob.name].sum() == 0) == none_in_cycles, ob.name
+        assert (baked["DIRECT"][ob.name].max() + baked["INDIRECT"][ob.name].max() == 0) == none_in_cycles, ob.name
+    report = json.loads(bpy.context.scene.cubegi.last_report)
+    assert any("metallic" in n for n in report["scene"]["notes"]) and any("transmissive" in n for n in report["scene"]["notes"])

@@ -336,7 +336,7 @@ def _read(context, depsgraph, only):
     scene = context.scene
     notes = []
     meshes, lights, moving = [], [], []
-    claimed_meshes = set()
+    claimed_meshes = {}  # mesh name -> the object baked with it
     non_mesh, with_surface = {}, set()
     indirect_only = _indirect_only_collections(context.view_layer)
     for name, collection in indirect_only.items():
@@ -406,7 +406,8 @@ def _target(inst, original, top, data, only, claimed_meshes, notes):
         )
         return None
     if mesh.name in claimed_meshes:
-        notes.append(f"{original.name}: shares mesh {mesh.name!r} with an object already baked; not baked again")
+        notes.append(f"{original.name}: shares mesh {mesh.name!r} with {claimed_meshes[mesh.name]}, which is baked: it shows that "
+                     "object's light, baked where that one stands (Object > Relations > Make Single User to bake its own)")
         return None
     if not read_meshes.same_vertices(mesh, data):
         notes.append(
@@ -414,7 +415,7 @@ def _target(inst, original, top, data, only, claimed_meshes, notes):
             "(apply them, or bake a copy without them)"
         )
         return None
-    claimed_meshes.add(mesh.name)
+    claimed_meshes[mesh.name] = original.name
     return MeshTarget(original.name, mesh.name, None, data["loop_vertex"], len(mesh.vertices), original.session_uid)
 
 

@@ -550,3 +550,21 @@ def test_the_cycles_reference_bakes_objects_hidden_only_in_the_viewport(empty_sc
     hidden = read(bpy.data.objects["Wall"].data, "CubeGI_ref_direct")
     assert np.ptp(shown) > 0 and np.allclose(hidden, shown, rtol=1e-4, atol=1e-6)
     _assert_hidden(wall, how)
+
+
+def test_an_object_sharing_a_baked_mesh_is_named_with_the_object_whose_light_it_shows(empty_scene, cubegi):
+    """Two stools sharing one mesh (a linked duplicate) stand in differently lit places: one
+    mesh holds one set of vertex colours, so the second shows the first's light. The note
+    names both and how to bake the second in its own place."""
+    v, f = scenes.box_mesh((-2, -2, 0), (2, 2, 2.5), (6, 6, 4), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    sv, sf = scenes.box_mesh((-0.2, -0.2, 0.0), (0.2, 0.2, 0.5), (2, 2, 2), inward=False)
+    first = scenes.mesh_object("StoolA", sv, sf, scenes.material("Wood", (0.5, 0.3, 0.2)))
+    first.location.x = -1.0
+    second = bpy.data.objects.new("StoolB", first.data)
+    second.location.x = 1.0
+    bpy.context.scene.collection.objects.link(second)
+    scenes.add_light("POINT", (1.2, 0.0, 1.5), 100.0)
+    assert bpy.ops.cubegi.bake(bounces=1, cube_size=8) == {"FINISHED"}
+    shared = [n for n in _notes() if n.startswith("StoolB: shares mesh")]
+    assert len(shared) == 1 and "with StoolA, which is baked" in shared[0] and "Make Single User" in shared[0], _notes()

@@ -187,11 +187,12 @@ def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field):
     if not used.all() or (placement is not None and placement.moved):
         grid = ProbeSubset(grid, used, None if placement is None else placement.displacement)
 
-    reused = capture is not None and capture.valid_for(scene, grid, settings)
+    drawn = capture is not None and capture.valid_for(scene, grid, settings, tables=False)  # the cube maps hold
+    reused = drawn and not len(capture.transport.emitters_changed(scene))
     patched = None
-    if not reused and capture is not None and capture.valid_for(scene, grid, settings, tables=False):
+    if drawn and not reused:
         patched = (yield from capture.retabled_steps(scene, renderer, settings, working(Stage.CAPTURE, 0))), 0
-    elif not reused and capture is not None:
+    elif capture is not None and not reused:
         patched = capture.patched(scene, grid, renderer, settings)
     if reused:
         yield Progress(Stage.CAPTURE, 0, total, f"reusing the capture of {grid.count} probes (the geometry is unchanged)")

@@ -68,8 +68,7 @@ class ProbeCapture:
         t = time.perf_counter()
         def tables():
             scene.fingerprint()  # made here, in the thread, and kept on the snapshot for below
-            return Transport(scene, grid, cubes, visibility=visibility, proxy=proxy, near_field=settings.near_field,
-                             caster=near_caster(scene, renderer))
+            return _tables(scene, grid, cubes, visibility, proxy, settings, renderer)
 
         transport = yield from in_background(tables, step("building the tables (what each probe sees, and each point's near field)"))
         return cls(grid, cube_size, visibility, scene.fingerprint(), cubes, transport, t_capture,
@@ -92,8 +91,7 @@ class ProbeCapture:
         (``step(message)``, in a thread) returning the ProbeCapture."""
         t = time.perf_counter()
         transport = yield from in_background(
-            lambda: Transport(scene, self.grid, self.cubes, visibility=self.visibility, proxy=self.proxy,
-                              near_field=settings.near_field, caster=near_caster(scene, renderer)),
+            lambda: _tables(scene, self.grid, self.cubes, self.visibility, self.proxy, settings, renderer),
             step("building the tables again (a surface across a covered gap started or stopped emitting)"))
         return replace(self, transport=transport, capture_seconds=0.0, tables_seconds=time.perf_counter() - t)
 
@@ -125,8 +123,7 @@ class ProbeCapture:
                 mine[redraw] = theirs
         t_capture = time.perf_counter() - t
         t = time.perf_counter()
-        transport = Transport(scene, grid, cubes, visibility=self.visibility, near_field=settings.near_field,
-                              caster=near_caster(scene, renderer))
+        transport = _tables(scene, grid, cubes, self.visibility, None, settings, renderer)
         patched = ProbeCapture(grid, self.cube_size, self.visibility, fingerprint, cubes, transport, t_capture,
                                time.perf_counter() - t, None, self.key)
         return patched, int(redraw.sum())
@@ -172,6 +169,13 @@ class ProbeCapture:
         """Memory held, in bytes."""
         arrays = [self.cubes.tid, self.cubes.bary, self.cubes.dist, self.cubes.backface, *self.transport.arrays()]
         return int(sum(a.nbytes for a in arrays))
+
+
+def _tables(scene, grid, cubes, visibility, proxy, settings, renderer) -> Transport:
+    """The tables of ``cubes`` (drawn of ``scene``, or of ``proxy``) on ``grid``, the near
+    field's crowded points cast through the ``renderer``'s ray caster."""
+    return Transport(scene, grid, cubes, visibility=visibility, proxy=proxy, near_field=settings.near_field,
+                     caster=near_caster(scene, renderer))
 
 
 def _same_sky(transport, scene) -> bool:

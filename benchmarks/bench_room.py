@@ -31,7 +31,7 @@ def main():
 
     load_extension()
     from cubegi.cubegi_addon import gpu_capture, grid_objects, pipeline, scene_data, session
-    from cubegi.cubegi_engine import transport
+    from cubegi.cubegi_engine import capture, transport
     from cubegi.cubegi_engine.settings import BakeSettings
     from tools import demo
 
@@ -76,10 +76,10 @@ def main():
     renderer = gpu_capture.GpuRenderer(arrays.points, arrays.triangles)
     near, far = transport.clip_planes(arrays.scale)
     radiance = np.asarray(arrays.albedo) * 0.5
-    transport.reference_coefficients(renderer, grid, arrays, radiance, 32, near, far)  # warm-up
+    capture.reference_coefficients(renderer, grid, arrays, radiance, 32, near, far)  # warm-up
     t = time.perf_counter()
     for _ in range(args.bounces):
-        transport.reference_coefficients(renderer, grid, arrays, radiance, 32, near, far)
+        capture.reference_coefficients(renderer, grid, arrays, radiance, 32, near, far)
     drawn = (time.perf_counter() - t) / args.bounces
     per_bounce = tm["bounces"] / max(args.bounces, 1)
     print(f"paper's way (draw + read back + project per bounce): {drawn * 1000:.1f} ms per bounce, "

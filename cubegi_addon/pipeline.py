@@ -16,7 +16,7 @@ import numpy as np
 
 from ..cubegi_engine import emitters, metrics, relight
 from ..cubegi_engine.bake import bake_steps as engine_bake_steps
-from ..cubegi_engine.bake import run
+from ..cubegi_engine.bake import run, start_simplifying
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.records import LeftOut, LeftOutKind, Progress, Stage, plural
 from ..cubegi_engine.report import BakeReport, CaptureGeometryReport, GridReport, NearFieldReport, ReferenceReport
@@ -144,6 +144,19 @@ def _checked_grid(context, collected, settings, resolution, lit, reference_sampl
     return groups, grid, grid_source
 
 
+def _on_gpu(arrays, settings, earlier, total):
+    """The scene to the GPU (steps): ``(renderer, simplifying, seconds)``. A new capture's
+    simplified scene (``earlier``: none kept) depends on nothing the GPU holds: it is made
+    in a thread meanwhile (:func:`~cubegi_engine.bake.start_simplifying`)."""
+    simplifying = start_simplifying(arrays, settings) if earlier is None else None
+    t = time.perf_counter()
+    renderer = yield from GpuRenderer.steps(arrays.points, arrays.triangles, Progress(Stage.CAPTURE, 0, total, "the scene to the GPU",
+                                                                                     working=True), sheet=arrays.sheet_triangles())
+    t_setup = time.perf_counter() - t
+    yield Progress(Stage.CAPTURE, 0, total, "the scene is on the GPU", working=True)
+    return renderer, simplifying, t_setup
+
+
 def _bake_steps(context, settings, resolution, lit, reference_samples, preview, only):
     t0 = time.perf_counter()
     total = 3 + settings.bounces
@@ -157,14 +170,10 @@ def _bake_steps(context, settings, resolution, lit, reference_samples, preview, 
     t_collect = time.perf_counter() - t0
     yield Progress(Stage.CAPTURE, 0, total, f"read {len(collected.targets)} meshes", working=True)  # Blender's turn
 
-    t = time.perf_counter()
-    renderer = yield from GpuRenderer.steps(arrays.points, arrays.triangles, Progress(Stage.CAPTURE, 0, total, "the scene to the GPU",
-                                                                                     working=True), sheet=arrays.sheet_triangles())
-    t_setup = time.perf_counter() - t
-    yield Progress(Stage.CAPTURE, 0, total, "the scene is on the GPU", working=True)
     earlier = session.kept(context.scene)
+    renderer, simplifying, t_setup = yield from _on_gpu(arrays, settings, earlier, total)
     steps = engine_bake_steps(arrays, grid, renderer, settings, capture=earlier.bake.result.capture if earlier else None,
-                              keep_shadows=bool(collected.moving), whole_field=bool(collected.moving))
+                              keep_shadows=bool(collected.moving), whole_field=bool(collected.moving), simplifying=simplifying)
     if preview is not None:
         preview.start(collected.targets)
         steps = _previewed(steps, preview)

@@ -143,7 +143,7 @@ def check_memory(probes, cube_size, points, limit=None) -> int:
 
 
 def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capture: ProbeCapture | None = None,
-               keep_shadows: bool = False, whole_field: bool = False):
+               keep_shadows: bool = False, whole_field: bool = False, simplifying=None):
     """Bake ``scene`` on ``grid``; a generator of :class:`Progress`, returning a BakeResult.
 
     ``capture``: a capture kept from an earlier bake; used if it is still valid for this
@@ -154,15 +154,22 @@ def bake_steps(scene, grid, renderer, settings: BakeSettings | None = None, capt
     :mod:`cubegi_engine.placement`); the result's grid is then a
     :class:`~cubegi_engine.grid.ProbeSubset`. ``whole_field`` captures every probe but the
     ones inside geometry, for a probe field that must light points anywhere in the grid
-    (dynamic objects).
+    (dynamic objects). ``simplifying``: the scene's simplification for a new capture, already
+    started by the caller (:func:`start_simplifying`, while it uploads the scene to the GPU).
     """
     try:
-        return (yield from _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field))
+        return (yield from _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field, simplifying))
     finally:
         forget_indexes()  # the voxel indexes its stages shared
 
 
-def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field):
+def start_simplifying(scene, settings: BakeSettings | None = None):
+    """:func:`~cubegi_engine.proxy.simplify` of ``scene`` to the capture's triangle budget,
+    started in a thread (for :func:`bake_steps`' ``simplifying``)."""
+    return start(simplify, scene, (settings or BakeSettings()).capture_triangles)
+
+
+def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field, simplifying):
     settings = (settings or BakeSettings()).validate()
     t_start = time.perf_counter()
     timings = {}
@@ -177,7 +184,8 @@ def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field):
     # A new capture's simplified scene does not depend on the probes: made while they are
     # placed (two threads of numpy work), where no capture is kept (one that is kept is
     # reused or patched, or else simplifies after).
-    simplifying = start(simplify, scene, settings.capture_triangles) if capture is None else None
+    if simplifying is None and capture is None:
+        simplifying = start_simplifying(scene, settings)
     placement = None
     if settings.move_probes:
         placement = yield from in_background(place, working(Stage.CAPTURE, 0)("placing the probes"), grid, scene.points,
@@ -252,7 +260,7 @@ def _new_capture(scene, grid, renderer, settings, working, timings, total, simpl
     simplify timing is what the bake waited for it."""
     check_memory(grid.count, settings.cube_size, len(scene.points))
     t = time.perf_counter()
-    simplifying = simplifying or start(simplify, scene, settings.capture_triangles)
+    simplifying = simplifying or start_simplifying(scene, settings)
     proxy = yield from wait(simplifying, working(Stage.CAPTURE, 0)("simplifying the scene for the probes"))
     shown = (scene.points, scene.triangles, scene.triangle_object()) if proxy is None else (
         proxy.points, proxy.triangles, proxy.triangle_object)

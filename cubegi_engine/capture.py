@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from . import cubemap
+from . import cubemap, sh
 from .gather import near_caster
 from .grid import Grid
 from .records import Progress, Stage
@@ -18,7 +18,7 @@ from .scene import GeometryFingerprint, same_sky_map
 from .transport import CubeCapture, Transport, capture_cubes, clip_planes
 from .working import CAPTURE_DRAWS_PER_STEP, in_background, in_batches, run
 
-__all__ = ["ProbeCapture"]
+__all__ = ["ProbeCapture", "reference_coefficients"]
 
 
 @dataclass
@@ -191,3 +191,15 @@ def _same_grid(a, b) -> bool:
                 and np.array_equal(a.positions(), b.positions()) and _same_grid(a.whole(), b.whole()))
     ga, gb = [g for g, _ in a.parts()], [g for g, _ in b.parts()]
     return len(ga) == len(gb) and all(x == y for x, y in zip(ga, gb))
+
+
+def reference_coefficients(renderer, grid, scene, radiance, size, near, far):
+    """The paper's way: draw the scene coloured by ``radiance`` ``(s, 3)`` into a cube map at
+    every probe and project the images. Returns ``(p, 9, 3)`` float64. Sky is black."""
+    eyes = grid.positions()
+    vps = np.concatenate([cubemap.cube_view_projections(e, near, far) for e in eyes])
+    images = renderer.render_colour(vps, size, radiance)  # (6p, n, n, 3)
+    images = images.reshape(len(eyes), 6 * size * size, 3).astype(np.float64)
+    dirs = cubemap.texel_directions(size).reshape(-1, 3)
+    solid = np.tile(cubemap.texel_solid_angles(size).ravel(), 6)
+    return sh.project(images, dirs, solid)

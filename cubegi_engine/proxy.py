@@ -149,12 +149,12 @@ def _simplify_sheets(scene, sheets, budget):
                         point_object=np.asarray(scene.point_object)[front], back=None,
                         dark=None if scene.dark is None else scene.dark[front],
                         reflectance=None if scene.reflectance is None else scene.reflectance[front])
-    proxy = simplify(one_sided, budget)
+    two_sided = np.zeros(int(np.max(scene.point_object, initial=0)) + 1, dtype=bool)
+    two_sided[np.asarray(scene.point_object)[sheets.back]] = True
+    proxy = simplify(one_sided, _front_budget(budget, two_sided[one_sided.point_object[one_sided.triangles[:, 0]]]))
     if proxy is None:
         return None
     c = proxy.count
-    two_sided = np.zeros(int(np.max(scene.point_object, initial=0)) + 1, dtype=bool)
-    two_sided[np.asarray(scene.point_object)[sheets.back]] = True
     cluster_object = np.zeros(c, dtype=np.int64)
     cluster_object[proxy.cluster] = one_sided.point_object
     mirrored = np.flatnonzero(two_sided[cluster_object])  # clusters of sheets
@@ -171,6 +171,16 @@ def _simplify_sheets(scene, sheets, budget):
     return CaptureProxy(np.concatenate([proxy.points, proxy.points[mirrored]]), triangles, cluster, share,
                         np.concatenate([proxy.triangle_object, proxy.triangle_object[flip]]), proxy.cell,
                         len(scene.triangles))
+
+
+def _front_budget(budget, twinned):
+    """The one-sided scene's share of ``budget`` where the front triangles ``twinned (t,)``
+    will be drawn twice (their sheet's back side): objects are simplified alike, so the
+    twins take the same share of the front's budget as of its triangles (the budget is of
+    what the probes draw, both sides)."""
+    if budget is None or not len(twinned):
+        return budget
+    return int(round(int(budget) / (1.0 + float(np.mean(twinned)))))
 
 
 class _Prepared:

@@ -40,7 +40,7 @@ class TableOperator:
 
     def __init__(self, scene, transport, albedo, areas, landing=None):
         self.scene, self.transport, self.albedo, self.areas, self.landing = scene, transport, albedo, areas, landing
-        self.gather_seconds = 0.0
+        self.gather_seconds, self._linear = 0.0, None
 
     def _gather(self, radiance):
         t = time.perf_counter()
@@ -64,8 +64,9 @@ class TableOperator:
         return self._gather(self.albedo * light)
 
     def linear(self, coeffs, factor):
-        light = self.transport.interpolate(coeffs.astype(np.float32), clamp=False) * np.asarray(factor).astype(np.float32)
-        return self.transport.gather_project(self.albedo * light).astype(np.float64)
+        if self._linear is None:  # made on the first call (the tail's), kept for the solve
+            self._linear = self.transport.linear_gather(self.albedo)
+        return self._linear(coeffs.astype(np.float32)).astype(np.float64) * np.asarray(factor, dtype=np.float64)
 
 
 def near_field_balanced(light, before, areas, unseen=None):

@@ -7,7 +7,7 @@ import bpy
 import numpy as np
 import scenes
 
-from cubegi.cubegi_engine import cubemap, transport
+from cubegi.cubegi_engine import capture, cubemap, transport
 from cubegi.cubegi_engine.grid import ProbeGrid
 
 
@@ -85,7 +85,7 @@ def test_draw_every_bounce_matches_capture_once(empty_scene, cubegi):
     operators = transport.Transport(arrays, g, cap, visibility=False)
     assert not operators.covered.any()
     linear = operators.project(operators.texel_radiance(radiance))
-    drawn = transport.reference_coefficients(renderer, g, arrays, radiance, n, near, far)
+    drawn = capture.reference_coefficients(renderer, g, arrays, radiance, n, near, far)
     scale = np.abs(drawn[:, 0]).mean()
     # Both sample the same surfaces at the same texel centres; they differ only by float32
     # rounding and rasterisation at triangle edges (a texel on an edge may pick either).

@@ -539,3 +539,38 @@ def test_points_interpolated_cell_by_cell_equal_point_by_point():
     np.testing.assert_array_equal(grouped.probe_weights(some), plain.probe_weights(some))
     scattered = np.stack([rng.choice(p, 8, replace=False) for _ in range(s)])
     assert points_by_cell(scattered) is None and points_by_cell(index[: CELL_POINTS - 1]) is None
+
+
+def test_the_tail_step_through_a_simplified_capture_equals_the_gather_of_the_light_at_the_points():
+    """The tail solve's step (Transport.linear_gather) with a simplified capture and the
+    weights kept cell by cell (the light kept in the cells' order, sent to the clusters at
+    once) equals the gather of the sent light interpolated at the points, per channel."""
+    from cubegi.cubegi_engine.grid import points_by_cell
+    from cubegi.cubegi_engine.proxy import CaptureProxy
+    from cubegi.cubegi_engine.transport import DENSE_GATHER_ELEMENTS, Transport
+
+    rng = np.random.default_rng(12)
+    s, p, c, texels = 40000, 40, 300, 24
+    rows = np.stack([rng.choice(p, 8, replace=False) for _ in range(9)])
+    index = rows[rng.integers(0, len(rows), s)]
+    weights = rng.uniform(-0.1, 1.0, (s, 72)).astype(np.float32)
+    coeffs = rng.uniform(-0.2, 1.0, (p, 9, 3))
+    sent = rng.uniform(0.0, 0.9, (s, 3))
+    cluster = rng.integers(0, c, s)
+    share = rng.uniform(0.1, 1.0, s)
+    share /= np.bincount(cluster, share, minlength=c)[cluster]
+    cells = points_by_cell(index)
+    assert cells is not None
+    transport = Transport.__new__(Transport)
+    transport.index, transport._weights, transport._cells = index, weights[cells.order], cells
+    transport.proxy = CaptureProxy(np.zeros((c, 3)), np.zeros((0, 3), dtype=np.int64), cluster, share, None, np.zeros(1), 0)
+    transport.corners = rng.integers(0, c, (p, texels, 3))
+    transport.bary = rng.dirichlet(np.ones(3), (p, texels)).astype(np.float32)
+    transport.sh_weights = rng.uniform(-1.0, 1.0, (texels, 9)).astype(np.float32)
+    transport.probe_count, transport._dense = p, None
+    assert 9 * transport.probe_count * s > DENSE_GATHER_ELEMENTS  # the texels' way, not the dense matrix
+    want = transport.gather_project(sent * transport.interpolate(coeffs, clamp=False))
+    got = transport.linear_gather(sent)(coeffs)
+    assert got.shape == (p, 9, 3)
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4 * np.abs(want).max())
+    assert np.ptp(want[..., 0] - want[..., 2]) > 0.1  # the channels differ

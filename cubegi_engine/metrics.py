@@ -86,25 +86,32 @@ def error_holders(estimate, reference, areas, share=0.5):
     return {"points": k, "area_share": float(a[order[:k]].sum() / a.sum())}
 
 
+# An object's mean light under this share of the scene's has no bias worth a percentage.
+NEGLIGIBLE = 1e-3
+
+
 def furthest_off(names, counts, light, reference, areas, most=3, least_share=0.05):
     """The objects that hold the most of the scene's error: up to ``most`` of those holding at
     least ``least_share`` of the total light's squared error, largest first, each ``{"name",
     "error_share", "direct_bias", "indirect_bias"}`` (their area-weighted mean against the
-    reference's, None where the reference has none). ``names``/``counts``: the objects and
-    their points, in the order of ``light`` and ``reference`` (``{"direct", "indirect"}``, each
+    reference's, None where the reference's mean is under NEGLIGIBLE of the scene's mean light:
+    a panel Cycles gives 1e-4 is not "-100%"). ``names``/``counts``: the objects and their
+    points, in the order of ``light`` and ``reference`` (``{"direct", "indirect"}``, each
     ``(s, 3)``) and ``areas (s,)``."""
     a = np.asarray(areas, dtype=np.float64)
     x = {k: np.asarray(v, dtype=np.float64).mean(axis=1) for k, v in light.items()}
     r = {k: np.asarray(v, dtype=np.float64).mean(axis=1) for k, v in reference.items()}
     share = squared_error(x["direct"] + x["indirect"], r["direct"] + r["indirect"], a)
+    scene_mean = float(a @ (r["direct"] + r["indirect"])) / max(float(a.sum()), 1e-300)
     out, start = [], 0
     for name, count in zip(names, counts):
         sl = slice(start, start + int(count))
         start += int(count)
-        bias = {}
+        bias, area = {}, float(a[sl].sum())
         for part in ("direct", "indirect"):
             theirs = float(a[sl] @ r[part][sl])
-            bias[f"{part}_bias"] = float(a[sl] @ x[part][sl]) / theirs - 1.0 if theirs > 0 else None
+            seen = theirs > 0 and theirs > NEGLIGIBLE * scene_mean * area
+            bias[f"{part}_bias"] = float(a[sl] @ x[part][sl]) / theirs - 1.0 if seen else None
         out.append({"name": name, "error_share": float(share[sl].sum()), **bias})
     out.sort(key=lambda o: -o["error_share"])
     return [o for o in out if o["error_share"] >= least_share][:most]

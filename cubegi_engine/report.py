@@ -249,4 +249,4 @@ def _finite(value):
 
 
 def _percent(bias):
-    return "n/a (none in Cycles)" if bias is None else f"{100 * bias:+.1f}%"
+    return "n/a (next to none in Cycles)" if bias is None else f"{100 * bias:+.1f}%"

@@ -143,8 +143,9 @@ def test_squared_error_says_which_points_hold_the_error():
 def test_the_objects_furthest_off_are_named_with_their_share_and_mean_bias():
     """Three objects: a large ground right on, a room whose indirect light is 30% too bright,
     a glass case that Cycles gives no light: the case and the room hold the error, in that
-    order, each with its mean direct and indirect bias (none where the reference has none);
-    the ground, under the least share, is not listed; ``most`` caps the list."""
+    order, each with its mean direct and indirect bias (none where the reference has none, or
+    a negligible share of the scene's light); the ground, under the least share, is not
+    listed; ``most`` caps the list."""
     areas = np.array([100.0, 100.0, 1.0, 1.0, 1.0, 1.0, 0.5])
     light = {"direct": np.zeros((7, 3)), "indirect": np.zeros((7, 3))}
     reference = {"direct": np.zeros((7, 3)), "indirect": np.zeros((7, 3))}
@@ -158,3 +159,10 @@ def test_the_objects_furthest_off_are_named_with_their_share_and_mean_bias():
     assert room["indirect_bias"] == pytest.approx(0.3) and room["direct_bias"] is None
     assert case["error_share"] + room["error_share"] == pytest.approx(1.0) and case["error_share"] > room["error_share"]
     assert [o["name"] for o in metrics.furthest_off(["Ground", "Room", "Case"], [2, 4, 1], light, reference, areas, most=1)] == ["Case"]
+    # A light Cycles gives the case but under a thousandth of the scene's mean: no bias either.
+    reference["direct"][6] = 1e-4
+    (case, _) = metrics.furthest_off(["Ground", "Room", "Case"], [2, 4, 1], light, reference, areas)
+    assert case["name"] == "Case" and case["direct_bias"] is None
+    reference["direct"][6] = 0.5
+    found = {o["name"]: o for o in metrics.furthest_off(["Ground", "Room", "Case"], [2, 4, 1], light, reference, areas)}
+    assert found["Case"]["direct_bias"] == pytest.approx(1.0)

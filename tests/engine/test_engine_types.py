@@ -117,7 +117,8 @@ def test_the_report_round_trips_through_strict_json():
     assert d["reference"]["renderer"] == "cycles" and d["capture_geometry"] is None
     assert "probes: 2 found inside geometry were moved out of it, within their cells" in report.summary_lines()
     assert "  Shop: 61% of the error; mean direct -0.1%, indirect +33.6% against Cycles" in report.summary_lines()
-    assert "  Case: 20% of the error; mean direct n/a (none in Cycles), indirect n/a (none in Cycles) against Cycles" in report.summary_lines()
+    none = "n/a (next to none in Cycles)"
+    assert f"  Case: 20% of the error; mean direct {none}, indirect {none} against Cycles" in report.summary_lines()
     # What was left out: typed in the report, lines in its text and its JSON's "left_out".
     assert d["left_out"] == ["light Away: reaches no surface", "probes: 3 of 8 light no vertex"]
     assert d["left_out_items"][1] == {"kind": "probes", "count": 3, "names": [], "text": "3 of 8 light no vertex"}

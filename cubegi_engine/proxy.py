@@ -39,7 +39,7 @@ __all__ = ["CaptureProxy", "simplify"]
 # room's walls cut to a cell's size for the light, cells of metres wide).
 KEEP_WHOLE, KEEP_WHOLE_SHARE = 64, 0.01
 # Rounds of adjusting the cluster size towards the budget; each one is a clustering pass.
-ROUNDS = 4
+ROUNDS, STALL = 4, 0.1
 
 
 @dataclass
@@ -124,13 +124,16 @@ def simplify(scene, budget) -> CaptureProxy | None:
     best = None
     for _ in range(ROUNDS):
         proxy = _cluster(prep, cell)
-        if best is None or len(proxy.triangles) < len(best.triangles):
-            best = proxy
+        if best is not None and len(proxy.triangles) > (1.0 - STALL) * len(best.triangles):
+            return best if len(best.triangles) <= len(proxy.triangles) else proxy
+        best = proxy if best is None or len(proxy.triangles) < len(best.triangles) else best
         got = len(proxy.triangles) - kept_whole
         if len(proxy.triangles) <= budget * 1.1 or got <= 0:
             return proxy
         # Wider cells; where objects touch, the points kept as they are cost more as cells
-        # grow, so the count need not fall: the fewest seen is kept.
+        # grow, so the count need not fall: the fewest seen is kept, and a round that takes
+        # off less than STALL of them is the last (the Breakfast Room: 90.6K, 89.7K, 84.2K,
+        # 91.1K triangles in four rounds of 0.7-1.1 s each).
         cell = cell * np.sqrt(got / max(budget - kept_whole, 1)) * 1.05
     return best
 

@@ -168,3 +168,51 @@ def test_triangles_a_cut_added_neither_shrink_the_budget_nor_unkeep_a_whole_obje
     assert after.cell[1] == 0 and (after.triangle_object == 1).sum() == 800
     assert (after.triangle_object == 0).sum() == (before.triangle_object == 0).sum()
     assert after.cell[0] == pytest.approx(before.cell[0])
+
+
+def _sheet_and_box(n=50):
+    """Object 0: a two-sided sheet (its points, then their twins facing the other way, its
+    triangles, then theirs reversed); object 1: a one-sided plane below it, as fine."""
+    p, t, nrm = _plane((0, 0, 1.0), (2.0, 0, 0), (0, 2.0, 0), n)
+    sheet = (np.concatenate([p, p]), np.concatenate([t, t[:, ::-1] + len(p)]), np.concatenate([nrm, -nrm]))
+    floor = _plane((0, 0, 0), (2.0, 0, 0), (0, 2.0, 0), n)
+    scene = _scene([(0, sheet), (1, floor)])
+    back = np.zeros(len(scene.points), dtype=bool)
+    back[len(p):2 * len(p)] = True
+    scene.back = back
+    return scene
+
+
+def test_a_sheets_back_side_is_drawn_within_the_budget():
+    """Both sides of a two-sided sheet count in the budget: the front is simplified to its
+    share, so that its twins take the rest (the twins were drawn beyond it: 138K triangles
+    for a budget of 100K at a million vertices)."""
+    scene = _sheet_and_box()
+    assert scene.sheets() is not None
+    budget = 3000
+    proxy = simplify(scene, budget)
+    assert proxy is not None and len(proxy.triangles) <= 1.1 * budget
+    sheet = proxy.triangle_object == 0
+    assert sheet.sum() % 2 == 0 and sheet.sum() > 0.3 * budget  # its twins are there, and it kept its share
+
+
+def test_rounds_that_no_longer_take_triangles_off_stop(monkeypatch):
+    """Where wider cells stop taking triangles off (objects that touch keep their contact
+    points), a round that takes off less than STALL of them is the last, and the fewest
+    seen is kept."""
+    from cubegi.cubegi_engine import proxy as proxy_module
+
+    scene = _thin_wall_and_floor()
+    made, counts = [], iter([9000, 8900, 8400, 9100])
+    real = proxy_module._cluster
+
+    def cluster(prep, cell):
+        made.append(cell.copy())
+        out = real(prep, cell)
+        return proxy_module.CaptureProxy(out.points, np.zeros((next(counts), 3), dtype=np.int64), out.cluster, out.share,
+                                         np.zeros(0, dtype=np.int64), out.cell, out.source_triangles)
+
+    monkeypatch.setattr(proxy_module, "_cluster", cluster)
+    proxy = simplify(scene, 4000)
+    assert len(made) == 2 and len(proxy.triangles) == 8900
+    assert np.all(made[1][made[0] > 0] > made[0][made[0] > 0])  # the second round's cells were wider

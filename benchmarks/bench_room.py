@@ -31,7 +31,7 @@ def main():
 
     load_extension()
     from cubegi.cubegi_addon import gpu_capture, grid_objects, pipeline, scene_data, session
-    from cubegi.cubegi_engine import capture, transport
+    from cubegi.cubegi_engine import capture, cubemap
     from cubegi.cubegi_engine.settings import BakeSettings
     from tools import demo
 
@@ -74,7 +74,7 @@ def main():
     arrays = scene_data.collect(bpy.context).arrays
     grid, _, _ = grid_objects.resolve_grid(bpy.context.scene, arrays)
     renderer = gpu_capture.GpuRenderer(arrays.points, arrays.triangles)
-    near, far = transport.clip_planes(arrays.scale)
+    near, far = cubemap.clip_planes(arrays.scale)
     radiance = np.asarray(arrays.albedo) * 0.5
     capture.reference_coefficients(renderer, grid, arrays, radiance, 32, near, far)  # warm-up
     t = time.perf_counter()

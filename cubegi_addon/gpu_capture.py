@@ -26,8 +26,8 @@ import gpu
 import numpy as np
 from gpu_extras.batch import batch_for_shader
 
+from ..cubegi_engine.cubemap import no_barycentrics
 from ..cubegi_engine.errors import BakeError
-from ..cubegi_engine.transport import no_barycentrics
 from ..cubegi_engine.working import in_background, run
 from . import compat
 from .bvh_rays import BvhRays

@@ -45,7 +45,7 @@ class Renderer(Protocol):
     draws the scene's triangles into ``v`` square views and returns per texel the triangle
     index (int32, -1 for nothing), barycentric weights ``(v, n, n, 3)`` (without
     ``with_bary``, for shadows' depth maps: zeros that take no memory,
-    :func:`~cubegi_engine.transport.no_barycentrics`), distance (radial from the eye, or along ``axes``
+    :func:`~cubegi_engine.cubemap.no_barycentrics`), distance (radial from the eye, or along ``axes``
     for orthographic views; inf for nothing) and a back-face flag.
     ``render_colour(view_projs, size, point_radiance (s, 3))`` draws the scene coloured by
     per-point radiance (back faces black) and returns ``(v, n, n, 3)``.

@@ -11,11 +11,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import cubemap, sh
+from .cubemap import CubeCapture, capture_cubes, clip_planes
 from .gather import near_caster
 from .grid import Grid
 from .records import Progress, Stage
 from .scene import GeometryFingerprint, same_sky_map
-from .transport import CubeCapture, Transport, capture_cubes, clip_planes
+from .transport import Transport
 from .working import CAPTURE_DRAWS_PER_STEP, in_background, in_batches, run
 
 __all__ = ["ProbeCapture", "reference_coefficients"]

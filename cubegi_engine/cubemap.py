@@ -18,9 +18,12 @@ Conventions (fixed here, used by the GPU capture and by every look-up):
   angles of a whole cube sum to 4 pi up to rounding.
 """
 
+from dataclasses import dataclass
+
 import numpy as np
 
-__all__ = ["sample_image", "equirect_uv", "texel_uv", "texel_directions", "texel_solid_angles", "direction_to_texel", "perspective_90", "orthographic", "look_matrix", "cube_view_projections", "any_perpendicular", "square_filter", "texels_around"]
+__all__ = ["sample_image", "equirect_uv", "texel_uv", "texel_directions", "texel_solid_angles", "direction_to_texel", "perspective_90", "orthographic", "look_matrix", "cube_view_projections", "any_perpendicular", "square_filter", "texels_around",
+           "CubeCapture", "capture_cubes", "clip_planes", "no_barycentrics"]
 
 FACE_FORWARD = np.array(
     [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.float64
@@ -224,3 +227,55 @@ def square_filter(values, reach, pick):
             pick(acc, padded[tuple(window)], out=acc)
         out = acc
     return out
+
+
+@dataclass
+class CubeCapture:
+    """What every texel of a set of cube maps sees; arrays are ``(k, 6, n, n, ...)``.
+
+    tid: int32 triangle index (-1 where the texel sees sky); bary: float32 ``(..., 3)``
+    barycentric weights of the hit point; dist: float32 distance to it (inf for sky);
+    backface: bool, the texel sees a triangle from behind.
+    """
+
+    tid: np.ndarray
+    bary: np.ndarray
+    dist: np.ndarray
+    backface: np.ndarray
+
+    @property
+    def size(self):
+        return self.tid.shape[-1]
+
+
+def no_barycentrics(shape) -> np.ndarray:
+    """Zero barycentric weights of ``shape`` that take no memory (read-only): a depth map's."""
+    return np.broadcast_to(np.zeros((), dtype=np.float32), shape)
+
+
+def capture_cubes(renderer, eyes, size, near, far, with_bary=True, turns=None):
+    """Render cube maps at ``eyes`` ``(k, 3)`` with ``renderer`` and return a CubeCapture.
+    ``near``: one distance, or one per eye ``(k,)``. ``with_bary=False``: depth maps alone
+    (the barycentrics come back zero; shadow tests do not read them). ``turns``: each
+    cube's rotation ``(k, 3, 3)`` (see :func:`cubemap.turns`)."""
+    eyes = np.asarray(eyes, dtype=np.float64).reshape(-1, 3)
+    vps = cube_view_projections_many(eyes, near, far, turns)
+    tid, bary, dist, back = renderer.render(vps, np.repeat(eyes, 6, axis=0), None, size, with_bary=with_bary)
+    shape = (len(eyes), 6, size, size)
+    bary = bary.reshape(shape + (3,)) if with_bary else no_barycentrics(shape + (3,))
+    return CubeCapture(tid.reshape(shape), bary, dist.reshape(shape), back.reshape(shape))
+
+
+# Near planes: a ten-thousandth of the scene's size, or less where the geometry that matters
+# is smaller: a hundredth of a probe's cell, a hundredth of a light's distance to the
+# nearest point. (A large ground plane under a small room must not clip the room away.)
+NEAR_OF_SCALE, NEAR_OF_LOCAL = 1e-4, 1e-2
+
+
+def clip_planes(scale, local=None):
+    """Near and far distances for captures in a scene of size ``scale`` (its diagonal);
+    ``local``: the size of what is around the eye (a cell, a distance), one or ``(k,)``."""
+    near = NEAR_OF_SCALE * scale
+    if local is not None:
+        near = np.minimum(near, NEAR_OF_LOCAL * np.maximum(np.asarray(local, dtype=np.float64), 1e-30))
+    return near, 4.0 * scale

@@ -23,11 +23,11 @@ import numpy as np
 from . import cubemap, sh, spatial
 from . import eyes as eyes_mod
 from . import lights as lights_mod
+from .cubemap import CubeCapture, clip_planes, no_barycentrics
 from .emitters import emitter_direct
 from .eyes import SOFT_SAMPLES, soft, soft_count
 from .gather import caster_made_by, gathered_for, light_visibility, scene_caster, scene_inward
 from .penumbra import sun_visibility
-from .transport import CubeCapture, clip_planes, no_barycentrics
 from .working import CAPTURE_DRAWS_PER_STEP, WORKERS, in_background, in_batches, run, start, wait
 
 __all__ = ["DirectLight", "Shadow", "draw_shadow", "visibility", "light_direct", "direct_light", "EMISSION", "SKY"]

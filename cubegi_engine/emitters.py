@@ -24,7 +24,7 @@ import numpy as np
 
 from . import cubemap
 from . import lights as lights_mod
-from .transport import capture_cubes, clip_planes
+from .cubemap import capture_cubes, clip_planes
 
 __all__ = ["emissive_triangles", "emitter_direct", "trapped_light", "TrappedLight", "SAMPLES"]
 

@@ -21,8 +21,6 @@ Light is carried as the diffuse value of a white Lambertian surface, ``E / pi``;
 radiance of a surface of albedo rho receiving diffuse light l is ``rho * l`` (+ emission).
 """
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from . import cubemap, nearfield, sh
@@ -35,7 +33,7 @@ from .visibility import Cover, PointProbes, Probes, probes_in_front, seen_corner
 # and is lit through the gap where at least this share of them meets what covers it.
 UNDER_REACH, UNDER_SHARE = 1.0, 0.5
 
-__all__ = ["CubeCapture", "capture_cubes", "clip_planes", "Transport", "COEFFS_PER_POINT"]
+__all__ = ["Transport", "COEFFS_PER_POINT"]
 
 # A point interpolates 8 probes (the corners of its cell) x 9 SH coefficients.
 COEFFS_PER_POINT = 8 * 9
@@ -44,64 +42,12 @@ COEFFS_PER_POINT = 8 * 9
 INSIDE_BACKFACE_SHARE = 0.25
 
 
-@dataclass
-class CubeCapture:
-    """What every texel of a set of cube maps sees; arrays are ``(k, 6, n, n, ...)``.
-
-    tid: int32 triangle index (-1 where the texel sees sky); bary: float32 ``(..., 3)``
-    barycentric weights of the hit point; dist: float32 distance to it (inf for sky);
-    backface: bool, the texel sees a triangle from behind.
-    """
-
-    tid: np.ndarray
-    bary: np.ndarray
-    dist: np.ndarray
-    backface: np.ndarray
-
-    @property
-    def size(self):
-        return self.tid.shape[-1]
-
-
-def no_barycentrics(shape) -> np.ndarray:
-    """Zero barycentric weights of ``shape`` that take no memory (read-only): a depth map's."""
-    return np.broadcast_to(np.zeros((), dtype=np.float32), shape)
-
-
-def capture_cubes(renderer, eyes, size, near, far, with_bary=True, turns=None):
-    """Render cube maps at ``eyes`` ``(k, 3)`` with ``renderer`` and return a CubeCapture.
-    ``near``: one distance, or one per eye ``(k,)``. ``with_bary=False``: depth maps alone
-    (the barycentrics come back zero; shadow tests do not read them). ``turns``: each
-    cube's rotation ``(k, 3, 3)`` (see :func:`cubemap.turns`)."""
-    eyes = np.asarray(eyes, dtype=np.float64).reshape(-1, 3)
-    vps = cubemap.cube_view_projections_many(eyes, near, far, turns)
-    tid, bary, dist, back = renderer.render(vps, np.repeat(eyes, 6, axis=0), None, size, with_bary=with_bary)
-    shape = (len(eyes), 6, size, size)
-    bary = bary.reshape(shape + (3,)) if with_bary else no_barycentrics(shape + (3,))
-    return CubeCapture(tid.reshape(shape), bary, dist.reshape(shape), back.reshape(shape))
-
-
-# Near planes: a ten-thousandth of the scene's size, or less where the geometry that matters
-# is smaller: a hundredth of a probe's cell, a hundredth of a light's distance to the
-# nearest point. (A large ground plane under a small room must not clip the room away.)
-NEAR_OF_SCALE, NEAR_OF_LOCAL = 1e-4, 1e-2
-
-
 # Points per chunk of :meth:`Transport.interpolate`; texels per chunk of texel_radiance.
 INTERPOLATE_CHUNK = 32768
 TEXEL_CHUNK = 100_000
 # A bake gathers through a dense (9p, s) matrix where it has at most this many numbers
 # (32 MB): a small scene's bounce is then one matrix product, not a pass over every texel.
 DENSE_GATHER_ELEMENTS = 8_000_000
-
-
-def clip_planes(scale, local=None):
-    """Near and far distances for captures in a scene of size ``scale`` (its diagonal);
-    ``local``: the size of what is around the eye (a cell, a distance), one or ``(k,)``."""
-    near = NEAR_OF_SCALE * scale
-    if local is not None:
-        near = np.minimum(near, NEAR_OF_LOCAL * np.maximum(np.asarray(local, dtype=np.float64), 1e-30))
-    return near, 4.0 * scale
 
 
 class Transport:
@@ -163,16 +109,14 @@ class Transport:
             total = w.sum(axis=1, keepdims=True)
             weight = np.where(total > 1e-9, w / np.maximum(total, 1e-30), weight)
         self.index = index
-        # Per point: trilinear weight x diffuse SH basis of its normal, (s, 8 * 9).
+        # Per point: trilinear weight x diffuse SH basis of its normal, (s, 8 * 9), made after
+        # the near field (whose voxel index is the tables' high-water mark of memory).
         basis = sh.diffuse_basis(scene.normals)
         self._cells = points_by_cell(index)  # the points grouped by their 8 probes (or None): how the weights are kept
-        self._weights = np.empty((len(index), COEFFS_PER_POINT), dtype=np.float32)  # see point_weights
-        self._put_weights(np.arange(len(index)), weight, basis)
         self._dense = None  # the gather-project matrix, once made (gather_project_matrix)
         # (s,) points another object covers (no probe sees them: a floor point under a wall
-        # standing on it, the underside of a block on the ground): they get no probe light,
-        # and no sky.
-        self.covered = self._weightless() & ~self.no_probe
+        # standing on it, the underside of a block on the ground): no probe light, no sky.
+        self.covered = _no_weight(weight, basis) & ~self.no_probe
         # The near field (a final gather of each point's short-range surroundings), or None.
         self.near = None
         self.gathered = None  # the points gathered by rays over their whole view (take_gathered)
@@ -183,6 +127,8 @@ class Transport:
             self.near = nearfield.build(scene.points, scene.normals, reach, scene.triangles, hidden=self.covered, owner=scene.point_object,
                                         lit_if_open=lit_if_open, sheets=scene.sheets(), keep_index=False, caster=caster,
                                         emitting=np.any(scene.emission > 0, axis=1))
+        self._weights = np.empty((len(index), COEFFS_PER_POINT), dtype=np.float32)  # see point_weights
+        self._put_weights(np.arange(len(index)), weight, basis)
         if spare is not None:
             self._light_from_behind(spare, basis, len(scene.points))
         if self.near is not None and visibility and self.covered.any():
@@ -475,6 +421,13 @@ class Transport:
                 g = np.take(flat, self.index[sl], axis=0).reshape(-1, COEFFS_PER_POINT, 3)
                 out[sl] = np.matmul(self._weights[sl, None, :], g)[:, 0]
         return np.maximum(out, 0.0) if clamp else out
+
+
+def _no_weight(weight, basis):
+    """``(s,)`` bool: :meth:`Transport._weightless` of the weights :func:`_outer_float32`
+    makes of ``weight (s, 8)`` and ``basis (s, 9)``, before they are made: a point's largest
+    product, rounded once as they are (rounding keeps their order), under 1e-6."""
+    return (np.abs(weight).max(axis=1) * np.abs(basis).max(axis=1)).astype(np.float32) < np.float32(1e-6)
 
 
 def _outer_float32(weight, basis):

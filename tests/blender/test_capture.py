@@ -37,7 +37,7 @@ def test_every_texel_looks_where_it_should(empty_scene, cubegi):
     assert angle.max() < 2.6, f"worst texel off by {angle.max():.2f} degrees"
 
     # The id path: hit point from triangle and barycentric weights, and its distance.
-    cap = transport.capture_cubes(renderer, eye[None], n, 0.01, 50.0)
+    cap = cubemap.capture_cubes(renderer, eye[None], n, 0.01, 50.0)
     assert (cap.tid >= 0).all() and not cap.backface.any()
     # Each texel names the triangle it sees: its point lies inside it (a neighbour's weights
     # of the same plane would reach past the corners).
@@ -57,7 +57,7 @@ def test_depth_test_keeps_the_nearest_surface(empty_scene, cubegi):
     wv, wf = scenes.grid_patch((1.0, -1.0, -1.0), (0, 0, 2.0), (0, 2.0, 0), 2, 2)  # faces -X
     scenes.mesh_object("Wall", wv, wf)
     arrays, renderer = _collect_and_renderer(cubegi)
-    cap = transport.capture_cubes(renderer, np.zeros((1, 3)), 32, 0.01, 50.0)
+    cap = cubemap.capture_cubes(renderer, np.zeros((1, 3)), 32, 0.01, 50.0)
     dirs = cubemap.texel_directions(32)[0]
     through_wall = (np.abs(dirs[..., 1] / dirs[..., 0]) < 0.99) & (np.abs(dirs[..., 2] / dirs[..., 0]) < 0.99)
     expected = 1.0 / dirs[..., 0]
@@ -76,9 +76,9 @@ def test_draw_every_bounce_matches_capture_once(empty_scene, cubegi):
     rng = np.random.default_rng(3)
     radiance = rng.random((len(arrays.points), 3))
     g = ProbeGrid((-2, -2, 0), (2, 2, 2.5), (3, 3, 2))
-    near, far = transport.clip_planes(arrays.scale)
+    near, far = cubemap.clip_planes(arrays.scale)
     n = 32
-    cap = transport.capture_cubes(renderer, g.positions(), n, near, far)
+    cap = cubemap.capture_cubes(renderer, g.positions(), n, near, far)
     # Without the visibility test no point is covered, so every texel mixes its triangle's
     # corners as the rasterizer does (with it, the floor under the block is covered, and its
     # triangles are seen by their other corners: visibility.seen_corners_only).

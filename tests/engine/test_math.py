@@ -541,6 +541,27 @@ def test_points_interpolated_cell_by_cell_equal_point_by_point():
     assert points_by_cell(scattered) is None and points_by_cell(index[: CELL_POINTS - 1]) is None
 
 
+def test_the_points_no_probe_reaches_are_found_before_their_weights_are_made():
+    """The covered points are found from the trilinear weights and the bases alone (so that
+    the weights' (s, 72) array is made after the near field, the tables' high-water mark of
+    memory): the same points as the made weights give, at the 1e-6 edge too."""
+    from cubegi.cubegi_engine.transport import Transport, _no_weight
+
+    rng = np.random.default_rng(13)
+    s = 20000
+    weight = rng.uniform(0.0, 1.0, (s, 8)) * (rng.uniform(0.0, 1.0, (s, 1)) < 0.5)
+    edge = rng.integers(0, s, 4000)  # a largest product within a few roundings of 1e-6
+    basis = rng.uniform(-1.0, 1.0, (s, 9))
+    weight[edge] = 0.0
+    weight[edge, 3] = 1e-6 / np.abs(basis[edge]).max(axis=1) * (1.0 + rng.uniform(-3e-7, 3e-7, len(edge)))
+    transport = Transport.__new__(Transport)
+    transport._cells, transport._weights = None, np.empty((s, 72), dtype=np.float32)
+    transport._put_weights(np.arange(s), weight, basis)
+    made = transport._weightless()
+    np.testing.assert_array_equal(_no_weight(weight, basis), made)
+    assert 0 < made[edge].sum() < len(edge) and 0 < made.sum() < s  # both sides of the edge are met
+
+
 def test_the_tail_step_through_a_simplified_capture_equals_the_gather_of_the_light_at_the_points():
     """The tail solve's step (Transport.linear_gather) with a simplified capture and the
     weights kept cell by cell (the light kept in the cells' order, sent to the clusters at

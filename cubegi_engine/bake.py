@@ -35,7 +35,7 @@ from .solve import LightSolution, area_weighted_mean, solve_steps
 from .spatial import forget_indexes
 from .working import in_background, run, start, wait  # noqa: F401 (bake.run: the one driver)
 
-__all__ = ["Renderer", "BakeResult", "bake_steps", "run", "check_memory", "memory_estimate", "area_weighted_mean"]
+__all__ = ["Renderer", "BakeResult", "bake_steps", "start_simplifying", "run", "check_memory", "memory_estimate", "area_weighted_mean"]
 
 
 class Renderer(Protocol):

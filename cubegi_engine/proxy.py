@@ -124,7 +124,7 @@ def simplify(scene, budget) -> CaptureProxy | None:
     best = None
     for _ in range(ROUNDS):
         proxy = _cluster(prep, cell)
-        if best is not None and len(proxy.triangles) > (1.0 - STALL) * len(best.triangles):
+        if best is not None and len(proxy.triangles) - kept_whole > (1.0 - STALL) * (len(best.triangles) - kept_whole):
             return best if len(best.triangles) <= len(proxy.triangles) else proxy
         best = proxy if best is None or len(proxy.triangles) < len(best.triangles) else best
         got = len(proxy.triangles) - kept_whole
@@ -132,7 +132,7 @@ def simplify(scene, budget) -> CaptureProxy | None:
             return proxy
         # Wider cells; where objects touch, the points kept as they are cost more as cells
         # grow, so the count need not fall: the fewest seen is kept, and a round that takes
-        # off less than STALL of them is the last (the Breakfast Room: 90.6K, 89.7K, 84.2K,
+        # off less than STALL of those it can take is the last (the Breakfast Room: 90.6K, 89.7K, 84.2K,
         # 91.1K triangles in four rounds of 0.7-1.1 s each).
         cell = cell * np.sqrt(got / max(budget - kept_whole, 1)) * 1.05
     return best
@@ -154,7 +154,7 @@ def _simplify_sheets(scene, sheets, budget):
                         reflectance=None if scene.reflectance is None else scene.reflectance[front])
     two_sided = np.zeros(int(np.max(scene.point_object, initial=0)) + 1, dtype=bool)
     two_sided[np.asarray(scene.point_object)[sheets.back]] = True
-    proxy = simplify(one_sided, _front_budget(budget, two_sided[one_sided.point_object[one_sided.triangles[:, 0]]]))
+    proxy = simplify(one_sided, _front_budget(budget, one_sided, two_sided))
     if proxy is None:
         return None
     c = proxy.count
@@ -176,14 +176,20 @@ def _simplify_sheets(scene, sheets, budget):
                         len(scene.triangles))
 
 
-def _front_budget(budget, twinned):
-    """The one-sided scene's share of ``budget`` where the front triangles ``twinned (t,)``
-    will be drawn twice (their sheet's back side): objects are simplified alike, so the
-    twins take the same share of the front's budget as of its triangles (the budget is of
-    what the probes draw, both sides)."""
-    if budget is None or not len(twinned):
+def _front_budget(budget, one_sided, two_sided):
+    """The share of ``budget`` the front sides ``one_sided`` (a scene) are simplified to
+    where the objects ``two_sided`` will be drawn twice (their sheets' back sides): objects
+    are simplified alike, so the twins take the share of the front's budget that the sheets
+    hold of its triangles as modelled (those a cut added are added to it, see simplify)."""
+    if budget is None or not len(one_sided.triangles):
         return budget
-    return int(round(int(budget) / (1.0 + float(np.mean(twinned)))))
+    count = np.bincount(one_sided.point_object[one_sided.triangles[:, 0]], minlength=len(two_sided)).astype(np.int64)
+    sampled = getattr(one_sided, "sampled_triangles", None)
+    if sampled is not None:
+        k = min(len(sampled), len(count))
+        count[:k] = np.maximum(count[:k] - np.asarray(sampled, dtype=np.int64)[:k], 0)
+    share = float(count[two_sided[: len(count)]].sum()) / max(int(count.sum()), 1)
+    return int(round(int(budget) / (1.0 + share)))
 
 
 class _Prepared:

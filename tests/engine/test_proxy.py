@@ -216,3 +216,42 @@ def test_rounds_that_no_longer_take_triangles_off_stop(monkeypatch):
     proxy = simplify(scene, 4000)
     assert len(made) == 2 and len(proxy.triangles) == 8900
     assert np.all(made[1][made[0] > 0] > made[0][made[0] > 0])  # the second round's cells were wider
+
+
+def test_the_stall_is_judged_on_the_triangles_a_round_can_take_off(monkeypatch):
+    """Objects kept whole are in every round's count: a round that takes a sixth of the rest
+    off goes on, though the whole count falls by 6%; one that takes 2% off is the last."""
+    from cubegi.cubegi_engine import proxy as proxy_module
+
+    smalls = [(k + 1, _plane((3.0 * k, 5.0, 0.0), (1.0, 0, 0), (0, 1.0, 0), 5)) for k in range(200)]  # 50 triangles each
+    scene = _scene([(0, _plane((0, 0, 0), (4.0, 0, 0), (0, 4.0, 0), 80))] + smalls)
+    kept = 200 * 50
+    made, counts = [], iter([kept + 6000, kept + 5000, kept + 4900, kept + 100])
+    real = proxy_module._cluster
+
+    def cluster(prep, cell):
+        made.append(1)
+        out = real(prep, cell)
+        return proxy_module.CaptureProxy(out.points, np.zeros((next(counts), 3), dtype=np.int64), out.cluster, out.share,
+                                         np.zeros(0, dtype=np.int64), out.cell, out.source_triangles)
+
+    monkeypatch.setattr(proxy_module, "_cluster", cluster)
+    proxy = simplify(scene, kept + 2000)
+    assert len(made) == 3 and len(proxy.triangles) == kept + 4900
+
+
+def test_a_sheets_share_of_the_budget_is_of_its_triangles_as_modelled():
+    """A sheet modelled as 2 triangles and cut into 20,000 for its light takes the share of
+    its 2, not of its 20,000, beside a one-sided mesh of 100,000: the mesh keeps the budget."""
+    from types import SimpleNamespace
+
+    from cubegi.cubegi_engine.proxy import _front_budget
+
+    owner = np.concatenate([np.zeros(20_000, dtype=np.int64), np.ones(100_000, dtype=np.int64)])
+    front = SimpleNamespace(triangles=np.stack([np.arange(len(owner))] * 3, axis=1), point_object=owner,
+                            sampled_triangles=np.array([19_998, 0]))
+    two_sided = np.array([True, False])
+    assert _front_budget(50_000, front, two_sided) == round(50_000 / (1 + 2 / 100_002))
+    front.sampled_triangles = None
+    assert _front_budget(50_000, front, two_sided) == round(50_000 / (1 + 20_000 / 120_000))
+    assert _front_budget(None, front, two_sided) is None

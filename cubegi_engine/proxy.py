@@ -26,7 +26,7 @@ the scene's count), so an object modelled with few triangles (a ground plane, a 
 kept whole and a dense one (a sculpt, a subdivided mesh) loses the most.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -67,8 +67,13 @@ class CaptureProxy:
 
     def radiance(self, point_radiance) -> np.ndarray:
         """Each cluster's radiance ``(c, 3)`` float32: the area-weighted mean of its points'."""
-        r = np.asarray(point_radiance, dtype=np.float64) * self.share[:, None]
-        return np.stack([np.bincount(self.cluster, r[:, c], minlength=self.count) for c in range(3)], axis=1).astype(np.float32)
+        r = np.asarray(point_radiance)
+        return np.stack([np.bincount(self.cluster, r[:, c] * self.share, minlength=self.count) for c in range(3)], axis=1).astype(np.float32)
+
+    def reordered(self, order) -> "CaptureProxy":
+        """The same proxy over the scene's points taken in ``order`` (their clusters and
+        shares reordered: :meth:`radiance` of point radiance in that order)."""
+        return replace(self, cluster=self.cluster[order], share=self.share[order])
 
     def expand_columns(self, per_cluster) -> np.ndarray:
         """A matrix over clusters ``(n, c)`` as one over the scene's points ``(n, s)``
@@ -142,8 +147,6 @@ def _simplify_sheets(scene, sheets, budget):
     """:func:`simplify` of a scene with two-sided sheets: its front sides alone are simplified
     (within the budget, as one-sided), then each sheet object's clusters and triangles get
     twins facing the other way, over its back points (see ``SceneArrays.back``)."""
-    from dataclasses import replace
-
     front = np.flatnonzero(~sheets.back)
     index = np.full(len(scene.points), -1, dtype=np.int64)
     index[front] = np.arange(len(front))

@@ -142,19 +142,9 @@ def near_any_triangle(centres, radius, a, b, c, tiles=8, centre_normals=None, ac
     their normals is below ``across`` in magnitude (it runs across the centre's surface)."""
     m = len(centres)
     out = np.zeros(m, dtype=bool)
-    if not m or not len(a):
+    tri = _Near(a, b, c, radius)
+    if not m or not len(tri.a):
         return out
-    n = np.cross(b - a, c - a)
-    length = np.linalg.norm(n, axis=1)
-    keep = length > 0
-    a, b, c, n = a[keep], b[keep], c[keep], n[keep] / length[keep, None]
-    edges = [(a, b), (b, c), (c, a)]
-    inward = []  # inward unit directions of the three edges, in the plane
-    for p, q in edges:
-        d = np.cross(n, q - p)
-        inward.append(d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300))
-    box_lo = np.minimum(np.minimum(a, b), c) - radius
-    box_hi = np.maximum(np.maximum(a, b), c) + radius
     lo = centres.min(axis=0)
     edge = max(float(np.max(centres.max(axis=0) - lo)) / tiles, 8.0 * radius, 1e-300)
     tile = np.floor((centres - lo) / edge).astype(np.int64)
@@ -162,21 +152,62 @@ def near_any_triangle(centres, radius, a, b, c, tiles=8, centre_normals=None, ac
     which = which.ravel()
     order = np.argsort(which, kind="stable")
     bounds = np.searchsorted(which[order], np.arange(len(ids) + 1))
+    # Each triangle's box, walked in tiles: (tile, triangle) pairs, by tile.
+    shape = ids.max(axis=0) + 1
+    first = np.clip(np.ceil((tri.box_lo - lo) / edge) - 1, 0, shape - 1).astype(np.int64)
+    span = np.maximum(np.clip(np.floor((tri.box_hi - lo) / edge), -1, shape - 1).astype(np.int64) - first + 1, 0)
+    count = np.prod(span, axis=1)
+    k = np.repeat(np.arange(len(count)), count)
+    step = np.arange(len(k)) - np.repeat(np.cumsum(count) - count, count)
+    at = first[k] + np.stack([step % span[k, 0], (step // span[k, 0]) % span[k, 1], step // (span[k, 0] * span[k, 1])], axis=1)
+    tiles_at = np.searchsorted(np.ravel_multi_index(ids.T, shape), np.ravel_multi_index(at.T, shape))
+    occupied = np.all(ids[np.minimum(tiles_at, len(ids) - 1)] == at, axis=1)
+    k, tiles_at = k[occupied], tiles_at[occupied]
+    by_tile = np.argsort(tiles_at, kind="stable")
+    k = k[by_tile]
+    tile_bounds = np.searchsorted(tiles_at[by_tile], np.arange(len(ids) + 1))
     for t in range(len(ids)):
-        cells = order[bounds[t] : bounds[t + 1]]
-        t_lo = lo + ids[t] * edge
-        sel = np.flatnonzero(np.all(box_lo <= t_lo + edge, axis=1) & np.all(box_hi >= t_lo, axis=1))
+        sel = k[tile_bounds[t] : tile_bounds[t + 1]]
         if not len(sel):
             continue
+        cells = order[bounds[t] : bounds[t + 1]]
         pts = centres[cells]
-        near = np.all((pts[:, None, :] >= box_lo[None, sel]) & (pts[:, None, :] <= box_hi[None, sel]), axis=2)
-        near &= np.abs(np.einsum("mkc,kc->mk", pts[:, None, :] - a[None, sel], n[sel])) <= radius
+        # The boxes (and the normals) first, over every pair; the planes and edges over the
+        # pairs left (few: a tile's triangles' boxes hold few of its centres each).
+        near = np.all((pts[:, None, :] >= tri.box_lo[None, sel]) & (pts[:, None, :] <= tri.box_hi[None, sel]), axis=2)
         if centre_normals is not None:
-            near &= np.abs(centre_normals[cells] @ n[sel].T) < across
-        for (p, _), d in zip(edges, inward):
-            near &= np.einsum("mkc,kc->mk", pts[:, None, :] - p[None, sel], d[sel]) >= -radius
-        out[cells] = near.any(axis=1)
+            near &= np.abs(centre_normals[cells] @ tri.n[sel].T) < across
+        pi, ki = np.nonzero(near)
+        out[cells[pi[tri.near(pts[pi], sel[ki])]]] = True
     return out
+
+
+class _Near:
+    """The triangles ``a, b, c`` that :func:`near_any_triangle` tests (the degenerate ones
+    left out): their unit normals, edges' inward directions and boxes grown by ``radius``."""
+
+    def __init__(self, a, b, c, radius):
+        n = np.cross(b - a, c - a)
+        length = np.linalg.norm(n, axis=1)
+        keep = length > 0
+        self.a, self.b, self.c, self.n = a[keep], b[keep], c[keep], n[keep] / length[keep, None]
+        self.radius = radius
+        self.edges = [(self.a, self.b), (self.b, self.c), (self.c, self.a)]
+        self.inward = []  # inward unit directions of the three edges, in the plane
+        for p, q in self.edges:
+            d = np.cross(self.n, q - p)
+            self.inward.append(d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300))
+        self.box_lo = np.minimum(np.minimum(self.a, self.b), self.c) - radius
+        self.box_hi = np.maximum(np.maximum(self.a, self.b), self.c) + radius
+
+    def near(self, x, k):
+        """``(p,)`` bool: whether each point ``x (p, 3)`` (within triangle ``k (p,)``'s box) lies
+        within the radius of its plane and of the inside of each of its edges."""
+        r = self.radius
+        ok = np.abs(np.einsum("pc,pc->p", x - self.a[k], self.n[k])) <= r
+        for (p, _), d in zip(self.edges, self.inward):
+            ok &= np.einsum("pc,pc->p", x - p[k], d[k]) >= -r
+        return ok
 
 
 def edge_neighbours(triangles) -> np.ndarray:

@@ -27,6 +27,7 @@ kept whole and a dense one (a sculpt, a subdivided mesh) loses the most.
 """
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -40,6 +41,9 @@ __all__ = ["CaptureProxy", "simplify"]
 KEEP_WHOLE, KEEP_WHOLE_SHARE = 64, 0.01
 # Rounds of adjusting the cluster size towards the budget; each one is a clustering pass.
 ROUNDS, STALL = 4, 0.1
+# How many times a cell that another object's surface crosses is halved before its points
+# are kept as they are (see _cluster).
+CONTACT_LEVELS = 3
 
 
 @dataclass
@@ -215,6 +219,34 @@ class _Prepared:
         self.tri_area = 0.5 * length
         self.tri_normal = n / np.maximum(length, 1e-300)[:, None]
 
+    def triangles_in(self, lo, hi):
+        """The triangles whose boxes may reach the box ``lo, hi`` (more, not fewer): the
+        largest, and those of the others whose lowest X lies within the largest's size of it."""
+        huge, by_lo, lo_x, reach = self._by_lowest_x
+        slab = by_lo[np.searchsorted(lo_x, lo[0] - reach) : np.searchsorted(lo_x, hi[0], side="right")]
+        return np.concatenate([huge, slab])
+
+    @cached_property
+    def _by_lowest_x(self):
+        """The largest triangles (a hundredth of them: walls, floors), the others by their
+        boxes' lowest X, those X, and the others' largest size."""
+        reach = float(np.quantile(self.tri_extent, 0.99)) if len(self.tri_extent) else 0.0
+        huge = np.flatnonzero(self.tri_extent > reach)
+        rest = np.flatnonzero(self.tri_extent <= reach)
+        by_lo = rest[np.argsort(self.tri_lo[rest, 0], kind="stable")]
+        return huge, by_lo, self.tri_lo[by_lo, 0], reach
+
+    @cached_property
+    def corner_triangles(self):
+        """``(start (s,), count (s,))``: each point's triangles in :attr:`triangles_by_corner`."""
+        count = np.bincount(self.tris.ravel(), minlength=len(self.points))
+        return np.cumsum(count) - count, count
+
+    @cached_property
+    def triangles_by_corner(self):
+        """``(3t,)``: the triangles, listed under each of their corners, point by point."""
+        return np.argsort(self.tris.ravel(), kind="stable") // 3
+
 
 def _unique_rows(rows):
     """``np.unique(rows, axis=0, return_inverse=True)[1]`` for non-negative int rows, through
@@ -232,10 +264,22 @@ def _cluster(prep, cell):
     h = cell[owner]
     whole = h <= 0
     ijk = np.where(whole[:, None], 0, np.floor(rel / np.where(whole, 1.0, h)[:, None])).astype(np.int64)
-    whole = whole | _contact(prep, cell, ijk)
+    # A cell another object's surface runs across is halved, CONTACT_LEVELS times, each half
+    # asked again; the points whose finest cell is still crossed are kept as they are.
+    level = np.zeros(s, dtype=np.int64)
+    touching, within = _contact(prep, cell, ijk)
+    for k in range(1, CONTACT_LEVELS + 1):
+        if not touching.any():
+            break
+        level[touching] = k
+        h = np.where(touching, 0.5 * h, h)
+        ijk[touching] = np.floor(rel[touching] / h[touching, None]).astype(np.int64)
+        touching, within = _contact(prep, cell / 2.0**k, ijk, touching, within)
+    whole = whole | touching
     h = np.where(whole, 0.0, h)
     # Points kept as they are are their own clusters (a row of their own each).
-    rows = np.concatenate([owner[:, None], np.where(whole[:, None], 0, ijk), np.where(whole, np.arange(s), 0)[:, None]], axis=1)
+    rows = np.concatenate([owner[:, None], level[:, None], np.where(whole[:, None], 0, ijk), np.where(whole, np.arange(s), 0)[:, None]],
+                          axis=1)
     ijk[whole] = 0
     cells = _unique_rows(rows)
     # Within a cell, the points facing away from the normal of its largest point are a
@@ -279,20 +323,26 @@ def _cluster(prep, cell):
 PARALLEL = 0.9
 
 
-def _contact(prep, cell, ijk):
-    """``(s,)`` bool: points of simplified objects whose cell (in their object's lattice)
+def _contact(prep, cell, ijk, which=None, within=None):
+    """``((s,) bool, within)``: points of simplified objects (``which (s,)`` bool: of those
+    alone) whose cell (in their object's lattice: ``cell`` per object, ``ijk`` per point)
     also holds another object's surface running across it: a wall's foot on a floor, a floor
-    under a wall. They are kept as they are, so that no cluster averages light from both
-    sides of another surface (a floor running under a wall between a lit and a dark room)
-    and nothing lifts off what it stands on. A surface lying along the cell's (a rug on a
-    floor) does not count: both are clustered, each on its own."""
+    under a wall. No cluster is made across such a cell, so that none averages light from
+    both sides of another surface (a floor running under a wall between a lit and a dark
+    room) and nothing lifts off what it stands on (see :func:`_cluster`). A surface lying
+    along the cell's (a rug on a floor) does not count: both are clustered, each on its own.
+
+    ``within``: per object, ``(points, triangles)`` of other objects that can cross its
+    cells, from the coarser level these cells halve (what this call returns, for its crossed
+    cells and their neighbours); None: all."""
     points, normals, owner, rel = prep.points, prep.normals, prep.owner, prep.rel
     out = np.zeros(len(points), dtype=bool)
     simplified = np.flatnonzero(cell > 0)
-    # The triangles larger than the smallest cell, once (few: a scene's walls and floors).
-    larger = np.flatnonzero(prep.tri_extent > cell[simplified].min()) if len(simplified) else np.zeros(0, dtype=np.int64)
+    finer = {}
     for obj in simplified:
-        mine = prep.members[obj]
+        mine = prep.members[obj] if which is None else prep.members[obj][which[prep.members[obj]]]
+        if not len(mine) or (within is not None and obj not in within):
+            continue
         h = cell[obj]
         lo, hi = points[mine].min(axis=0) - h, points[mine].max(axis=0) + h
         base = ijk[mine].min(axis=0) - 1
@@ -301,8 +351,14 @@ def _contact(prep, cell, ijk):
         cells, first = np.unique(key, return_index=True)
         cell_normal = normals[mine[first]]
         # Other objects' points in this object's cells, across the cell's surface.
-        near = prep.by_x[np.searchsorted(prep.xs, lo[0]) : np.searchsorted(prep.xs, hi[0], side="right")]
-        near = near[(owner[near] != obj) & np.all((points[near] >= lo) & (points[near] <= hi), axis=1)]
+        if within is None:
+            near = prep.by_x[np.searchsorted(prep.xs, lo[0]) : np.searchsorted(prep.xs, hi[0], side="right")]
+            near = near[owner[near] != obj]
+            big = prep.triangles_in(lo, hi)
+            big = big[prep.tri_owner[big] != obj]
+        else:
+            near, big = within[obj]
+        near = near[np.all((points[near] >= lo) & (points[near] <= hi), axis=1)]
         theirs = np.floor(rel[near] / h).astype(np.int64) - base
         inside = np.all((theirs >= 0) & (theirs < shape), axis=1)
         near, theirs = near[inside], np.ravel_multi_index(theirs[inside].T, shape)
@@ -313,15 +369,37 @@ def _contact(prep, cell, ijk):
         touched = np.zeros(len(cells), dtype=bool)
         touched[at[found][across]] = True
         # Other objects' triangles larger than a cell, whose vertices may lie far outside.
-        big = larger[(prep.tri_owner[larger] != obj) & (prep.tri_extent[larger] > h)]
+        big = big[prep.tri_extent[big] > h]
         big = big[np.all(prep.tri_lo[big] <= hi, axis=1) & np.all(prep.tri_hi[big] >= lo, axis=1)]
         if len(big):
             centres = points[mine[first]] - rel[mine[first]] + (ijk[mine[first]] + 0.5) * h
             c = points[prep.tris[big]]
             touched |= near_any_triangle(centres, 0.5 * np.sqrt(3.0) * h, c[:, 0], c[:, 1], c[:, 2],
                                          centre_normals=cell_normal, across=PARALLEL)
-        out[mine[np.isin(key, cells[touched])]] = True
-    return out
+        if touched.any():
+            out[mine[np.isin(key, cells[touched])]] = True
+            finer[obj] = _finer_candidates(prep, obj, near, theirs, cells[touched], shape, big, h)
+    return out, finer
+
+
+def _finer_candidates(prep, obj, near, theirs, crossed, shape, big, h):
+    """What can cross the halves of an object's ``crossed`` cells (keys in a lattice of
+    ``shape``, edge ``h``): the other objects' points ``near`` (their keys ``theirs``) in
+    those cells or next to them, and the triangles larger than a half: ``big`` (those
+    larger than a cell) and those with a corner among those points (a triangle no larger
+    than a cell that crosses one has its corners in it or next to it)."""
+    steps = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    around = np.array(np.unravel_index(crossed, shape)).T[:, None, :] + steps[None]
+    ok = np.all((around >= 0) & (around < shape), axis=2)
+    around = np.unique(np.ravel_multi_index(around[ok].T, shape))
+    near = near[np.isin(theirs, around)]
+    start, count = prep.corner_triangles
+    at = start[near]
+    length = count[near]
+    tris = np.repeat(at - np.cumsum(length) + length, length) + np.arange(int(length.sum()))
+    tris = prep.triangles_by_corner[tris]
+    tris = tris[(prep.tri_owner[tris] != obj) & (prep.tri_extent[tris] > 0.5 * h)]
+    return near, np.union1d(big, tris)
 
 
 # Quadric placement: directions whose curvature is below this share of a cluster's largest

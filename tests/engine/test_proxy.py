@@ -4,7 +4,7 @@ surfaces move, thin parts kept apart, nothing turned over, radiance averaged by 
 import numpy as np
 import pytest
 
-from cubegi.cubegi_engine.proxy import KEEP_WHOLE, simplify
+from cubegi.cubegi_engine.proxy import CONTACT_LEVELS, KEEP_WHOLE, simplify
 from cubegi.cubegi_engine.scene import SceneArrays
 
 
@@ -125,6 +125,48 @@ def test_a_dense_floor_under_a_thin_wall_is_not_averaged_across_it():
     assert wall[:, 2].min() == pytest.approx(0.0, abs=1e-12)
 
 
+def test_only_the_finest_cells_a_wall_crosses_keep_their_points_as_they_are():
+    """A cell of the floor that the wall crosses is halved CONTACT_LEVELS times: the floor
+    points kept as they are (alone in their clusters, where a finest cell holds several
+    points) lie within about a finest cell of the wall, not a whole cell (a subdivided
+    room's walls' feet held most of its capture), and no floor cluster takes in points from
+    both sides of it."""
+    front = _plane((0.0, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20)
+    back = _plane((-0.02, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20, flip=True)
+    floor = _plane((-1.0, 0.0, 0.0), (2.0, 0, 0), (0, 1.0, 0), 200)  # 1 cm apart: 80,000 triangles
+    scene = _scene([(0, front), (0, back), (1, floor)])
+    proxy = simplify(scene, 150)
+    finest = proxy.cell[1] / 2**CONTACT_LEVELS
+    assert finest > 0.015  # several floor points in each finest cell
+    on_floor = scene.point_object == 1
+    alone = on_floor & (np.bincount(proxy.cluster)[proxy.cluster] == 1)
+    x = scene.points[alone, 0]
+    assert alone.any() and np.all((x >= -0.02 - 1.5 * finest) & (x <= 1.5 * finest))
+    left = on_floor & (scene.points[:, 0] < -0.02)
+    right = on_floor & (scene.points[:, 0] > 0.0)
+    assert not np.intersect1d(proxy.cluster[left], proxy.cluster[right]).size
+
+
+def test_finer_cells_ask_only_what_crossed_the_coarser_ones(monkeypatch):
+    """The halves of a crossed cell are tested against only the points and triangles that
+    could cross them (those of the crossed cells and their neighbours, and the triangles
+    larger than a half): the same clusters as testing every other object again."""
+    from cubegi.cubegi_engine import proxy as proxy_mod
+
+    front = _plane((0.0, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20)
+    back = _plane((-0.02, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20, flip=True)
+    floor = _plane((-1.0, 0.0, 0.0), (2.0, 0, 0), (0, 1.0, 0), 120)
+    # A tilted board leaning on the wall, across the floor's cells, with large triangles.
+    board = _plane((0.3, 0.0, 0.0), (-0.25, 0, 0.6), (0, 0.8, 0), 6)
+    scene = _scene([(0, front), (0, back), (1, floor), (2, board)])
+    pruned = simplify(scene, 150)
+    contact = proxy_mod._contact
+    monkeypatch.setattr(proxy_mod, "_contact", lambda prep, cell, ijk, which=None, within=None: contact(prep, cell, ijk, which))
+    every = simplify(scene, 150)
+    assert np.array_equal(pruned.cluster, every.cluster) and np.array_equal(pruned.triangles, every.triangles)
+    assert len(np.unique(pruned.cluster[scene.point_object == 1])) < (scene.point_object == 1).sum() / 4
+
+
 def test_near_any_triangle_is_conservative():
     from cubegi.cubegi_engine.geometry import near_any_triangle
 
@@ -139,6 +181,7 @@ def test_near_any_triangle_is_conservative():
     pts = rng.uniform(-1.5, 1.5, (1500, 3))
     r = 0.15
     got = near_any_triangle(pts, r, a, b, c, tiles=5)
+    assert np.array_equal(got, near_any_triangle(pts, r, a, b, c, tiles=1))  # each tile gets every triangle near it
     # Distances by dense sampling of each triangle (an upper bound on the true distance).
     u, v = np.meshgrid(np.linspace(0, 1, 41), np.linspace(0, 1, 41))
     inside = (u + v) <= 1

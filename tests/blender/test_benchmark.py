@@ -52,9 +52,10 @@ def test_quick_benchmark_writes_results_for_both_methods(tmp_path):
     assert all(f.endswith("-cycles-256spp.npz") for f in cached if "-surfaces-" in f)
 
 
-def test_quick_scaling_benchmark_writes_both_sweeps(tmp_path):
+def test_quick_scaling_benchmark_writes_both_sweeps(tmp_path, cubegi):
     """``benchmark --scaling --quick``: each bake in a process of its own, the JSON with both
-    sweeps (more vertices take longer; more probes capture more), the fits and the plot."""
+    sweeps (more vertices take longer; more probes capture more) and the real scene's where
+    the public scenes are here, the fits and the plot."""
     r = subprocess.run(
         [sys.executable, "-m", "cubegi_engine", "benchmark", "--scaling", "--quick", "--out", str(tmp_path)],
         cwd=ROOT, capture_output=True, text=True, timeout=600,
@@ -70,6 +71,14 @@ def test_quick_scaling_benchmark_writes_both_sweeps(tmp_path):
         assert 0 < rec["longest_step_seconds"] < rec["seconds"] and rec["longest_step_after"]  # as the modal bake steps it
     assert set(data["fits"]) == {"seconds_vs_vertices", "seconds_vs_probes"}
     assert (tmp_path / "scaling.png").stat().st_size > 10_000
+    from benchmarks.public_scenes import scenes_dir
+
+    if scenes_dir() is None:
+        assert data["real"] == [] and "left out" in r.stdout + r.stderr
+    else:
+        (real,) = data["real"]
+        assert real["scene"] == "breakfast_room" and real["vertices"] > 100_000 and real["timings"]["capture"] > 0
+        assert real["capture_triangles"] < real["triangles"]  # simplified for the probes
 
 
 def test_scaling_helpers(cubegi):

@@ -29,7 +29,7 @@ import numpy as np
 
 from . import sh
 from .geometry import sorted_unique
-from .spatial import VoxelIndex
+from .spatial import VoxelIndex, corners_of
 from .transport import INSIDE_BACKFACE_SHARE as INSIDE_SHARE  # the capture's own test, asked first
 
 __all__ = ["Placement", "place", "trace", "inside", "PROBE_RAYS", "PROBE_REACH", "INSIDE_SHARE", "MAX_SHIFT", "MARGIN", "BEYOND"]
@@ -98,8 +98,9 @@ def place(grid, triangles_points, triangles, candidates=None) -> Placement:
     if not len(triangles) or not keep.any():
         return Placement(keep, displacement, 0, 0, time.perf_counter() - t0)
     cell = grid.point_cell_edge(positions)
-    a, b, c = (np.asarray(triangles_points, dtype=np.float64)[triangles[:, k]] for k in range(3))
-    index = VoxelIndex(a, b, c, float(np.min(cell)) * PROBE_REACH)
+    points = np.asarray(triangles_points, dtype=np.float64)
+    corners = corners_of(points, np.asarray(triangles))
+    index = VoxelIndex(corners.a, corners.b, corners.c, float(np.min(cell)) * PROBE_REACH, corners=corners)
     dirs = _rays()
     asked = np.flatnonzero(keep)
     t, back = trace(positions[asked], index, cell[asked], dirs)

@@ -3,12 +3,13 @@ against them: the near field's rays (:mod:`cubegi_engine.nearfield`) and the pro
 placement (:mod:`cubegi_engine.placement`). Pure numpy; must not import bpy."""
 
 import functools
+import weakref
 
 import numpy as np
 
 from .geometry import chunks, in_pieces, planes_of, ray_cut, sorted_unique
 
-__all__ = ["VoxelIndex", "voxel_index", "forget_indexes", "resting", "intersect_pairs",
+__all__ = ["VoxelIndex", "Corners", "corners_of", "voxel_index", "forget_indexes", "resting", "intersect_pairs",
            "over_triangles", "SLACK", "COORD_SLACK", "BARY_SLACK", "MAX_NEARBY"]
 
 # Segments whose voxels are listed at a time, points whose candidate voxels are (27 voxels
@@ -54,23 +55,26 @@ def intersect_pairs(o, d, planes, reach, start):
     return t, u, v, hit, front
 
 
-class VoxelIndex:
-    """Triangles ``a, b, c`` listed in the voxels (edge ``voxel``) their boxes overlap;
-    ``sheets``: the scene's two-sided objects (see :func:`cubegi_engine.nearfield.build`)."""
+class Corners:
+    """Triangles' corners ``a, b, c`` (each ``(t, 3)``) and what the voxel indexes' tests ask
+    of each triangle, made when first asked (a scene whose every point is crowded never
+    does) and shared by every index of the same triangles (see :func:`voxel_index`)."""
 
-    def __init__(self, a, b, c, voxel, sheets=None):
+    def __init__(self, a, b, c):
         self.a, self.b, self.c = a, b, c
-        self.sheets = sheets
-        self.centre = (a + b + c) / 3.0
-        self.lo = lo = np.minimum(np.minimum(a, b), c)
-        self.hi = hi = np.maximum(np.maximum(a, b), c)
-        self.origin = lo.min(axis=0) - voxel
-        self.h = max(voxel, float(np.max(hi.max(axis=0) - lo.min(axis=0))) / 256.0, 1e-12)
-        self.dims = np.floor((hi.max(axis=0) - self.origin) / self.h).astype(np.int64) + 3
-        self._made_list = False  # tri, keys, start, end, content_lo, content_hi made (_list)
 
-    # What the exact tests ask of each triangle, made when first asked (a scene whose every
-    # point is crowded never does).
+    @functools.cached_property
+    def centre(self):
+        return (self.a + self.b + self.c) / 3.0
+
+    @functools.cached_property
+    def lo(self):
+        return np.minimum(np.minimum(self.a, self.b), self.c)
+
+    @functools.cached_property
+    def hi(self):
+        return np.maximum(np.maximum(self.a, self.b), self.c)
+
     @functools.cached_property
     def radius(self):
         """``(t,)`` each triangle's bounding sphere about its centre."""
@@ -91,6 +95,27 @@ class VoxelIndex:
     def planes(self):
         """``(t, 4, 3)``: :func:`~.geometry.planes_of` each triangle."""
         return planes_of(self.a, self.b, self.c)
+
+
+class VoxelIndex:
+    """Triangles ``a, b, c`` listed in the voxels (edge ``voxel``) their boxes overlap;
+    ``sheets``: the scene's two-sided objects (see :func:`cubegi_engine.nearfield.build`);
+    ``corners``: a :class:`Corners` of the same triangles to share (what each triangle's
+    tests ask is then made once for every index of them)."""
+
+    def __init__(self, a, b, c, voxel, sheets=None, corners=None):
+        self.corners = corners if corners is not None else Corners(a, b, c)
+        self.sheets = sheets
+        lo, hi = self.lo, self.hi
+        self.origin = lo.min(axis=0) - voxel
+        self.h = max(voxel, float(np.max(hi.max(axis=0) - lo.min(axis=0))) / 256.0, 1e-12)
+        self.dims = np.floor((hi.max(axis=0) - self.origin) / self.h).astype(np.int64) + 3
+        self._made_list = False  # tri, keys, start, end, content_lo, content_hi made (_list)
+
+    def __getattr__(self, name):
+        if name in ("a", "b", "c", "centre", "lo", "hi", "radius", "unit", "offset", "planes"):
+            return getattr(self.corners, name)
+        raise AttributeError(name)
 
     def _list(self):
         """List each triangle in the voxels its box overlaps (once)."""
@@ -330,15 +355,40 @@ def voxel_index(points, tri, a, b, c, voxel, sheets=None, keep=True):
     under covered points twice, :func:`resting` three times); the arrays are held while it is
     kept, so their addresses name them. ``keep=False``: one no later step asks for (the
     near field's own), not kept."""
-    key = (points.__array_interface__["data"][0], points.shape, tri.__array_interface__["data"][0], tri.shape,
-           float(voxel), id(sheets))
+    arrays = (points.__array_interface__["data"][0], points.shape, tri.__array_interface__["data"][0], tri.shape)
+    key = arrays + (float(voxel), id(sheets))
     for entry in _INDEXES:
         if entry[0] == key:
             return entry[2]
-    index = VoxelIndex(a, b, c, voxel, sheets)
+    index = VoxelIndex(a, b, c, voxel, sheets, corners_of(points, tri, a, b, c))
     if keep:
         _INDEXES[:] = [(key, (points, tri, sheets), index)] + _INDEXES[: INDEXES_KEPT - 1]
     return index
+
+
+# The triangles' corners that voxel indexes share: [(key, weak reference to the Corners)].
+_CORNERS: list = []
+
+
+def corners_of(points, tri, a=None, b=None, c=None):
+    """The :class:`Corners` of ``tri (t, 3)`` over ``points``, shared while an index (or
+    anything else) holds it: the near field's index, the ones :func:`resting` asks and the
+    probes' placement's list the same triangles at other voxel sizes (a subdivided Breakfast
+    Room's 2.1M triangles' planes were made four times). It holds the arrays, so their
+    addresses name them while it lives; nothing is kept for its own sake (a million
+    triangles' corners and planes are hundreds of MB). ``a, b, c``: the corners, where made."""
+    key = (points.__array_interface__["data"][0], points.shape, tri.__array_interface__["data"][0], tri.shape)
+    _CORNERS[:] = [entry for entry in _CORNERS if entry[1]() is not None]
+    for entry_key, ref in _CORNERS:
+        corners = ref()
+        if entry_key == key and corners is not None:
+            return corners
+    if a is None:
+        a, b, c = (points[tri[:, k]] for k in range(3))
+    corners = Corners(a, b, c)
+    corners.arrays = (points, tri)
+    _CORNERS.append((key, weakref.ref(corners)))
+    return corners
 
 
 def resting(points, normals, triangles, scale, which, sheets=None, at=None):

@@ -277,11 +277,13 @@ def _cluster(prep, cell):
         touching, within = _contact(prep, cell / 2.0**k, ijk, touching, within)
     whole = whole | touching
     h = np.where(whole, 0.0, h)
-    # Points kept as they are are their own clusters (a row of their own each).
-    rows = np.concatenate([owner[:, None], level[:, None], np.where(whole[:, None], 0, ijk), np.where(whole, np.arange(s), 0)[:, None]],
-                          axis=1)
+    # Points kept as they are are their own clusters (numbered after the cells: one key of
+    # every point's row would pass 64 bits and take the slow unique of whole rows).
     ijk[whole] = 0
-    cells = _unique_rows(rows)
+    cells = np.empty(s, dtype=np.int64)
+    grouped = ~whole
+    cells[grouped] = _unique_rows(np.concatenate([owner[grouped, None], level[grouped, None], ijk[grouped]], axis=1))
+    cells[whole] = (cells[grouped].max() + 1 if grouped.any() else 0) + np.arange(int(whole.sum()))
     # Within a cell, the points facing away from the normal of its largest point are a
     # cluster of their own: a thin wall's (or a rug's) two faces stay apart, while a floor and
     # a wall meeting in the cell are joined (no slit between them for a probe to see through).

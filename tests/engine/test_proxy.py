@@ -147,18 +147,31 @@ def test_only_the_finest_cells_a_wall_crosses_keep_their_points_as_they_are():
     assert not np.intersect1d(proxy.cluster[left], proxy.cluster[right]).size
 
 
-def test_finer_cells_ask_only_what_crossed_the_coarser_ones(monkeypatch):
+# Three small upright triangles through the floor near the wall (each smaller than a floor
+# cell: one that crosses a cell with no corner in it has its corners in the cells around).
+PEGS = [[[-0.09, 0.531, 0.017], [-0.023, 0.483, 0.017], [-0.056, 0.507, 0.096]],
+        [[-0.261, 0.165, -0.078], [-0.168, 0.283, -0.078], [-0.215, 0.224, 0.042]],
+        [[-0.246, 0.319, -0.014], [-0.129, 0.465, -0.014], [-0.187, 0.392, 0.128]]]
+
+
+@pytest.mark.parametrize("leaning", ["board", "pegs"])
+def test_finer_cells_ask_only_what_crossed_the_coarser_ones(monkeypatch, leaning):
     """The halves of a crossed cell are tested against only the points and triangles that
-    could cross them (those of the crossed cells and their neighbours, and the triangles
-    larger than a half): the same clusters as testing every other object again."""
+    could cross them (those of the crossed cells and the cells around them, and the
+    triangles larger than a half): the same clusters as testing every other object again."""
     from cubegi.cubegi_engine import proxy as proxy_mod
 
     front = _plane((0.0, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20)
     back = _plane((-0.02, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20, flip=True)
     floor = _plane((-1.0, 0.0, 0.0), (2.0, 0, 0), (0, 1.0, 0), 120)
-    # A tilted board leaning on the wall, across the floor's cells, with large triangles.
-    board = _plane((0.3, 0.0, 0.0), (-0.25, 0, 0.6), (0, 0.8, 0), 6)
-    scene = _scene([(0, front), (0, back), (1, floor), (2, board)])
+    parts = [(0, front), (0, back), (1, floor)]
+    if leaning == "board":  # a tilted board leaning on the wall, across the floor's cells
+        parts.append((2, _plane((0.3, 0.0, 0.0), (-0.25, 0, 0.6), (0, 0.8, 0), 6)))
+    else:
+        for k, corners in enumerate(np.array(PEGS)):
+            normal = np.cross(corners[1] - corners[0], corners[2] - corners[0])
+            parts.append((2 + k, (corners, np.array([[0, 1, 2]]), np.tile(normal / np.linalg.norm(normal), (3, 1)))))
+    scene = _scene(parts)
     pruned = simplify(scene, 150)
     contact = proxy_mod._contact
     monkeypatch.setattr(proxy_mod, "_contact", lambda prep, cell, ijk, which=None, within=None: contact(prep, cell, ijk, which))

@@ -44,6 +44,8 @@ ROUNDS, STALL = 4, 0.1
 # How many times a cell that another object's surface crosses is halved before its points
 # are kept as they are (see _cluster).
 CONTACT_LEVELS = 3
+# How many cells around a crossed one hold what can cross its halves (see _finer_candidates).
+AROUND = 2
 
 
 @dataclass
@@ -346,9 +348,11 @@ def _contact(prep, cell, ijk, which=None, within=None):
         if not len(mine) or (within is not None and obj not in within):
             continue
         h = cell[obj]
-        lo, hi = points[mine].min(axis=0) - h, points[mine].max(axis=0) + h
-        base = ijk[mine].min(axis=0) - 1
-        shape = ijk[mine].max(axis=0) - base + 2
+        # The box and lattice reach AROUND cells past the object's own: what can cross the
+        # halves of its cells (see _finer_candidates).
+        lo, hi = points[mine].min(axis=0) - (AROUND + 1) * h, points[mine].max(axis=0) + (AROUND + 1) * h
+        base = ijk[mine].min(axis=0) - AROUND
+        shape = ijk[mine].max(axis=0) - base + AROUND + 1
         key = np.ravel_multi_index((ijk[mine] - base).T, shape)
         cells, first = np.unique(key, return_index=True)
         cell_normal = normals[mine[first]]
@@ -387,10 +391,13 @@ def _contact(prep, cell, ijk, which=None, within=None):
 def _finer_candidates(prep, obj, near, theirs, crossed, shape, big, h):
     """What can cross the halves of an object's ``crossed`` cells (keys in a lattice of
     ``shape``, edge ``h``): the other objects' points ``near`` (their keys ``theirs``) in
-    those cells or next to them, and the triangles larger than a half: ``big`` (those
-    larger than a cell) and those with a corner among those points (a triangle no larger
-    than a cell that crosses one has its corners in it or next to it)."""
-    steps = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    those cells or up to AROUND cells from them, and the triangles larger than a half:
+    ``big`` (those larger than a cell) and those with a corner among those points. A
+    triangle no larger than a cell (its box at most ``h`` along each axis) that passes
+    :func:`~.geometry.near_any_triangle` for a half's centre has that centre within its box
+    grown by the half's radius (0.43 h), so each of its corners lies within 1.43 h of the
+    crossed cell along each axis: within AROUND = 2 cells."""
+    steps = np.stack(np.meshgrid(*[np.arange(-AROUND, AROUND + 1)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
     around = np.array(np.unravel_index(crossed, shape)).T[:, None, :] + steps[None]
     ok = np.all((around >= 0) & (around < shape), axis=2)
     around = np.unique(np.ravel_multi_index(around[ok].T, shape))

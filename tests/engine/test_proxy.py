@@ -180,6 +180,31 @@ def test_finer_cells_ask_only_what_crossed_the_coarser_ones(monkeypatch, leaning
     assert len(np.unique(pruned.cluster[scene.point_object == 1])) < (scene.point_object == 1).sum() / 4
 
 
+def test_a_triangle_past_an_objects_last_points_is_asked_by_the_finer_cells(monkeypatch):
+    """A cell at the edge of a floor, crossed (by a pin), and an upright triangle no larger
+    than a cell whose corners all lie past the floor's last points: it crosses a half of that
+    cell, and the halves' pruned candidates include it (the same clusters as asking every
+    other object)."""
+    from cubegi.cubegi_engine import proxy as proxy_mod
+
+    floor = _plane((0.0, 0.0, 0.0), (1.0, 0, 0), (0, 1.0, 0), 100)
+    pin = np.array([[0.999, 0.5, 0.0005], [0.999, 0.501, 0.0005], [0.999, 0.5, 0.0015]])
+    h = 0.08
+    upright = np.array([[1.0 + 1.01 * h, 0.51, 0.01 * h], [1.0 + 0.02 * h, 0.51, 1.01 * h], [1.0 + 1.01 * h, 0.51 + 0.5 * h, 1.01 * h]])
+    parts = [(0, floor), (1, (pin, np.array([[0, 1, 2]]), np.tile([1.0, 0, 0], (3, 1))))]
+    normal = np.cross(upright[1] - upright[0], upright[2] - upright[0])
+    parts.append((2, (upright, np.array([[0, 1, 2]]), np.tile(normal / np.linalg.norm(normal), (3, 1)))))
+    scene = _scene(parts)
+    prep = proxy_mod._Prepared(scene.points, scene.normals, scene.triangles, scene.point_object, 3, np.ones(len(scene.points)))
+    assert prep.tri_extent[-1] <= h and np.all(upright[:, 0] > scene.points[scene.point_object == 0, 0].max())
+    cell = np.array([h, 0.0, 0.0])  # the floor clustered 8 cm wide, the others kept whole
+    pruned = proxy_mod._cluster(prep, cell)
+    contact = proxy_mod._contact
+    monkeypatch.setattr(proxy_mod, "_contact", lambda prep, cell, ijk, which=None, within=None: contact(prep, cell, ijk, which))
+    every = proxy_mod._cluster(prep, cell)
+    assert np.array_equal(pruned.cluster, every.cluster)
+
+
 def test_near_any_triangle_is_conservative():
     from cubegi.cubegi_engine.geometry import near_any_triangle
 

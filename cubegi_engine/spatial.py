@@ -355,8 +355,7 @@ def voxel_index(points, tri, a, b, c, voxel, sheets=None, keep=True):
     under covered points twice, :func:`resting` three times); the arrays are held while it is
     kept, so their addresses name them. ``keep=False``: one no later step asks for (the
     near field's own), not kept."""
-    arrays = (points.__array_interface__["data"][0], points.shape, tri.__array_interface__["data"][0], tri.shape)
-    key = arrays + (float(voxel), id(sheets))
+    key = _arrays_key(points, tri) + (float(voxel), id(sheets))
     for entry in _INDEXES:
         if entry[0] == key:
             return entry[2]
@@ -364,6 +363,12 @@ def voxel_index(points, tri, a, b, c, voxel, sheets=None, keep=True):
     if keep:
         _INDEXES[:] = [(key, (points, tri, sheets), index)] + _INDEXES[: INDEXES_KEPT - 1]
     return index
+
+
+def _arrays_key(*arrays):
+    """What names arrays held alive: their memory's address, shape, type and strides (two
+    views of one buffer differ in one of them)."""
+    return tuple((a.__array_interface__["data"][0], a.shape, a.dtype.str, a.strides) for a in arrays)
 
 
 # The triangles' corners that voxel indexes share: [(key, weak reference to the Corners)].
@@ -377,7 +382,7 @@ def corners_of(points, tri, a=None, b=None, c=None):
     Room's 2.1M triangles' planes were made four times). It holds the arrays, so their
     addresses name them while it lives; nothing is kept for its own sake (a million
     triangles' corners and planes are hundreds of MB). ``a, b, c``: the corners, where made."""
-    key = (points.__array_interface__["data"][0], points.shape, tri.__array_interface__["data"][0], tri.shape)
+    key = _arrays_key(points, tri)
     _CORNERS[:] = [entry for entry in _CORNERS if entry[1]() is not None]
     for entry_key, ref in _CORNERS:
         corners = ref()

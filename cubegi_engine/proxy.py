@@ -337,8 +337,8 @@ def _contact(prep, cell, ijk, which=None, within=None):
     along the cell's (a rug on a floor) does not count: both are clustered, each on its own.
 
     ``within``: per object, ``(points, triangles)`` of other objects that can cross its
-    cells, from the coarser level these cells halve (what this call returns, for its crossed
-    cells and their neighbours); None: all."""
+    cells, from the coarser level these cells halve (what this call returns for its crossed
+    cells: see :func:`_finer_candidates`); None: all."""
     points, normals, owner, rel = prep.points, prep.normals, prep.owner, prep.rel
     out = np.zeros(len(points), dtype=bool)
     simplified = np.flatnonzero(cell > 0)

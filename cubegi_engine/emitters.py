@@ -25,6 +25,7 @@ import numpy as np
 from . import cubemap
 from . import lights as lights_mod
 from .cubemap import capture_cubes, clip_planes
+from .geometry import run_offsets
 
 __all__ = ["emissive_triangles", "emitter_direct", "trapped_light", "TrappedLight", "SAMPLES"]
 
@@ -282,8 +283,7 @@ def _samples(verts, radiance, count):
         keep = np.flatnonzero(power > 0)
         per = np.maximum(1, np.floor(count * power[keep] / power.sum()).astype(np.int64))
         tri = np.repeat(keep, per)
-        first = np.repeat(np.cumsum(per) - per, per)
-        k = np.arange(len(tri)) - first
+        k = run_offsets(per)
         m = per[np.repeat(np.arange(len(keep)), per)]
         r, t = np.sqrt((k + 0.5) / m), (_radical_inverse(k) + 0.5 / m) % 1.0
         b1, b2 = r * (1.0 - t), r * t  # the square onto the triangle, area kept

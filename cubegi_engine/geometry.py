@@ -6,8 +6,8 @@ import numpy as np
 
 from . import working
 
-__all__ = ["sorted_unique", "triangle_planes", "planes_of", "ray_cut", "cut_planes", "cut_triangles", "near_any_triangle", "edge_neighbours",
-           "chunks", "POINT_CHUNK", "GRAZING", "twin_triangles", "mix64", "position_hash", "corner_box"]
+__all__ = ["sorted_unique", "run_offsets", "triangle_planes", "planes_of", "ray_cut", "cut_planes", "cut_triangles", "near_any_triangle",
+           "edge_neighbours", "chunks", "POINT_CHUNK", "GRAZING", "twin_triangles", "mix64", "position_hash", "corner_box"]
 
 # Per-point tests that make several (s, 9, 3) float64 arrays run this many points at a time:
 # a million points then need tens of megabytes, not gigabytes, and stay in cache.
@@ -55,6 +55,13 @@ def sorted_unique(keys):
     millions of keys)."""
     keys = np.sort(keys, kind="stable")
     return keys[np.concatenate([[True], keys[1:] != keys[:-1]])] if len(keys) else keys
+
+
+def run_offsets(count):
+    """``(sum(count),)``: ``0 .. count[i] - 1`` for each run ``i``, one run after another (with
+    ``np.repeat(start, count)``, the indices of every run ``start[i] ..``)."""
+    count = np.asarray(count, dtype=np.int64)
+    return np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
 
 
 def corner_box(corners):
@@ -158,7 +165,7 @@ def near_any_triangle(centres, radius, a, b, c, tiles=8, centre_normals=None, ac
     span = np.maximum(np.clip(np.floor((tri.box_hi - lo) / edge), -1, shape - 1).astype(np.int64) - first + 1, 0)
     count = np.prod(span, axis=1)
     k = np.repeat(np.arange(len(count)), count)
-    step = np.arange(len(k)) - np.repeat(np.cumsum(count) - count, count)
+    step = run_offsets(count)
     at = first[k] + np.stack([step % span[k, 0], (step // span[k, 0]) % span[k, 1], step // (span[k, 0] * span[k, 1])], axis=1)
     tiles_at = np.searchsorted(np.ravel_multi_index(ids.T, shape), np.ravel_multi_index(at.T, shape))
     occupied = np.all(ids[np.minimum(tiles_at, len(ids) - 1)] == at, axis=1)

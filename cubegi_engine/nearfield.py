@@ -302,8 +302,7 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     asked = np.arange(s) if which is None else np.flatnonzero(which)
     if not len(asked) or not len(tri) or not np.all(np.isfinite(reach[asked])) or reach[asked].max() <= 0:
         return NearField.empty(rays, seconds=time.perf_counter() - t0)
-    a, b, c = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]
-    index = voxel_index(points, tri, a, b, c, float(reach[asked].max()), sheets, keep_index)
+    index = voxel_index(points, tri, float(reach[asked].max()), sheets, keep_index)
     found = _candidate_pairs(index, points, normals, reach, asked, sheets, max_pairs,
                              None if owner is None else np.asarray(owner, dtype=np.int64))
     if isinstance(found, str):

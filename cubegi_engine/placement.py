@@ -98,9 +98,8 @@ def place(grid, triangles_points, triangles, candidates=None) -> Placement:
     if not len(triangles) or not keep.any():
         return Placement(keep, displacement, 0, 0, time.perf_counter() - t0)
     cell = grid.point_cell_edge(positions)
-    points = np.asarray(triangles_points, dtype=np.float64)
-    corners = corners_of(points, np.asarray(triangles))
-    index = VoxelIndex(corners.a, corners.b, corners.c, float(np.min(cell)) * PROBE_REACH, corners=corners)
+    index = VoxelIndex.over(corners_of(np.asarray(triangles_points, dtype=np.float64), np.asarray(triangles)),
+                            float(np.min(cell)) * PROBE_REACH)
     dirs = _rays()
     asked = np.flatnonzero(keep)
     t, back = trace(positions[asked], index, cell[asked], dirs)

@@ -31,7 +31,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .geometry import corner_box, near_any_triangle
+from .geometry import corner_box, near_any_triangle, run_offsets
 
 __all__ = ["CaptureProxy", "simplify"]
 
@@ -121,11 +121,7 @@ def simplify(scene, budget) -> CaptureProxy | None:
     prep = _Prepared(points, np.asarray(scene.normals, dtype=np.float64), tris, owner, objects, scene.point_areas())
     tri_count = np.bincount(prep.tri_owner, minlength=objects)
     area = np.bincount(prep.tri_owner, prep.tri_area, minlength=objects)
-    modelled = tri_count.copy()
-    if sampled is not None:
-        k = min(len(sampled), objects)
-        modelled[:k] -= np.asarray(sampled, dtype=np.int64)[:k]
-    simplified = modelled > max(KEEP_WHOLE, KEEP_WHOLE_SHARE * budget)
+    simplified = _modelled(tri_count, sampled) > max(KEEP_WHOLE, KEEP_WHOLE_SHARE * budget)
     kept_whole = int(tri_count[~simplified].sum())
     if kept_whole >= budget or not simplified.any():
         return None
@@ -192,13 +188,20 @@ def _front_budget(budget, one_sided, two_sided):
     hold of its triangles as modelled (those a cut added are added to it, see simplify)."""
     if budget is None or not len(one_sided.triangles):
         return budget
-    count = np.bincount(one_sided.point_object[one_sided.triangles[:, 0]], minlength=len(two_sided)).astype(np.int64)
-    sampled = getattr(one_sided, "sampled_triangles", None)
+    count = _modelled(np.bincount(one_sided.point_object[one_sided.triangles[:, 0]], minlength=len(two_sided)),
+                      getattr(one_sided, "sampled_triangles", None))
+    share = float(count[two_sided[: len(count)]].sum()) / max(int(count.sum()), 1)
+    return int(round(int(budget) / (1.0 + share)))
+
+
+def _modelled(count, sampled):
+    """Each object's triangles as modelled: ``count (objects,)`` less those that cutting long
+    ones for the bake added (``sampled``, per object, or None)."""
+    count = np.asarray(count, dtype=np.int64).copy()
     if sampled is not None:
         k = min(len(sampled), len(count))
         count[:k] = np.maximum(count[:k] - np.asarray(sampled, dtype=np.int64)[:k], 0)
-    share = float(count[two_sided[: len(count)]].sum()) / max(int(count.sum()), 1)
-    return int(round(int(budget) / (1.0 + share)))
+    return count
 
 
 class _Prepared:
@@ -403,10 +406,7 @@ def _finer_candidates(prep, obj, near, theirs, crossed, shape, big, h):
     around = np.unique(np.ravel_multi_index(around[ok].T, shape))
     near = near[np.isin(theirs, around)]
     start, count = prep.corner_triangles
-    at = start[near]
-    length = count[near]
-    tris = np.repeat(at - np.cumsum(length) + length, length) + np.arange(int(length.sum()))
-    tris = prep.triangles_by_corner[tris]
+    tris = prep.triangles_by_corner[np.repeat(start[near], count[near]) + run_offsets(count[near])]
     tris = tris[(prep.tri_owner[tris] != obj) & (prep.tri_extent[tris] > 0.5 * h)]
     return near, np.union1d(big, tris)
 

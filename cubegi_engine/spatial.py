@@ -7,7 +7,7 @@ import weakref
 
 import numpy as np
 
-from .geometry import chunks, in_pieces, planes_of, ray_cut, sorted_unique
+from .geometry import chunks, in_pieces, planes_of, ray_cut, run_offsets, sorted_unique
 
 __all__ = ["VoxelIndex", "Corners", "corners_of", "voxel_index", "forget_indexes", "resting", "intersect_pairs",
            "over_triangles", "SLACK", "COORD_SLACK", "BARY_SLACK", "MAX_NEARBY"]
@@ -58,10 +58,11 @@ def intersect_pairs(o, d, planes, reach, start):
 class Corners:
     """Triangles' corners ``a, b, c`` (each ``(t, 3)``) and what the voxel indexes' tests ask
     of each triangle, made when first asked (a scene whose every point is crowded never
-    does) and shared by every index of the same triangles (see :func:`voxel_index`)."""
+    does) and shared by every index of the same triangles (see :func:`corners_of`)."""
 
-    def __init__(self, a, b, c):
+    def __init__(self, a, b, c, arrays=None):
         self.a, self.b, self.c = a, b, c
+        self.arrays = arrays  # the (points, triangles) they were made of, held (see corners_of)
 
     @functools.cached_property
     def centre(self):
@@ -99,12 +100,21 @@ class Corners:
 
 class VoxelIndex:
     """Triangles ``a, b, c`` listed in the voxels (edge ``voxel``) their boxes overlap;
-    ``sheets``: the scene's two-sided objects (see :func:`cubegi_engine.nearfield.build`);
-    ``corners``: a :class:`Corners` of the same triangles to share (what each triangle's
-    tests ask is then made once for every index of them)."""
+    ``sheets``: the scene's two-sided objects (see :func:`cubegi_engine.nearfield.build`)."""
 
-    def __init__(self, a, b, c, voxel, sheets=None, corners=None):
-        self.corners = corners if corners is not None else Corners(a, b, c)
+    def __init__(self, a, b, c, voxel, sheets=None):
+        self._over(Corners(a, b, c), voxel, sheets)
+
+    @classmethod
+    def over(cls, corners, voxel, sheets=None):
+        """An index of the triangles of ``corners`` (a :class:`Corners`, shared: what each
+        triangle's tests ask is made once for every index of them)."""
+        index = cls.__new__(cls)
+        index._over(corners, voxel, sheets)
+        return index
+
+    def _over(self, corners, voxel, sheets):
+        self.corners = corners
         self.sheets = sheets
         lo, hi = self.lo, self.hi
         self.origin = lo.min(axis=0) - voxel
@@ -223,7 +233,7 @@ class VoxelIndex:
         voxels ``slot`` (indices into :attr:`keys`), one pair per listing."""
         count = self.end[slot] - self.start[slot]
         pp = np.repeat(pt, count)
-        tt = self.tri[np.repeat(self.start[slot], count) + np.arange(len(pp)) - np.repeat(np.cumsum(count) - count, count)]
+        tt = self.tri[np.repeat(self.start[slot], count) + run_offsets(count)]
         return pp, tt
 
     def segment_candidates(self, starts, ends):
@@ -349,8 +359,8 @@ def forget_indexes():
     _INDEXES.clear()
 
 
-def voxel_index(points, tri, a, b, c, voxel, sheets=None, keep=True):
-    """A :class:`VoxelIndex` of ``tri`` over ``points`` (corners ``a, b, c``), made once per
+def voxel_index(points, tri, voxel, sheets=None, keep=True):
+    """A :class:`VoxelIndex` of ``tri (t, 3)`` over ``points``, made once per
     scene and voxel size (a bake asks for the same one several times: the near field's rays
     under covered points twice, :func:`resting` three times); the arrays are held while it is
     kept, so their addresses name them. ``keep=False``: one no later step asks for (the
@@ -359,7 +369,7 @@ def voxel_index(points, tri, a, b, c, voxel, sheets=None, keep=True):
     for entry in _INDEXES:
         if entry[0] == key:
             return entry[2]
-    index = VoxelIndex(a, b, c, voxel, sheets, corners_of(points, tri, a, b, c))
+    index = VoxelIndex.over(corners_of(points, tri), voxel, sheets)
     if keep:
         _INDEXES[:] = [(key, (points, tri, sheets), index)] + _INDEXES[: INDEXES_KEPT - 1]
     return index
@@ -375,23 +385,20 @@ def _arrays_key(*arrays):
 _CORNERS: list = []
 
 
-def corners_of(points, tri, a=None, b=None, c=None):
+def corners_of(points, tri):
     """The :class:`Corners` of ``tri (t, 3)`` over ``points``, shared while an index (or
     anything else) holds it: the near field's index, the ones :func:`resting` asks and the
     probes' placement's list the same triangles at other voxel sizes (a subdivided Breakfast
     Room's 2.1M triangles' planes were made four times). It holds the arrays, so their
     addresses name them while it lives; nothing is kept for its own sake (a million
-    triangles' corners and planes are hundreds of MB). ``a, b, c``: the corners, where made."""
+    triangles' corners and planes are hundreds of MB)."""
     key = _arrays_key(points, tri)
     _CORNERS[:] = [entry for entry in _CORNERS if entry[1]() is not None]
     for entry_key, ref in _CORNERS:
         corners = ref()
         if entry_key == key and corners is not None:
             return corners
-    if a is None:
-        a, b, c = (points[tri[:, k]] for k in range(3))
-    corners = Corners(a, b, c)
-    corners.arrays = (points, tri)
+    corners = Corners(*(points[tri[:, k]] for k in range(3)), arrays=(points, tri))
     _CORNERS.append((key, weakref.ref(corners)))
     return corners
 
@@ -423,4 +430,4 @@ def resting(points, normals, triangles, scale, which, sheets=None, at=None):
 def _resting_index(points, tri, scale):
     """The voxel index :func:`resting` asks, coarse (a 64th of the scene: few entries to sort,
     and few points to ask)."""
-    return voxel_index(points, tri, points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]], scale / 64.0)
+    return voxel_index(points, tri, scale / 64.0)

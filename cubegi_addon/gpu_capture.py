@@ -126,6 +126,11 @@ void main() {
 """
 
 
+# Shaders drawn with once, kept until exit (see below): a shader freed while the process
+# draws on let a later shader, made at its address, draw batches with the freed one's vertex
+# layout (render_colour read world positions from another column now and then, after the
+# provoking-vertex test's shader was freed).
+_kept_shaders = []
 # The shaders are made once per process and kept. Making and freeing one per renderer let a
 # later draw pick up the wrong vertex layout now and then (colours read from the position
 # buffer, seen on llvmpipe after other GPU work in the same process).
@@ -193,6 +198,7 @@ def _last_vertex_provokes():
         batch.draw(shader)
     which = float(read_texture(colour, 1, 1)[0, 0, 0])
     del fb, colour
+    _kept_shaders.append(shader)  # see _kept_shaders
     if which not in (0.0, 2.0):
         raise BakeError(f"this GPU takes a triangle's flat values from its vertex {which:g}, not its first or last")
     return which == 2.0
@@ -203,6 +209,7 @@ def _free_shaders():
     exit handler, which runs later because it was registered earlier)."""
     _id_shader.cache_clear()
     _colour_shader.cache_clear()
+    _kept_shaders.clear()
 
 
 atexit.register(_free_shaders)

@@ -81,18 +81,33 @@ def provoking_layout(triangles, count, last_provokes=True):
     return indices.astype(np.int32), extra, owner
 
 
-def barycentric(points, corners, at):
-    """``(k, 3)`` float32: the weights of each triangle's corners (``corners (k, 3)`` indices
-    into ``points``) that make the point ``at (k, 3)`` on it (its plane, where it is off it)."""
-    a, b, c = (np.asarray(points[corners[:, j]], dtype=np.float64) for j in range(3))
-    e1, e2, r = b - a, c - a, at - a
+def barycentric_rows(points, triangles):
+    """``(t, 4, 3)`` float64 per triangle (corners ``triangles (t, 3)`` into ``points``): its
+    first corner ``a`` and the rows ``u1``, ``u2`` that give the weights of its second and third
+    corners at a point ``p`` as ``(p - a) . u1`` and ``(p - a) . u2``, in its plane (a point off
+    it: its projection), and their offsets (``(1/3, 1/3)`` with zero rows for a triangle of no
+    area). Made once per renderer: each texel then costs a gather and two dot products."""
+    a, b, c = (np.asarray(points[triangles[:, j]], dtype=np.float64) for j in range(3))
+    e1, e2 = b - a, c - a
     d11, d12, d22 = (np.einsum("kc,kc->k", x, y) for x, y in ((e1, e1), (e1, e2), (e2, e2)))
-    r1, r2 = np.einsum("kc,kc->k", r, e1), np.einsum("kc,kc->k", r, e2)
     det = d11 * d22 - d12 * d12
     ok = det > 0
-    safe = np.where(ok, det, 1.0)
-    w1 = np.where(ok, (d22 * r1 - d12 * r2) / safe, 1.0 / 3.0)
-    w2 = np.where(ok, (d11 * r2 - d12 * r1) / safe, 1.0 / 3.0)
+    safe = np.where(ok, det, 1.0)[:, None]
+    rows = np.zeros((len(a), 4, 3))
+    rows[:, 0] = np.where(ok[:, None], a, 0.0)
+    rows[:, 1] = np.where(ok[:, None], (d22[:, None] * e1 - d12[:, None] * e2) / safe, 0.0)
+    rows[:, 2] = np.where(ok[:, None], (d11[:, None] * e2 - d12[:, None] * e1) / safe, 0.0)
+    rows[~ok, 3, :2] = 1.0 / 3.0
+    return rows
+
+
+def barycentric(rows, which, at):
+    """``(k, 3)`` float32: the weights of the corners of triangles ``which (k,)`` (their
+    :func:`barycentric_rows`) that make the points ``at (k, 3)``."""
+    r = rows[which]
+    rel = at - r[:, 0]
+    w1 = np.einsum("kc,kc->k", rel, r[:, 1]) + r[:, 3, 0]
+    w2 = np.einsum("kc,kc->k", rel, r[:, 2]) + r[:, 3, 1]
     return np.stack([1.0 - w1 - w2, w1, w2], axis=1).astype(np.float32)
 
 

@@ -31,7 +31,7 @@ from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.working import in_background, run
 from . import compat
 from .bvh_rays import BvhRays
-from .draw_layout import barycentric, boxes_in_frusta, prepare
+from .draw_layout import barycentric, barycentric_rows, boxes_in_frusta, prepare
 
 # Largest atlas edge in texels; 2048^2 RGBA32F is 64 MiB.
 ATLAS_EDGE = 2048
@@ -215,9 +215,10 @@ def _free_shaders():
 atexit.register(_free_shaders)
 
 
-def _column_major(matrix):
-    # GLSL reads a mat4 push constant column by column.
-    return np.asarray(matrix, dtype=np.float64).T.ravel().tolist()
+def _column_major(matrices):
+    """Each of ``matrices (v, 4, 4)`` as the 16 floats of a mat4 push constant (GLSL reads
+    it column by column)."""
+    return np.asarray(matrices, dtype=np.float64).transpose(0, 2, 1).reshape(-1, 16).tolist()
 
 
 def read_texture(texture, width, height, channels=4):
@@ -278,13 +279,14 @@ class GpuRenderer:
         those ``drawn`` (indices; all by default); ``sheet``: as for the constructor."""
         return GpuRenderer(points, triangles, drawn, sheet)
 
-    def _local(self, view_proj):
-        """A world view-projection as one for unit-frame positions, scaled to entries <= 1
-        (a uniform scale of a projective matrix does not change what it draws)."""
+    def _local(self, view_projs):
+        """World view-projections ``(v, 4, 4)`` as ones for unit-frame positions, each scaled
+        to entries <= 1 (a uniform scale of a projective matrix does not change what it
+        draws)."""
         to_world = np.diag([self.unit, self.unit, self.unit, 1.0])
         to_world[:3, 3] = self.centre
-        m = np.asarray(view_proj, dtype=np.float64) @ to_world
-        return m / np.abs(m).max()
+        m = np.asarray(view_projs, dtype=np.float64).reshape(-1, 4, 4) @ to_world
+        return m / np.abs(m).max(axis=(1, 2), keepdims=True)
 
     def _ranges(self, local_vps):
         """Per view, the ``(first index, count)`` runs of chunks it may see (see CULL_CHUNK;
@@ -358,55 +360,63 @@ class GpuRenderer:
         # the same locations): one batch, uploaded once, serves both.
         shader = self.id_shader if with_bary else _id_shader(False)
         batch = self.id_batch
-        local = [self._local(vp) for vp in view_projs]
-        ranges = self._ranges(local)
+        local = self._local(view_projs)
+        ranges, columns = self._ranges(local), _column_major(local)
         shader.bind()
 
         local_eyes = (np.asarray(eyes, dtype=np.float64).reshape(-1, 3) - self.centre) / self.unit
         axes = None if axes is None else np.asarray(axes, dtype=np.float64).reshape(-1, 3)
 
         def draw_one(k):
-            shader.uniform_float("view_proj", _column_major(local[k]))
+            shader.uniform_float("view_proj", columns[k])
             if not with_bary:
                 shader.uniform_float("eye", tuple(float(x) for x in local_eyes[k]))
                 shader.uniform_float("axis", (0.0, 0.0, 1.0) if axes is None else tuple(float(x) for x in axes[k]))
                 shader.uniform_float("ortho", 0.0 if axes is None else 1.0)
             self._draw(batch, shader, ranges, k)
 
+        texels = size * size
         for first, tiles in self._draw_views(view_projs, size, draw_one, 4 if with_bary else 2):
             sl = slice(first, first + len(tiles))
             self._triangles_seen(tiles[..., 0], tid[sl], back[sl])
             d = dist[sl]
             if with_bary:
-                hit = np.nonzero(tid[sl] >= 0)
-                pos = tiles[..., 1:4][hit].astype(np.float64)
-                views = first + hit[0]
+                hit = np.flatnonzero(tid[sl] >= 0)  # (flat: one index array, not three)
+                pos = tiles.reshape(-1, 4)[hit, 1:4].astype(np.float64)
+                views = first + hit // texels
                 rel = pos - local_eyes[views]
-                along = np.linalg.norm(rel, axis=1) if axes is None else np.einsum("kc,kc->k", rel, axes[views])
+                along = np.sqrt(np.einsum("kc,kc->k", rel, rel)) if axes is None else np.einsum("kc,kc->k", rel, axes[views])
                 d.fill(np.inf)  # nothing drawn: no distance
-                d[hit] = along * self.unit
-                bary[sl][hit] = barycentric(self.unit_points, self.triangles[tid[sl][hit]], pos)
+                d.reshape(-1)[hit] = along * self.unit
+                bary[sl].reshape(-1, 3)[hit] = barycentric(self._bary_rows, tid[sl].reshape(-1)[hit], pos)
             else:
                 with np.errstate(over="ignore"):
                     np.multiply(tiles[..., -1], np.float32(self.unit), out=d)
                 d[tid[sl] < 0] = np.inf  # nothing drawn: the clear value, not a distance
         return tid, bary, dist, back
 
+    @functools.cached_property
+    def _seen_table(self):
+        """``(drawn + 1,)`` int32: the triangle drawn as number ``k`` at ``k + 1``, -1 at 0
+        (nothing drawn)."""
+        return np.concatenate([[-1], self.order]).astype(np.int32)
+
+    @functools.cached_property
+    def _bary_rows(self):
+        return barycentric_rows(self.unit_points, self.triangles)
+
     def _triangles_seen(self, code, tid, back):
         """From the texels' codes ``+-(k + 1)`` (k: the drawn triangle's number, 0: none),
         into ``tid`` and ``back``: the triangle each texel sees (-1: none) and whether from
         behind. A sheet's triangle seen from behind is its twin, seen from the front."""
         np.less(code, 0.0, out=back)
-        k = np.abs(code).astype(np.int64) - 1  # exact small integers in float32
-        seen = k >= 0
-        if not len(self.order):  # nothing drawn
-            tid[...], back[...] = -1, False
-            return
-        tid[...] = np.where(seen, self.order[np.maximum(k, 0)], -1)
-        twin = np.where(seen & back, self.twin[np.maximum(tid, 0)], -1)
-        turned = twin >= 0
-        tid[turned] = twin[turned]
-        back[turned] = False
+        np.take(self._seen_table, np.abs(code).astype(np.int32), out=tid)  # exact small integers in float32
+        flat_tid, flat_back = tid.reshape(-1), back.reshape(-1)
+        behind = np.flatnonzero(flat_back)  # (a texel seeing nothing has code 0: never behind)
+        twin = self.twin[flat_tid[behind]]
+        turned = behind[twin >= 0]
+        flat_tid[turned] = twin[twin >= 0]
+        flat_back[turned] = False
 
     def render_colour(self, view_projs, size, point_radiance):
         if self._colour_shader is None:
@@ -417,12 +427,12 @@ class GpuRenderer:
         batch = batch_for_shader(shader, "TRIS", {"pos": self.unit_points[corners].reshape(-1, 3), "colour": colour,
                                                   "sheet": np.repeat(self.sheet_all[self.all_drawn].astype(np.float32), 3)})
         out = np.empty((len(view_projs), size, size, 3), dtype=np.float32)
-        local = [self._local(vp) for vp in view_projs]
+        columns = _column_major(self._local(view_projs))
         ranges = None  # every triangle, both twins of a sheet (a check in the tests, not a bake's path)
         shader.bind()
 
         def draw_one(k):
-            shader.uniform_float("view_proj", _column_major(local[k]))
+            shader.uniform_float("view_proj", columns[k])
             self._draw(batch, shader, ranges, k)
 
         for first, tiles in self._draw_views(view_projs, size, draw_one):

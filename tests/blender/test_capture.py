@@ -109,7 +109,7 @@ def test_culling_draws_what_drawing_everything_draws(empty_scene, cubegi):
     whole.chunk_boxes = None  # draws every triangle in every view
     eyes = np.array([[0.3, -0.4, 0.2], [-2.5, 3.5, 2.0], [1.5, -1.5, -1.0]])
     vps = cubemap.cube_view_projections_many(eyes, 0.01, 50.0)
-    ranges = culled._ranges([culled._local(vp) for vp in vps])
+    ranges = culled._ranges(culled._local(vps))
     drawn = np.array([sum(c for _, c in r) for r in ranges]) / (3 * len(arrays.triangles))
     assert drawn.mean() < 0.75 and drawn.min() < 0.3, drawn
     a = culled.render(vps, np.repeat(eyes, 6, axis=0), None, 32)
@@ -134,6 +134,29 @@ def test_each_drawn_triangle_has_a_provoking_vertex_of_its_own(cubegi):
         source = np.concatenate([np.arange(len(v)), extra])[indices]
         turned = [np.roll(tris, -k, axis=1) for k in range(3)]
         assert all(any((source[i] == t[i]).all() for t in turned) for i in range(len(tris)))
+
+
+def test_barycentric_weights_rebuild_each_point_s_projection_on_its_triangle(cubegi):
+    """The weights the capture reports for a texel (its triangle's rows, made once per
+    renderer): over the corners they give the point's projection on the triangle's plane
+    (least squares, asked of numpy), and a third each on a triangle of no area."""
+    draw_layout = importlib.import_module("cubegi.cubegi_addon.draw_layout")
+    rng = np.random.default_rng(5)
+    points = rng.uniform(-1.0, 1.0, (60, 3))
+    points[59] = points[58]  # a triangle with two corners in one place
+    tris = np.vstack([rng.permutation(58)[:57].reshape(19, 3), [[57, 58, 59]]])
+    rows = draw_layout.barycentric_rows(points, tris)
+    which = rng.integers(0, len(tris), 500)
+    corners = points[tris[which]]  # (k, 3, 3)
+    at = np.einsum("kj,kjc->kc", rng.dirichlet([1.0, 1.0, 1.0], 500), corners) + rng.normal(0.0, 0.05, (500, 3))
+    got = draw_layout.barycentric(rows, which, at)
+    for k in range(500):
+        a, b, c = corners[k]
+        if which[k] == len(tris) - 1:
+            np.testing.assert_allclose(got[k], [1.0 / 3.0] * 3, atol=1e-6)
+            continue
+        w = np.linalg.lstsq(np.column_stack([b - a, c - a]), at[k] - a, rcond=None)[0]
+        np.testing.assert_allclose(got[k], [1.0 - w.sum(), w[0], w[1]], atol=1e-4)
 
 
 def test_a_renderer_with_nothing_to_draw_sees_nothing(cubegi):

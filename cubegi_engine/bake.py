@@ -21,7 +21,7 @@ from typing import Protocol
 import numpy as np
 
 from .capture import ProbeCapture
-from .direct import DirectLight, direct_light_steps
+from .direct import DirectLight, direct_light_steps, sun_steps
 from .errors import BakeError
 from .field import ProbeField
 from .gather import gathered_for
@@ -195,6 +195,8 @@ def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field, s
     if not used.all() or (placement is not None and placement.moved):
         grid = ProbeSubset(grid, used, None if placement is None else placement.displacement)
 
+    shadows: dict | None = {} if keep_shadows else None
+    suns = None  # the suns' direct light, where worked out before the capture
     drawn = capture is not None and capture.valid_for(scene, grid, settings, tables=False)  # the cube maps hold
     reused = drawn and not len(capture.transport.emitters_changed(scene))
     patched = None
@@ -211,6 +213,7 @@ def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field, s
                        if redrawn else f"the capture of {grid.count} probes kept, its tables built again")
         timings["capture"], timings["tables"] = capture.capture_seconds, capture.tables_seconds
     else:
+        suns = yield from sun_steps(scene, renderer, settings, shadows, working(Stage.CAPTURE, 0))  # while the scene is simplified
         capture = yield from _new_capture(scene, grid, renderer, settings, working, timings, total, simplifying)
         timings["capture"], timings["tables"] = capture.capture_seconds, capture.tables_seconds
     assert capture is not None  # reused, patched or new
@@ -227,8 +230,8 @@ def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field, s
     landing = (yield from in_background(transport.landing_share, working(Stage.DIRECT, 1)("the share of each point's view that is "
                                                                                        "surface"))) if settings.conserve_energy else None
     t_landing = time.perf_counter() - t
-    shadows: dict | None = {} if keep_shadows else None
-    parts = yield from direct_light_steps(scene, renderer, settings, transport, landing, shadows, step=working(Stage.DIRECT, 1))
+    parts = yield from direct_light_steps(scene, renderer, settings, transport, landing, shadows, step=working(Stage.DIRECT, 1),
+                                          done=suns)
     direct = parts.total(scene)
     timings["direct_lights"], timings["direct_probes"] = parts.light_seconds, parts.probe_seconds + t_landing
     timings["direct"] = timings["direct_lights"] + timings["direct_probes"]

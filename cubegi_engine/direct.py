@@ -14,6 +14,7 @@ Keeping each source's share apart is what lets a later edit of one light's power
 be a weighted sum, and a moved light be recomputed alone.
 """
 
+import time
 from collections import deque
 from dataclasses import dataclass, field
 from functools import partial
@@ -26,7 +27,7 @@ from . import lights as lights_mod
 from .cubemap import CubeCapture, clip_planes, no_barycentrics
 from .emitters import emitter_direct
 from .eyes import SOFT_SAMPLES, soft, soft_count
-from .gather import caster_made_by, gathered_for, light_visibility, scene_caster, scene_inward
+from .gather import caster_made_by, gathered_for, light_visibility, scene_caster, scene_inward, sky_pattern
 from .penumbra import sun_visibility
 from .working import CAPTURE_DRAWS_PER_STEP, WORKERS, in_background, in_batches, run, start, wait
 
@@ -256,28 +257,74 @@ def direct_light(scene, renderer, settings, transport, landing=None, shadows=Non
     return run(direct_light_steps(scene, renderer, settings, transport, landing, shadows))
 
 
-def direct_light_steps(scene, renderer, settings, transport, landing=None, shadows=None, step=None):
-    """:func:`direct_light` as a generator that hands control back (``step(message)``, a
-    working Progress) after each light, the emitters and the sky; returns the DirectLight."""
-    import time
+@dataclass
+class LightsDone:
+    """Lights worked out (:func:`lights_steps`): ``parts`` and ``left_out`` by light key, the
+    keys ``asked``, the seconds, and every light's ``reach`` and ``eyes`` (see :mod:`.eyes`)."""
 
+    parts: dict
+    left_out: dict
+    asked: frozenset
+    seconds: float
+    reach: list
+    eyes: list
+
+
+def lights_steps(scene, renderer, settings, shadows=None, step=None, ask=None, done=None):
+    """The direct light of the lights ``ask(light)`` selects (every one by default) but
+    those ``done`` (a LightsDone) holds, each with its shadows, handing control back after
+    each: a LightsDone of those and ``done``'s."""
     from .records import LeftOut, LeftOutKind, Progress, Stage
 
     step = step or (lambda message: Progress(Stage.DIRECT, 1, 1, message, working=True))
     t = time.perf_counter()
-    parts, left_out = {}, []
-    reach, distances = yield from in_background(lambda: eyes_mod.reach(scene), step("direct light: where each light reaches"))
+    parts, left_out = dict(done.parts) if done else {}, dict(done.left_out) if done else {}
+    asked = set(done.asked) if done else set()
+    if done is None:
+        reach, distances = yield from in_background(lambda: eyes_mod.reach(scene), step("direct light: where each light reaches"))
+        eyes = eyes_mod.shadow_eyes(scene, scene.lights, distances)
+    else:
+        reach, eyes = done.reach, done.eyes
     brightest = max(reach, default=0.0)
-    eyes = eyes_mod.shadow_eyes(scene, scene.lights, distances)
     for k, (key, light) in enumerate(zip(lights_mod.light_keys(scene.lights), scene.lights)):
+        if key in asked or (ask is not None and not ask(light)):
+            continue
+        asked.add(key)
         if reach[k] <= LIGHT_LEFT_OUT * brightest:  # no shadow map drawn for it
             why = "reaches no surface" if reach[k] <= 0.0 else f"below {LIGHT_LEFT_OUT:g} of the brightest light everywhere"
             name = light.name or str(k)
-            left_out.append(LeftOut(LeftOutKind.LIGHT, f"{name}: {why}", names=(name,)))
+            left_out[key] = LeftOut(LeftOutKind.LIGHT, f"{name}: {why}", names=(name,))
             continue
         parts[key] = yield from light_direct_steps(scene, renderer, settings, light, shadows, step, eyes[k])
         yield step(f"direct light: {k + 1} of {len(scene.lights)} lights")
-    light_seconds = time.perf_counter() - t
+    seconds = time.perf_counter() - t + (done.seconds if done else 0.0)
+    return LightsDone(parts, left_out, frozenset(asked), seconds, reach, eyes)
+
+
+def sun_steps(scene, renderer, settings, shadows=None, step=None):
+    """:func:`lights_steps` of the suns alone (None where there is none): their shadows need
+    neither the probes nor the simplified scene, so the bake works them out while the scene
+    is simplified (a thread of its own), where a core would wait."""
+    if not any(light.kind == "SUN" for light in scene.lights):
+        return None
+    mask = getattr(scene, "gathered", None)
+    if mask is not None and np.any(mask):  # their rays, cast in a thread (kept for the bake)
+        yield from in_background(gathered_for, _working(step, "rays from the vertices that stand for much surface"), scene, renderer)
+    return (yield from lights_steps(scene, renderer, settings, shadows, step, ask=lambda light: light.kind == "SUN"))
+
+
+def direct_light_steps(scene, renderer, settings, transport, landing=None, shadows=None, step=None, done=None):
+    """:func:`direct_light` as a generator that hands control back (``step(message)``, a
+    working Progress) after each light, the emitters and the sky; returns the DirectLight.
+    ``done``: lights already worked out (a LightsDone, as :func:`sun_steps` gives)."""
+    from .records import Progress, Stage
+
+    step = step or (lambda message: Progress(Stage.DIRECT, 1, 1, message, working=True))
+    lights = yield from lights_steps(scene, renderer, settings, shadows, step, done=done)
+    keys = lights_mod.light_keys(scene.lights)
+    parts = {key: lights.parts[key] for key in keys if key in lights.parts}  # in scene order, however worked out
+    left_out = [lights.left_out[key] for key in keys if key in lights.left_out]
+    eyes, light_seconds = lights.eyes, lights.seconds
     t = time.perf_counter()
     coeffs = np.zeros((transport.probe_count, 9, 3), dtype=np.float32)
     factor = np.ones(3)
@@ -380,7 +427,7 @@ def _working(step, stage_message):
 def sky_direct_steps(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY_MAP_SIZE, step=None, rays_at_most=0):
     """:func:`sky_direct` as a generator handing control back after each direction."""
     dirs = sh.fibonacci_sphere(directions)  # towards the sky
-    pattern = _sky_pattern(scene, dirs)  # (k, 3)
+    pattern = sky_pattern(scene, dirs)  # (k, 3)
     lo, hi = scene.bounds()
     centre, radius = 0.5 * (lo + hi), 0.5 * scene.scale * SUN_BOX_MARGIN
     eyes = centre + dirs * radius * SUN_EYE_DISTANCE
@@ -434,7 +481,7 @@ def sky_direct_steps(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY
     if getattr(scene, "sky_map", None) is not None:  # the pattern's SH, as diffuse light per normal
         n = 16
         texel_dirs = cubemap.texel_directions(n).reshape(-1, 3)
-        coeffs = sh.project(_sky_pattern(scene, texel_dirs), texel_dirs, np.tile(cubemap.texel_solid_angles(n).ravel(), 6))
+        coeffs = sh.project(sky_pattern(scene, texel_dirs), texel_dirs, np.tile(cubemap.texel_solid_angles(n).ravel(), 6))
         open_sky = np.maximum(sh.diffuse_basis(nrm) @ coeffs, 0.0)
     return open_sky * np.where(facing > 0, seen / np.maximum(facing, 1e-300), 0.0)
 
@@ -451,10 +498,3 @@ def _sky_rays(receivers, occluders, caster, dirs, footprint):
     bounds = np.searchsorted(k[order], np.arange(len(dirs) + 1))
     return [(j, row[order[a:b]], open_[order[a:b]].astype(np.float64))
             for j, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])) if b > a]
-
-
-def _sky_pattern(scene, dirs):
-    """The sky's radiance over its mean in directions ``dirs (k, 3)``: ``(k, 3)``."""
-    if getattr(scene, "sky_map", None) is None:
-        return np.ones((len(dirs), 3))
-    return cubemap.sample_image(np.asarray(scene.sky_map, dtype=np.float64), cubemap.equirect_uv(dirs))

@@ -151,7 +151,8 @@ class Gathered:
                                           self.corners.origin, self.corners.inset)))
 
 
-def _sky_pattern(scene, dirs):
+def sky_pattern(scene, dirs):
+    """The sky's radiance over its mean in directions ``dirs (k, 3)``: ``(k, 3)``."""
     sky_map = getattr(scene, "sky_map", None)
     if sky_map is None:
         return np.ones((len(dirs), 3))
@@ -190,7 +191,7 @@ def gather(scene, rows, caster: RayCaster, rays=GATHER_RAYS) -> Gathered:
     # What the rays that leave see: the sky.
     leave = ~hits.hit
     sky = np.zeros((g, 3))
-    np.add.at(sky, row[leave], w[leave, None] * _sky_pattern(scene, flat_dirs[leave]))
+    np.add.at(sky, row[leave], w[leave, None] * sky_pattern(scene, flat_dirs[leave]))
     share = 1.0 - np.bincount(row[leave], w[leave], minlength=g)
     # What the rays that meet a surface take: its front's light; a sheet's back side is its
     # twin's front; a closed object's inside sends nothing.

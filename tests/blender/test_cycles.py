@@ -284,6 +284,42 @@ def test_the_sky_at_points_no_probe_lights_by_rays_and_by_maps(empty_scene, cube
     assert np.all(light["rays"] >= light["maps"] - 0.05)
 
 
+def test_suns_worked_out_before_the_capture_give_the_direct_stage_s_light(empty_scene, cubegi):
+    """A bake works out its suns while the scene is simplified (``direct.sun_steps``) and its
+    other lights after the capture: each light's part, their order and the lights left out
+    are those of every light worked out in the direct stage, and the bake's own parts are
+    those. The courtyard's sun (with an Angle: rays across its disk), another sun, a lamp,
+    and a sun and a lamp too faint to draw."""
+    from benchmarks import scenes as bench_scenes
+    from cubegi.cubegi_addon import gpu_capture, session
+    from cubegi.cubegi_engine import direct
+    from cubegi.cubegi_engine.settings import BakeSettings
+    from cubegi.cubegi_engine.working import run
+
+    bench_scenes.courtyard()
+    scenes.add_light("POINT", (0.5, -0.5, 1.5), 300.0, shadow_soft_size=0.0)
+    scenes.add_light("POINT", (0.5, 0.5, 1.5), 1e-6)
+    scenes.add_light("SUN", (0.0, 0.0, 5.0), 0.5, (0.3, 0.2, 0.0))
+    scenes.add_light("SUN", (0.0, 0.0, 5.0), 1e-6, (-0.3, 0.2, 0.0))
+    assert bpy.ops.cubegi.bake() == {"FINISHED"}
+    bake = session.kept(bpy.context.scene).bake
+    arrays, transport = bake.arrays, bake.result.capture.transport
+    # In scene order (by name): the courtyard's Sun, the lamps, the suns added.
+    assert [light.kind for light in arrays.lights] == ["SUN", "POINT", "POINT", "SUN", "SUN"]
+    renderer = gpu_capture.GpuRenderer(arrays.points, arrays.triangles, sheet=arrays.sheet_triangles())
+    settings = BakeSettings()
+    whole = run(direct.direct_light_steps(arrays, renderer, settings, transport))
+    suns = run(direct.sun_steps(arrays, renderer, settings))
+    assert len(suns.asked) == 3 and len(suns.parts) == 2 and len(suns.left_out) == 1
+    split = run(direct.direct_light_steps(arrays, renderer, settings, transport, done=suns))
+    assert list(split.parts) == list(whole.parts) == list(bake.result.direct_parts.parts)
+    assert [x.line() for x in split.left_out] == [x.line() for x in whole.left_out] and len(whole.left_out) == 2
+    for key, value in whole.parts.items():
+        np.testing.assert_array_equal(split.parts[key], value)
+        np.testing.assert_array_equal(bake.result.direct_parts.parts[key], value)
+    assert whole.parts[next(iter(whole.parts))].max() > 0.1
+
+
 def test_a_large_point_light_casts_soft_shadows_as_cycles(empty_scene, cubegi):
     """A bulb of 0.1 m radius 0.5 m from the red wall, the blocks between it and the floor:
     its shadows are averaged over 32 points on its sphere. Measured against Cycles at 256

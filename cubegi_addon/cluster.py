@@ -60,6 +60,8 @@ STOP_SECONDS = 10
 # Seconds to wait for a scheduler to answer before the batch is refused.
 SCHEDULER_TIMEOUT = 10
 SUMMARY = "batch.json"
+# The environment variable distributed reads its logger levels from (dask's config: logging.distributed).
+WORKER_LOGGING = "DASK_LOGGING__DISTRIBUTED"
 
 
 class BatchStatus(StrEnum):
@@ -157,6 +159,12 @@ def _client(workers=None, scheduler=None):
     # cluster.
     ignore = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if ignore else None
+    # The workers log nothing to the terminal but a crash: the batch reports each bake's
+    # outcome itself (a worker's warning as Ctrl-C cancelled its task, printed now and then,
+    # was a second line). A worker process takes its levels from the environment it starts
+    # with, when it imports distributed.
+    logging_before = os.environ.get(WORKER_LOGGING)
+    os.environ[WORKER_LOGGING] = "critical"
     try:
         # One task on a worker at a time (none waits there behind a bake): the tasks a worker
         # is processing are then the bakes it runs (see _stop).
@@ -167,6 +175,10 @@ def _client(workers=None, scheduler=None):
     finally:
         if ignore:
             signal.signal(signal.SIGINT, previous)
+        if logging_before is None:
+            os.environ.pop(WORKER_LOGGING, None)
+        else:
+            os.environ[WORKER_LOGGING] = logging_before
     return Client(cluster), cluster
 
 

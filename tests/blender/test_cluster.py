@@ -293,3 +293,22 @@ def test_ctrl_c_in_an_animation_on_a_cluster_keeps_the_frames_and_says_so(empty_
     assert not [n for n in os.listdir(tmp_path) if n.startswith(".cubegi")]
     time.sleep(1.0)
     assert still_running(str(tmp_path)) == []
+
+
+def test_the_local_workers_log_nothing_but_a_crash_and_the_environment_is_as_it_was(cubegi, monkeypatch):
+    """A batch's local workers keep distributed's logging off the terminal below a crash
+    (a worker's warning as Ctrl-C cancelled its task was a second line now and then): each
+    worker process starts with it in its environment; this process's is as it was."""
+    import logging
+
+    from cubegi.cubegi_addon import cluster
+
+    monkeypatch.delenv(cluster.WORKER_LOGGING, raising=False)
+    client, local = cluster._client(workers=1)
+    try:
+        level = client.submit(logging.getLogger("distributed.worker.state_machine").getEffectiveLevel, pure=False).result(timeout=120)
+    finally:
+        cluster._close(client, local)
+    assert level == logging.CRITICAL
+    assert cluster.WORKER_LOGGING not in os.environ
+    assert logging.getLogger("distributed.worker.state_machine").getEffectiveLevel() < logging.CRITICAL

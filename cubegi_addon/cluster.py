@@ -162,9 +162,12 @@ def _client(workers=None, scheduler=None):
     # The workers log nothing to the terminal but a crash: the batch reports each bake's
     # outcome itself (a worker's warning as Ctrl-C cancelled its task, printed now and then,
     # was a second line). A worker process takes its levels from the environment it starts
-    # with, when it imports distributed.
-    logging_before = os.environ.get(WORKER_LOGGING)
-    os.environ[WORKER_LOGGING] = "critical"
+    # with, when it imports distributed: set while the cluster lives (a worker started again
+    # takes it too), unless the user set it.
+    ours = WORKER_LOGGING not in os.environ
+    if ours:
+        os.environ[WORKER_LOGGING] = "critical"
+    cluster = None
     try:
         # One task on a worker at a time (none waits there behind a bake): the tasks a worker
         # is processing are then the bakes it runs (see _stop).
@@ -175,10 +178,9 @@ def _client(workers=None, scheduler=None):
     finally:
         if ignore:
             signal.signal(signal.SIGINT, previous)
-        if logging_before is None:
+        if ours and cluster is None:  # not started
             os.environ.pop(WORKER_LOGGING, None)
-        else:
-            os.environ[WORKER_LOGGING] = logging_before
+    cluster.cubegi_logging = ours  # (see _close)
     return Client(cluster), cluster
 
 
@@ -199,6 +201,8 @@ def _close(client, cluster):
         return exc
     finally:
         log.setLevel(level)
+        if getattr(cluster, "cubegi_logging", False):  # the workers' logging, set for them alone
+            os.environ.pop(WORKER_LOGGING, None)
     return None
 
 

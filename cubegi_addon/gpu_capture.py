@@ -388,7 +388,7 @@ class GpuRenderer:
                 along = np.sqrt(np.einsum("kc,kc->k", rel, rel)) if axes is None else np.einsum("kc,kc->k", rel, axes[views])
                 d.fill(np.inf)  # nothing drawn: no distance
                 d.reshape(-1)[hit] = along * self.unit
-                bary[sl].reshape(-1, 3)[hit] = barycentric(self._bary_rows, tid[sl].reshape(-1)[hit], pos)
+                bary[sl].reshape(-1, 3)[hit] = self._barycentric(tid[sl].reshape(-1)[hit], pos)
             else:
                 with np.errstate(over="ignore"):
                     np.multiply(tiles[..., -1], np.float32(self.unit), out=d)
@@ -401,9 +401,14 @@ class GpuRenderer:
         (nothing drawn)."""
         return np.concatenate([[-1], self.order]).astype(np.int32)
 
-    @functools.cached_property
-    def _bary_rows(self):
-        return barycentric_rows(self.unit_points, self.triangles)
+    def _barycentric(self, seen, at):
+        """The weights of the triangles ``seen (k,)`` at the points ``at (k, 3)``: each
+        triangle's rows made once for the batch (none kept: a renderer of a whole scene lives
+        on for its shadow maps)."""
+        mark = np.zeros(len(self.triangles), dtype=bool)
+        mark[seen] = True
+        place = np.cumsum(mark, dtype=np.int64) - 1
+        return barycentric(barycentric_rows(self.unit_points, self.triangles[mark]), place[seen], at)
 
     def _triangles_seen(self, code, tid, back):
         """From the texels' codes ``+-(k + 1)`` (k: the drawn triangle's number, 0: none),

@@ -213,6 +213,7 @@ def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field, s
                        if redrawn else f"the capture of {grid.count} probes kept, its tables built again")
         timings["capture"], timings["tables"] = capture.capture_seconds, capture.tables_seconds
     else:
+        check_memory(grid.count, settings.cube_size, len(scene.points))  # (before any work)
         suns = yield from sun_steps(scene, renderer, settings, shadows, working(Stage.CAPTURE, 0))  # while the scene is simplified
         capture = yield from _new_capture(scene, grid, renderer, settings, working, timings, total, simplifying)
         timings["capture"], timings["tables"] = capture.capture_seconds, capture.tables_seconds

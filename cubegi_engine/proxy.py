@@ -27,11 +27,11 @@ kept whole and a dense one (a sculpt, a subdivided mesh) loses the most.
 """
 
 from dataclasses import dataclass, replace
-from functools import cached_property
 
 import numpy as np
 
 from .geometry import corner_box, near_any_triangle, run_offsets
+from .working import once
 
 __all__ = ["CaptureProxy", "simplify"]
 
@@ -231,7 +231,7 @@ class _Prepared:
         slab = by_lo[np.searchsorted(lo_x, lo[0] - reach) : np.searchsorted(lo_x, hi[0], side="right")]
         return np.concatenate([huge, slab])
 
-    @cached_property
+    @once
     def _by_lowest_x(self):
         """The largest triangles (a hundredth of them: walls, floors), the others by their
         boxes' lowest X, those X, and the others' largest size."""
@@ -241,13 +241,13 @@ class _Prepared:
         by_lo = rest[np.argsort(self.tri_lo[rest, 0], kind="stable")]
         return huge, by_lo, self.tri_lo[by_lo, 0], reach
 
-    @cached_property
+    @once
     def corner_triangles(self):
         """``(start (s,), count (s,))``: each point's triangles in :attr:`triangles_by_corner`."""
         count = np.bincount(self.tris.ravel(), minlength=len(self.points))
         return np.cumsum(count) - count, count
 
-    @cached_property
+    @once
     def triangles_by_corner(self):
         """``(3t,)``: the triangles, listed under each of their corners, point by point."""
         return np.argsort(self.tris.ravel(), kind="stable") // 3

@@ -2,12 +2,12 @@
 against them: the near field's rays (:mod:`cubegi_engine.nearfield`) and the probes'
 placement (:mod:`cubegi_engine.placement`). Pure numpy; must not import bpy."""
 
-import functools
 import weakref
 
 import numpy as np
 
 from .geometry import chunks, in_pieces, planes_of, ray_cut, run_offsets, sorted_unique
+from .working import once
 
 __all__ = ["VoxelIndex", "Corners", "corners_of", "voxel_index", "forget_indexes", "resting", "intersect_pairs",
            "over_triangles", "SLACK", "COORD_SLACK", "BARY_SLACK", "MAX_NEARBY"]
@@ -64,35 +64,35 @@ class Corners:
         self.a, self.b, self.c = a, b, c
         self.arrays = arrays  # the (points, triangles) they were made of, held (see corners_of)
 
-    @functools.cached_property
+    @once
     def centre(self):
         return (self.a + self.b + self.c) / 3.0
 
-    @functools.cached_property
+    @once
     def lo(self):
         return np.minimum(np.minimum(self.a, self.b), self.c)
 
-    @functools.cached_property
+    @once
     def hi(self):
         return np.maximum(np.maximum(self.a, self.b), self.c)
 
-    @functools.cached_property
+    @once
     def radius(self):
         """``(t,)`` each triangle's bounding sphere about its centre."""
         return np.sqrt(np.max(np.stack([np.sum((v - self.centre) ** 2, axis=1) for v in (self.a, self.b, self.c)]), axis=0))
 
-    @functools.cached_property
+    @once
     def unit(self):
         """``(t, 3)`` each triangle's unit normal."""
         normal = np.cross(self.b - self.a, self.c - self.a)
         return normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
 
-    @functools.cached_property
+    @once
     def offset(self):
         """``(t,)`` each triangle's plane's offset along :attr:`unit`."""
         return np.einsum("ij,ij->i", self.unit, self.a)
 
-    @functools.cached_property
+    @once
     def planes(self):
         """``(t, 4, 3)``: :func:`~.geometry.planes_of` each triangle."""
         return planes_of(self.a, self.b, self.c)
@@ -156,7 +156,7 @@ class VoxelIndex:
         self.content_hi = np.maximum.reduceat(hi[self.tri], self.start, axis=0) if len(key) else np.zeros((0, 3))
         self._made_list = True
 
-    @functools.cached_property
+    @once
     def _centre_keys(self):
         """The sorted voxel keys of the triangles' centres, each clipped into its box."""
         at = np.floor((np.clip(self.centre, self.lo, self.hi) - self.origin) / self.h).astype(np.int64)

@@ -1,6 +1,9 @@
 """The near field's rays, hits and light, in pure numpy (no bpy): against closed forms and a
 brute-force ray caster."""
 
+import threading
+import time
+
 import numpy as np
 import pytest
 
@@ -142,6 +145,30 @@ def test_the_voxel_search_finds_what_testing_every_triangle_finds():
     for p in range(len(pts)):
         assert sorted(per_point.get(p, [])) == sorted(t for t in expected[p] if t >= 0), p
     assert (expected >= 0).sum() > 20  # the test has hits to compare
+
+
+def test_the_triangles_planes_are_made_once_when_the_pieces_ask_at_once(monkeypatch):
+    """The near field's pieces of rays ask a shared index for its triangles' planes at the
+    same moment: one thread makes them, the other waits for them (not a second copy)."""
+    made = []
+
+    def slow_planes(a, b, c):
+        made.append(threading.current_thread().name)
+        time.sleep(0.2)  # long enough that the other thread asks while it is made
+        return planes_of(a, b, c)
+
+    monkeypatch.setattr(spatial, "planes_of", slow_planes)
+    rng = np.random.default_rng(5)
+    corners = spatial.Corners(*rng.uniform(-1, 1, (3, 40, 3)))
+    got = {}
+    threads = [threading.Thread(target=lambda k=k: got.__setitem__(k, corners.planes), name=f"piece-{k}") for k in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(made) == 1, made
+    assert got[0] is got[1]
+    np.testing.assert_array_equal(got[0], planes_of(corners.a, corners.b, corners.c))
 
 
 def test_the_near_field_does_not_depend_on_the_order_of_points_or_the_scale():

@@ -41,11 +41,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import convergence
-from .hemisphere import hemisphere_rays
-from .nearrays import CASTER_RAYS, FADE, cast_points, clusters, shared_rows
-from .spatial import COORD_SLACK, SLACK, resting, voxel_index
+from .nearhits import gap_darkening, hidden_points, uncover
+from .nearrays import CASTER_RAYS, cast_points, clusters, shared_rows
+from .spatial import voxel_index
 
-__all__ = ["NearField", "build", "NEAR_REACH", "NEAR_RAYS", "MAX_CANDIDATES", "MAX_PAIRS"]
+__all__ = ["NearField", "Traced", "build", "trace", "finish", "NEAR_REACH", "NEAR_RAYS", "MAX_CANDIDATES", "MAX_PAIRS"]
 
 # Reach of the rays, as a share of the point's cell edge (measured on the benchmark's Cornell
 # box when it was chosen: 16.2% indirect error without, 10.1% at 0.25, 9.9% at 0.5 and 1.0,
@@ -65,19 +65,9 @@ SAMPLE, CROWDED_SAMPLE = 2048, 8
 MAX_LOOP_GAIN = 1.0 - 1.0 / (CASTER_RAYS + 2)
 # The sum stops once the light it estimates is left is at most this share of the brightest row's.
 NEAR_SUM_TOLERANCE = 1e-4
-# A covered point counts as hidden from the near field's hits (its light stands for no
-# surface) where at least this share of its view is closed in within reach, or where it
-# lies on another surface (see resting).
-HIDDEN_SHARE = 0.5
-# A hit on a triangle with a corner closed in (openness below OPENNESS_CLOSED: a floor point
-# under a block) and one in the open (above OPENNESS_OPEN) casts OPENNESS_RAYS rays of its
-# own to weigh its corners' light (see _gap_darkening; 0: off); OPENNESS_FLOOR keeps the
-# ratio of two closed points near 1.
-OPENNESS_RAYS, OPENNESS_CLOSED, OPENNESS_OPEN, OPENNESS_FLOOR = 16, 0.3, 0.6, 0.05
-# Hits on one triangle within the same cube of this share of their reach share one such
-# test (the rays of neighbouring points land close together: the Breakfast Room's 5.6K hits
-# in gaps lie on 74 triangles).
-OPENNESS_CELL = 0.05
+# A hit on a triangle with a corner closed in and one in the open casts OPENNESS_RAYS rays of
+# its own to weigh its corners' light (:func:`~.nearhits.gap_darkening`; 0: off).
+OPENNESS_RAYS = 16
 
 
 @dataclass
@@ -110,7 +100,7 @@ class NearField:
     alias: tuple | None = None  # (rows (a,), theirs (a,)): rows (places) that gather what other rows gather
     crowded_objects: tuple = ()  # the objects (``owner`` indices) of the crowded points left out
     # (points (w,), whether each emitted (w,)): the points whose emitting or not decides which
-    # points are hidden (:func:`_hidden`), or None where nothing was decided
+    # points are hidden (:func:`~.nearhits.hidden_points`), or None where nothing was decided
     emitters: tuple | None = None
 
     def emitters_changed(self, emitting) -> np.ndarray:
@@ -287,12 +277,52 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     its back, so back faces of sheets are not hit, and a ray from a sheet never meets the
     sheet's own far side (a slightly bent wall's twin lies in front of its points); a sheet's
     back side, and a covered point whose rays meet one, are never hidden; nor, across a gap,
-    are ``emitting (s,)`` points and those whose rays meet one (:func:`_hidden`). ``owner``: each
+    are ``emitting (s,)`` points and those whose rays meet one (:func:`~.nearhits.hidden_points`). ``owner``: each
     point's object (see :func:`_candidate_pairs`); ``keep_index``: see :func:`~.spatial.voxel_index`.
     ``caster``: where given, a callable giving ``(RayCaster, its triangles' indices among
     triangles)``, the host's ray caster over the scene (Blender's BVH tree): the crowded
     points of the smallest objects are not left out but share the rays of one point per
-    cluster, cast through it (:func:`~.nearrays.clusters`)."""
+    cluster, cast through it (:func:`~.nearrays.clusters`).
+
+    It is :func:`trace` (the rays, which need only the geometry) then :func:`finish` (what
+    the hits take, which needs ``hidden``): a bake traces while it tests which probes see
+    each point."""
+    traced = trace(points, normals, reach, triangles, rays=rays, max_pairs=max_pairs, which=which, sheets=sheets, owner=owner,
+                   keep_index=keep_index, caster=caster)
+    return finish(traced, hidden=hidden, lit_if_open=lit_if_open, hidden_as_given=hidden_as_given, emitting=emitting)
+
+
+@dataclass
+class Traced:
+    """The near field's rays and hits, before what each hit takes is decided (:func:`trace`;
+    :func:`finish` makes the :class:`NearField`)."""
+
+    index: object  # the voxel index of the triangles (its tests ask it again)
+    points: np.ndarray
+    normals: np.ndarray
+    tri: np.ndarray
+    sheets: object
+    rays: int
+    reach: np.ndarray
+    pairs: int
+    crowded: np.ndarray
+    crowded_objects: tuple
+    members: np.ndarray
+    member_of: np.ndarray
+    by_caster: np.ndarray
+    cast: np.ndarray
+    traced: int
+    hits: object
+    rch: np.ndarray
+    turn: np.ndarray
+    openness: np.ndarray
+    seconds: float
+
+
+def trace(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PAIRS, which=None, sheets=None, owner=None,
+          keep_index=True, caster=None):
+    """The rays of :func:`build` and their hits (arguments as there): a :class:`Traced`, or a
+    NearField where there is none (nothing asked, or the scene over the pairs' budget)."""
     t0 = time.perf_counter()
     points = np.asarray(points, dtype=np.float64)
     normals = np.asarray(normals, dtype=np.float64)
@@ -315,6 +345,17 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     openness = np.ones(s)
     openness[cast] = hits.openness
     openness[members] = openness[by_caster[member_of]]
+    return Traced(index, points, normals, tri, sheets, rays, reach, len(pair_p), crowded, crowded_objects, members, member_of,
+                  by_caster, cast, traced, hits, rch, turn, openness, time.perf_counter() - t0)
+
+
+def finish(traced, *, hidden=None, lit_if_open=None, hidden_as_given=False, emitting=None):
+    """The :class:`NearField` of ``traced`` (a :class:`Traced`; a NearField is handed back as
+    it is), with the hidden points decided (arguments as in :func:`build`)."""
+    if isinstance(traced, NearField):
+        return traced
+    t0 = time.perf_counter()
+    hits, cast, members, points, tri, index = traced.hits, traced.cast, traced.members, traced.points, traced.tri, traced.index
     point = hits.point  # local
     local_rows, hit_row = np.unique(point, return_inverse=True)
     rows = cast[local_rows]
@@ -323,24 +364,28 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     corners = hits.corners
     # The caster's hits lie in dense geometry, where the voxel index's tests below would take
     # minutes: their hidden corners' weight goes to the others, and no gap darkens them.
-    by_voxels = point < traced
+    by_voxels = point < traced.traced
     emitters = None
     if hidden is not None:
         hidden = np.asarray(hidden, dtype=bool).copy()
         if not hidden_as_given:
-            hidden, emitters = _hidden(hidden, openness, lit_if_open, sheets, cast[point], corners, points, normals, tri, emitting)
+            hidden, emitters = hidden_points(hidden, traced.openness, lit_if_open, traced.sheets, cast[point], corners, points, traced.normals,
+                                       tri, emitting)
         hidden[members] = False  # lit by their own rays: a surface's light
-        weight = _uncover(index, weight, corners, hidden, hits.triangle, rch[point], by_voxels)
+        weight = uncover(index, weight, corners, hidden, hits.triangle, traced.rch[point], by_voxels)
     if OPENNESS_RAYS:
-        weight = _gap_darkening(index, weight, corners, openness, hits.at, hits.triangle, hits.front & by_voxels, rch[point], turn[point])
+        weight = gap_darkening(index, weight, corners, traced.openness, hits.at, hits.triangle, hits.front & by_voxels,
+                               traced.rch[point], traced.turn[point], OPENNESS_RAYS)
     weight *= (hits.front * hits.weight)[:, None]  # a back face occludes and sends nothing
     open_basis, share, hit_row = hits.open_basis, hits.share, hit_row.astype(np.int64).ravel()
     alias = None
     if len(members):
-        rows, open_basis, share, alias = shared_rows(rows, open_basis, share, members, by_caster[member_of], normals)
+        rows, open_basis, share, alias = shared_rows(rows, open_basis, share, members, traced.by_caster[traced.member_of],
+                                                     traced.normals)
     return NearField(rows.astype(np.int64), open_basis, hit_row, corners, weight,
-                     rays, float(reach.max()), len(pair_p), int(crowded.sum()), "", time.perf_counter() - t0, share,
-                     None if hidden is None else np.flatnonzero(hidden), alias, crowded_objects, emitters)
+                     traced.rays, float(traced.reach.max()), traced.pairs, int(traced.crowded.sum()), "",
+                     traced.seconds + time.perf_counter() - t0, share,
+                     None if hidden is None else np.flatnonzero(hidden), alias, traced.crowded_objects, emitters)
 
 
 def _candidate_pairs(index, points, normals, reach, asked, sheets, max_pairs, owner=None):
@@ -380,120 +425,3 @@ def _candidate_pairs(index, points, normals, reach, asked, sheets, max_pairs, ow
     if len(pair_p) > max_pairs:
         return f"{len(pair_p):,} candidate pairs of points and triangles, more than {max_pairs:,}"
     return pair_p, pair_t, crowded
-
-
-def _hidden(covered, openness, lit_if_open, sheets, hit_point, corners, points, normals, tri, emitting=None):
-    """``((s,) bool, ((w,) int, (w,) bool))``: the ``covered`` points hidden from the near
-    field's hits, and the points whose emitting or not that depends on, with whether each
-    emits (:attr:`NearField.emitters`: while none of them starts or stops, the set holds).
-
-    Hidden: covered (no probe light) and closed in or lying on another surface (under a wall
-    standing on it, a block's underside). A covered point open to its own view (a thick
-    wall's outer face: no probe is outside) has light of its own (the sky's, the sun's), and
-    a ray that lands beside it takes it. So has a sheet's back side and a covered point
-    facing one across a gap (``hit_point``, ``corners``: each hit's point and triangle
-    corners): the ceiling 1 cm over a lamp's quad, lit by its top, which it lights back
-    (McGuire's Cornell box: the ceiling's indirect light 0.10 -> 0.40 against Cycles' 0.56).
-    A floor under a block standing 2 cm above it faces the block's own underside: hidden.
-    Not so an emitter's points (``emitting (s,)``) and a point facing one across a gap
-    (neither lying on another surface): a box lamp's top 1 cm under a ceiling lights it, and
-    the ceiling lights it back; a glowing wall's foot on the ground stays hidden."""
-    hidden = covered.copy()
-    open_ = openness >= 1.0 - HIDDEN_SHARE
-    if lit_if_open is not None:
-        hidden &= ~(open_ & lit_if_open)
-    if sheets is not None:  # a sheet's back side, and a point facing one across a gap, are surfaces
-        hidden &= ~_facing(sheets.back, hit_point, corners)
-    ask = np.flatnonzero(hidden)
-    rest = np.zeros(len(hidden), dtype=bool)
-    if len(ask):
-        scale = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
-        rest[ask] = resting(points, normals, tri, scale, ask, sheets)
-    gap = hidden & ~rest & ~open_  # where an emitter across the gap counts: those points, and their hits' corners
-    watched = gap.copy()
-    watched[corners[gap[hit_point]].ravel()] = True
-    emitting = np.zeros(len(hidden), dtype=bool) if emitting is None else np.asarray(emitting, dtype=bool)
-    hidden &= ~(gap & _facing(emitting, hit_point, corners))
-    hidden[hidden & open_] = rest[hidden & open_]
-    watched = np.flatnonzero(watched)
-    return hidden, (watched, emitting[watched])
-
-
-def _facing(surface, hit_point, corners):
-    """``(s,)`` bool: the ``surface`` points and the points whose rays meet one of them
-    (``hit_point``, ``corners``: each hit's point and triangle corners)."""
-    facing = np.asarray(surface, dtype=bool).copy()
-    facing[hit_point[facing[corners].any(axis=1)]] = True
-    return facing
-
-
-def _uncover(index, weight, corners, hidden, tri, reach, ask=None):
-    """Barycentric ``weight (h, 3)`` of hits on triangles ``tri`` with ``corners`` some of
-    which are ``hidden`` (under another object: a floor point under a wall standing on it,
-    whose light stands for no surface a ray can land on). The hit takes the other corners
-    (none: no light):
-    where the hit point itself is not covered (nothing within ``reach`` along its
-    triangle's normal: the floor beside the wall), their weights made whole; where it is
-    (the floor under a block standing 2 cm above it, lit only through the gap) scaled up to
-    whole only where they hold at least half of the weight (a hit deeper in the gap stays
-    darker, continuously). ``ask (h,)`` bool: the hits whose point is asked; the others'
-    is taken as not covered."""
-    mixed = np.flatnonzero(hidden[corners].any(axis=1))
-    if not len(mixed):
-        return weight
-    free = np.ones(len(mixed), dtype=bool)
-    asked = np.arange(len(mixed)) if ask is None else np.flatnonzero(ask[mixed])
-    k = tri[mixed[asked]]
-    at = np.einsum("hc,hcx->hx", weight[mixed[asked]], np.stack([index.a[k], index.b[k], index.c[k]], axis=1))
-    free[asked] = ~_covered_along_normal(index, at, index.unit[k], reach[mixed[asked]])
-    kept = weight[mixed] * ~hidden[corners[mixed]]
-    out = weight.copy()
-    out[mixed] = kept / np.maximum(kept.sum(axis=1, keepdims=True), np.where(free, 1e-2, 0.5)[:, None])
-    return out
-
-
-def _covered_along_normal(index, at, up, reach):
-    """``(h,)`` bool: whether a surface lies over each point ``at`` along its unit normal
-    ``up``, within ``reach`` (one ray each)."""
-    slack = SLACK * reach + COORD_SLACK * np.abs(at).max(axis=1)
-    start = at + slack[:, None] * up
-    pair_p, pair_t = index.segment_candidates(start, start + reach[:, None] * up)  # the ray trace casts
-    t, _, _, _ = index.trace(at, up, up[:, None, :], reach, slack, pair_p, pair_t)
-    return np.isfinite(t[:, 0])
-
-
-def _gap_darkening(index, weight, corners, openness, at, tri, front, reach, turn):
-    """Barycentric ``weight (h, 3)`` of hits at ``at (h, 3)`` on triangles ``tri``, each
-    corner's share scaled by how open the hit point is against how open the corner is
-    (``openness (s,)``: the share of a point's view with nothing within its reach), at most
-    1. A triangle whose corners' light was gathered in the open but whose hit point lies in a
-    gap (a floor under a block standing 2 cm above it: the corners a floor cell away outside
-    the block, the hit point under it) sends only the share of that light the gap lets in.
-    Only hits on front faces of triangles with a corner closed in and one in the open
-    (OPENNESS_CLOSED, OPENNESS_OPEN), with something over them along their normal within
-    reach, are asked (OPENNESS_RAYS rays each, about the hit triangle's normal; hits close
-    together on one triangle share them: OPENNESS_CELL)."""
-    open_c = openness[corners]  # (h, 3)
-    ask = np.flatnonzero(front & (open_c.min(axis=1) < OPENNESS_CLOSED) & (open_c.max(axis=1) > OPENNESS_OPEN))
-    if not len(ask):
-        return weight
-    # In a gap: something over the hit point along its normal, within reach (a floor beside a
-    # wall is open overhead: its corners' light stands).
-    up, r = index.unit[tri[ask]], reach[ask]
-    slack = SLACK * r + COORD_SLACK * np.abs(at[ask]).max(axis=1)
-    gap = _covered_along_normal(index, at[ask], up, r)
-    if not gap.any():
-        return weight
-    keep = np.flatnonzero(gap)
-    ask, up, r, slack = ask[keep], up[keep], r[keep], slack[keep]
-    cell = np.floor(at[ask] / (OPENNESS_CELL * r[:, None])).astype(np.int64)
-    _, first, shared = np.unique(np.column_stack([tri[ask], cell]), axis=0, return_index=True, return_inverse=True)
-    one, up1, r1 = ask[first], up[first], r[first]
-    pair_p, pair_t, _ = index.candidates(at[one], up1, r1)
-    dirs = hemisphere_rays(up1, OPENNESS_RAYS, turn[one])
-    best, _, _, _ = index.trace(at[one], up1, dirs, r1, slack[first], pair_p, pair_t)
-    open_hit = (1.0 - np.clip((r1[:, None] - best) / (FADE * r1[:, None]), 0.0, 1.0).mean(axis=1))[shared.ravel()]
-    out = weight.copy()
-    ratio = np.minimum(1.0, (open_hit[:, None] + OPENNESS_FLOOR) / (open_c[ask] + OPENNESS_FLOOR))
-    out[ask] *= ratio
-    return out

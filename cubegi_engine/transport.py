@@ -23,7 +23,7 @@ radiance of a surface of albedo rho receiving diffuse light l is ``rho * l`` (+ 
 
 import numpy as np
 
-from . import cubemap, nearfield, sh
+from . import cubemap, nearfield, sh, working
 from .gather import same_side
 from .grid import points_by_cell
 from .nearfield import NEAR_REACH
@@ -65,6 +65,7 @@ class Transport:
         crowded points (:func:`~cubegi_engine.gather.near_caster`), or None."""
         n = capture.size
         self.proxy = proxy
+        tracing = _trace_near_field(scene, grid, caster) if near_field else None  # while the visibility is tested
         triangles = scene.triangles if proxy is None else proxy.triangles
         p = grid.count
         self.probe_count = p
@@ -122,12 +123,10 @@ class Transport:
         self.near = None
         self.gathered = None  # the points gathered by rays over their whole view (take_gathered)
         self.own_near = None  # the near field of its own (what a report says of it), without them
-        if near_field:
-            reach = NEAR_REACH * grid.point_cell_edge(scene.points)
+        if tracing is not None:
             lit_if_open = None if spare is None else np.isin(np.arange(len(scene.points)), spare[0])
-            self.near = nearfield.build(scene.points, scene.normals, reach, scene.triangles, hidden=self.covered, owner=scene.point_object,
-                                        lit_if_open=lit_if_open, sheets=scene.sheets(), keep_index=False, caster=caster,
-                                        emitting=np.any(scene.emission > 0, axis=1))
+            self.near = nearfield.finish(working.result(tracing), hidden=self.covered, lit_if_open=lit_if_open,
+                                         emitting=np.any(scene.emission > 0, axis=1))
         self._weights = np.empty((len(index), COEFFS_PER_POINT), dtype=np.float32)  # see point_weights
         self._put_weights(np.arange(len(index)), weight, basis)
         if spare is not None:
@@ -416,6 +415,17 @@ class Transport:
                 g = np.take(flat, self.index[sl], axis=0).reshape(-1, COEFFS_PER_POINT, 3)
                 out[sl] = np.matmul(self._weights[sl, None, :], g)[:, 0]
         return np.maximum(out, 0.0) if clamp else out
+
+
+def _trace_near_field(scene, grid, caster):
+    """:func:`~.nearfield.trace` of ``scene``'s near field on ``grid``, started in a thread
+    (:func:`~.working.start`): its rays need only the geometry, so they are traced while the
+    probes' visibility is tested (both numpy work, on the machine's cores); what their hits
+    take is decided after (:func:`~.nearfield.finish`), from the points the probes leave
+    covered. ``caster``: see :func:`~.nearfield.build`."""
+    sheets = scene.sheets()  # made here, once, before that thread asks for it
+    return working.start(nearfield.trace, scene.points, scene.normals, NEAR_REACH * grid.point_cell_edge(scene.points),
+                         scene.triangles, owner=scene.point_object, sheets=sheets, keep_index=False, caster=caster)
 
 
 def _no_weight(weight, basis):

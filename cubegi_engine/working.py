@@ -16,7 +16,7 @@ import threading
 from concurrent.futures import ThreadPoolExecutor
 
 __all__ = ["WORKING_SECONDS", "CAPTURE_DRAWS_PER_STEP", "WORKERS", "run", "in_background", "in_batches", "start", "wait",
-           "give_back_memory", "in_parallel", "made_once"]
+           "give_back_memory", "in_parallel", "made_once", "once", "result"]
 
 # Seconds between the steps a long piece of work hands back.
 WORKING_SECONDS = 0.1
@@ -73,6 +73,12 @@ def wait(job, working):
     if "error" in job.out:
         raise job.out["error"]
     return job.out["value"]
+
+
+def result(job):
+    """:func:`wait` for ``job`` where there is no step to yield (in a thread of the work's own)."""
+    job.thread.join()
+    return run(wait(job, None))
 
 
 def _trim():

@@ -495,7 +495,7 @@ def test_lamps_sharing_their_shadow_eyes_update_as_a_full_bake(lamp_room, edit):
 def test_a_lamp_lit_across_a_covered_gap_after_the_bake_builds_the_tables_again(empty_scene, cubegi):
     """A box lamp 1 cm under a ceiling (as test_bad_input's), baked dark and then made to
     glow: which points emit across that gap decides what the near field hides (the lamp's
-    top and the ceiling over it light each other; cubegi_engine.nearfield._hidden), so the
+    top and the ceiling over it light each other; cubegi_engine.nearhits.hidden_points), so the
     kept tables no longer hold. An update refuses, naming the lamp, and writes nothing; a
     bake keeps the cube maps and builds the tables again, equal to a bake from nothing; Live
     makes that bake by itself. (A glowing wall's foot on the ground is no such gap: the

@@ -330,7 +330,9 @@ def trace(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     reach = np.broadcast_to(np.asarray(reach, dtype=np.float64), (s,)).copy()
     tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
     asked = np.arange(s) if which is None else np.flatnonzero(which)
-    if not len(asked) or not len(tri) or not np.all(np.isfinite(reach[asked])) or reach[asked].max() <= 0:
+    # A point at NaN or Inf, or without a normal (a face with such a corner), casts nothing.
+    asked = asked[np.isfinite(points[asked]).all(axis=1) & (np.linalg.norm(normals[asked], axis=1) > 0.5) & np.isfinite(reach[asked])]
+    if not len(asked) or not len(tri) or reach[asked].max() <= 0:
         return NearField.empty(rays, seconds=time.perf_counter() - t0)
     index = voxel_index(points, tri, float(reach[asked].max()), sheets, keep_index)
     found = _candidate_pairs(index, points, normals, reach, asked, sheets, max_pairs,

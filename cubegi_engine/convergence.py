@@ -127,7 +127,7 @@ def fixed_point(step, x, tol=FIXED_POINT_TOLERANCE, max_steps=FIXED_POINT_STEPS,
     teapot keeps 0.9 of itself a step, and plain steps would take a hundred and fifty)."""
     shape = np.shape(x)
     x = np.asarray(x, dtype=np.float64).ravel()
-    changes, outputs, last = [], [], None
+    changes, outputs, last, gram = [], [], None, np.zeros((0, 0))
     steps, before, out, least = 0, None, x, np.inf
     for steps in range(1, max_steps + 1):
         out = np.asarray(step(x.reshape(shape)), dtype=np.float64).ravel()
@@ -137,18 +137,32 @@ def fixed_point(step, x, tol=FIXED_POINT_TOLERANCE, max_steps=FIXED_POINT_STEPS,
         if not change * (1.0 + r / (1.0 - r)) > tol * float(np.max(np.abs(out), initial=0.0)):
             break
         if before is not None and change > RESTART * least:  # the mix went astray: start it again
-            changes, outputs = [], []
+            changes, outputs, gram = [], [], np.zeros((0, 0))
         elif last is not None:
             changes.append(f - last[0])
             outputs.append(out - last[1])
+            kept = len(gram) - min(len(gram), ANDERSON_MEMORY - 1)  # the products of the changes still kept
+            gram = _gram_with(gram[kept:, kept:], changes[-ANDERSON_MEMORY:])
             del changes[:-ANDERSON_MEMORY], outputs[:-ANDERSON_MEMORY]
         before, last, least = change, (f, out), min(least, change)
         x = out
         if changes:
             # The least-squares mix by its normal equations (a few columns: no (n, k) copy).
-            gram = np.array([[a @ b for b in changes] for a in changes])
             mix = np.linalg.lstsq(gram + 1e-12 * np.trace(gram) * np.eye(len(changes)), [a @ f for a in changes], rcond=None)[0]
             x = out.copy()
             for m, o in zip(mix, outputs):
                 x -= m * o
     return out.reshape(shape), steps
+
+
+def _gram_with(gram, changes):
+    """The Gram matrix of ``changes`` (a list of vectors) from ``gram``, that of all of them
+    but the last: only the last one's products are taken (a step's one new column, not the
+    whole matrix again: at a million points each product reads tens of MB)."""
+    row = np.array([changes[-1] @ a for a in changes])
+    out = np.empty((len(changes), len(changes)))
+    out[:-1, :-1] = gram
+    out[-1, :] = row
+    out[:, -1] = row
+    return out
+

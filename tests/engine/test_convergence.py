@@ -166,3 +166,39 @@ def test_the_objects_furthest_off_are_named_with_their_share_and_mean_bias():
     reference["direct"][6] = 0.5
     found = {o["name"]: o for o in metrics.furthest_off(["Ground", "Room", "Case"], [2, 4, 1], light, reference, areas)}
     assert found["Case"]["direct_bias"] == pytest.approx(1.0)
+
+
+def test_the_anderson_mix_takes_the_same_products_a_step_at_a_time(monkeypatch):
+    """fixed_point keeps the Gram matrix of its last changes and takes only the new change's
+    products each step: the matrix it mixes with is the one made whole from its changes, bit
+    for bit, through the window's sliding."""
+    rng = np.random.default_rng(7)
+    a = rng.normal(size=(40, 40)) * 0.12
+    b = rng.normal(size=40)
+    seen = []
+    real = np.linalg.lstsq
+
+    def lstsq(matrix, rhs, rcond=None):
+        seen.append(np.array(matrix))
+        return real(matrix, rhs, rcond=rcond)
+
+    def whole(changes):
+        return np.array([[x @ y for y in changes] for x in changes])
+
+    made = []
+    gram_with = convergence._gram_with
+
+    def recording(gram, changes):
+        out = gram_with(gram, changes)
+        made.append((out, whole(changes)))
+        return out
+
+    monkeypatch.setattr(convergence.np.linalg, "lstsq", lstsq)
+    monkeypatch.setattr(convergence, "_gram_with", recording)
+    x, steps = convergence.fixed_point(lambda v: a @ v + b, np.zeros(40), tol=1e-12)
+    assert steps > convergence.ANDERSON_MEMORY + 2  # the window slid
+    assert len(made) >= convergence.ANDERSON_MEMORY + 1
+    for kept, full in made:
+        np.testing.assert_array_equal(kept, full)
+    np.testing.assert_allclose(x, np.linalg.solve(np.eye(40) - a, b), rtol=1e-6, atol=1e-9)
+    assert len(seen) == len(made)

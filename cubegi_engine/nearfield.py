@@ -304,6 +304,7 @@ class Traced:
     sheets: object
     rays: int
     reach: np.ndarray
+    longest: float  # the longest finite reach
     pairs: int
     crowded: np.ndarray
     crowded_objects: tuple
@@ -347,7 +348,8 @@ def trace(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     openness = np.ones(s)
     openness[cast] = hits.openness
     openness[members] = openness[by_caster[member_of]]
-    return Traced(index, points, normals, tri, sheets, rays, reach, len(pair_p), crowded, crowded_objects, members, member_of,
+    longest = float(np.max(reach, where=np.isfinite(reach), initial=0.0))  # (a point's at NaN is none)
+    return Traced(index, points, normals, tri, sheets, rays, reach, longest, len(pair_p), crowded, crowded_objects, members, member_of,
                   by_caster, cast, traced, hits, rch, turn, openness, time.perf_counter() - t0)
 
 
@@ -385,7 +387,7 @@ def finish(traced, *, hidden=None, lit_if_open=None, hidden_as_given=False, emit
         rows, open_basis, share, alias = shared_rows(rows, open_basis, share, members, traced.by_caster[traced.member_of],
                                                      traced.normals)
     return NearField(rows.astype(np.int64), open_basis, hit_row, corners, weight,
-                     traced.rays, float(traced.reach.max()), traced.pairs, int(traced.crowded.sum()), "",
+                     traced.rays, traced.longest, traced.pairs, int(traced.crowded.sum()), "",
                      traced.seconds + time.perf_counter() - t0, share,
                      None if hidden is None else np.flatnonzero(hidden), alias, traced.crowded_objects, emitters)
 

@@ -63,9 +63,18 @@ class Transport:
         ``near_field``: gather each point's short-range surroundings by rays
         (:mod:`cubegi_engine.nearfield`); ``caster``: the host's ray caster for the near field's
         crowded points (:func:`~cubegi_engine.gather.near_caster`), or None."""
-        n = capture.size
         self.proxy = proxy
         tracing = _trace_near_field(scene, grid, caster) if near_field else None  # while the visibility is tested
+        try:
+            self._build(scene, grid, capture, visibility, proxy, tracing)
+        except BaseException:
+            if tracing is not None:  # nothing of the failed tables outlives them
+                tracing.thread.join()
+            raise
+
+    def _build(self, scene, grid, capture, visibility, proxy, tracing):
+        """The tables (see the constructor); ``tracing``: the near field's rays, started."""
+        n = capture.size
         triangles = scene.triangles if proxy is None else proxy.triangles
         p = grid.count
         self.probe_count = p

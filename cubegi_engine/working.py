@@ -146,6 +146,9 @@ def made_once(owner, name, make, key=None):
     return cached[1]
 
 
+_once_locks = threading.Lock()
+
+
 class once:
     """A cached property made once per object even where worker threads ask for it at once
     (``functools.cached_property`` has no lock since Python 3.12: two pieces of the near
@@ -162,8 +165,10 @@ class once:
     def __get__(self, obj, owner=None):
         if obj is None:
             return self
-        with _made_lock:  # each object's own lock (reentrant: one property may ask another)
-            lock = obj.__dict__.setdefault("_once_lock", threading.RLock())
+        lock = obj.__dict__.get("_once_lock")
+        if lock is None:
+            with _once_locks:  # (a lock of its own: never held while anything is made)
+                lock = obj.__dict__.setdefault("_once_lock", threading.RLock())  # reentrant: one property may ask another
         with lock:
             if self.name not in obj.__dict__:
                 obj.__dict__[self.name] = self.make(obj)

@@ -2,9 +2,11 @@
 path against the capture-once linear path."""
 
 import importlib
+import time
 
 import bpy
 import numpy as np
+import pytest
 import scenes
 
 from cubegi.cubegi_engine import capture, cubemap, transport
@@ -91,6 +93,48 @@ def test_draw_every_bounce_matches_capture_once(empty_scene, cubegi):
     # rounding and rasterisation at triangle edges (a texel on an edge may pick either).
     assert np.abs(linear - drawn).max() < 5e-3 * scale
     assert np.abs(linear - drawn).mean() < 5e-4 * scale
+
+
+def test_the_tables_trace_the_near_field_beside_the_visibility_test_and_fail_whole(empty_scene, cubegi, monkeypatch):
+    """The tables trace the near field's rays in a thread while they test which probes see each
+    point: the near field is the one built after that test; an error in either reaches the
+    caller, and a failed test waits for the rays (nothing of the failed tables runs on)."""
+    nearfield = cubegi.cubegi_engine.nearfield
+    v, f = scenes.box_mesh((-2.0, -2.0, 0.0), (2.0, 2.0, 2.5), (8, 8, 5), inward=True)
+    scenes.mesh_object("Room", v, f)
+    bv, bf = scenes.box_mesh((-0.5, -0.3, 0.02), (0.4, 0.6, 0.9), (2, 2, 2), inward=False)
+    scenes.mesh_object("Block", bv, bf)
+    arrays, renderer = _collect_and_renderer(cubegi)
+    g = ProbeGrid((-2, -2, 0), (2, 2, 2.5), (3, 3, 2))
+    near, far = cubemap.clip_planes(arrays.scale)
+    cap = cubemap.capture_cubes(renderer, g.positions(), 16, near, far)
+    tables = transport.Transport(arrays, g, cap)
+    after = nearfield.build(arrays.points, arrays.normals, transport.NEAR_REACH * g.point_cell_edge(arrays.points), arrays.triangles,
+                            hidden=tables.covered, owner=arrays.point_object, sheets=arrays.sheets(), keep_index=False,
+                            emitting=np.any(arrays.emission > 0, axis=1))
+    assert tables.near.count > 100 and tables.covered.any()  # the floor under the block
+    for name in ("rows", "open_basis", "hit_row", "hit_corner", "hit_weight", "share", "hidden"):
+        assert np.array_equal(getattr(tables.near, name), getattr(after, name)), name
+
+    real_trace, traced = nearfield.trace, []
+
+    def slow_trace(*args, **kwargs):
+        time.sleep(0.3)
+        traced.append(real_trace(*args, **kwargs))
+        return traced[-1]
+
+    def failing_test(*args, **kwargs):
+        raise RuntimeError("the visibility test failed")
+
+    monkeypatch.setattr(nearfield, "trace", slow_trace)
+    monkeypatch.setattr(transport.Transport, "_seen_weights", failing_test)
+    with pytest.raises(RuntimeError, match="visibility test failed"):
+        transport.Transport(arrays, g, cap)
+    assert len(traced) == 1  # its rays were waited for
+    monkeypatch.undo()
+    monkeypatch.setattr(nearfield, "trace", lambda *args, **kwargs: 1 / 0)
+    with pytest.raises(ZeroDivisionError):
+        transport.Transport(arrays, g, cap)
 
 
 def test_culling_draws_what_drawing_everything_draws(empty_scene, cubegi):

@@ -78,6 +78,33 @@ def test_the_bvh_caster_meets_what_testing_every_triangle_meets(empty_scene, cub
     assert x_ours == pytest.approx(origins[ours.hit] + ours.t[ours.hit, None] * dirs[ours.hit], abs=1e-6)
 
 
+def test_a_bvh_ray_of_no_direction_meets_nothing_and_leaves_the_others_as_they_were(empty_scene, cubegi):
+    """A point without a normal (a face with a corner at NaN) casts rays of no direction, or
+    of NaN (``hemisphere.hemisphere_rays``): Blender's tree meets nothing along them, and every
+    other ray of the same call meets what it meets alone."""
+    from cubegi.cubegi_addon.bvh_rays import BvhRays
+
+    _quad_room()
+    arrays = cubegi.cubegi_addon.scene_data.collect(bpy.context).arrays
+    rays = BvhRays(arrays.points, arrays.triangles[~arrays.back_triangles()])
+    rng = np.random.default_rng(5)
+    origins = rng.uniform((0.1, 0.1, 0.1), (3.9, 3.9, 2.4), size=(200, 3))
+    dirs = rng.normal(size=(200, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    reach = rng.uniform(0.2, 6.0, size=200)
+    alone = rays.cast(origins, dirs, reach)
+    bad = np.zeros(200, dtype=bool)
+    bad[::7] = True
+    broken = dirs.copy()
+    broken[bad] = 0.0
+    broken[bad & (np.arange(200) % 2 == 1)] = np.nan
+    mixed = rays.cast(origins, broken, reach)
+    assert not mixed.hit[bad].any() and not rays.blocked(origins[bad], broken[bad]).any()
+    assert np.array_equal(mixed.hit[~bad], alone.hit[~bad]) and alone.hit[~bad].sum() > 50
+    assert np.array_equal(mixed.t[~bad], alone.t[~bad]) and np.array_equal(mixed.triangle[~bad], alone.triangle[~bad])
+    assert np.array_equal(rays.blocked(origins, broken, reach), mixed.hit)
+
+
 def test_a_sheet_drawn_once_reports_its_twin_from_behind_as_drawing_both_did(empty_scene, cubegi, monkeypatch):
     """Each sheet's pair of twins is drawn once (half the triangles); its back faces report the
     twin, with the twin's corners' weights: the texels are those of drawing both twins."""

@@ -165,4 +165,3 @@ def _gram_with(gram, changes):
     out[-1, :] = row
     out[:, -1] = row
     return out
-

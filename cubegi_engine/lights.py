@@ -137,14 +137,14 @@ def spot_attenuation(light, to_point):
 def polygon_form_factor(points, normals, polygon):
     """Form factor from receivers to a one-sided polygon, clipped to their hemispheres.
 
-    points, normals: ``(s, 3)``; polygon: ``(k, 3)`` counter-clockwise seen from its lit
-    side. Returns ``(s,)`` in [0, 1]: the cosine-weighted fraction of the hemisphere the
-    polygon covers (Lambert's formula ``1/(2 pi) sum_i theta_i n . g_i``).
-    """
+    points, normals: ``(s, 3)``; polygon: ``(k, 3)`` (or ``(s, k, 3)``, one per receiver) counter-clockwise
+    seen from its lit side. Returns ``(s,)`` in [0, 1]: the cosine-weighted fraction of the
+    hemisphere the polygon covers (Lambert's formula ``1/(2 pi) sum_i theta_i n . g_i``)."""
+    each = np.ndim(polygon) == 3
     if len(points) > piece_size():  # its (s, 2k, 3) temporaries, a chunk of points at a time
-        return np.concatenate(in_pieces(lambda sl: polygon_form_factor(points[sl], normals[sl], polygon), len(points)))
-    s, k = len(points), len(polygon)
-    rel = polygon[None, :, :] - points[:, None, :]  # (s, k, 3)
+        return np.concatenate(in_pieces(lambda sl: polygon_form_factor(points[sl], normals[sl], polygon[sl] if each else polygon), len(points)))
+    s, k = len(points), np.shape(polygon)[-2]
+    rel = (polygon if each else polygon[None, :, :]) - points[:, None, :]  # (s, k, 3)
     h = np.einsum("skc,sc->sk", rel, normals)  # height above the receiver's tangent plane
     nxt = np.roll(np.arange(k), -1)
     a, b = rel, rel[:, nxt]

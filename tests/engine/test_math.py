@@ -595,3 +595,42 @@ def test_the_tail_step_through_a_simplified_capture_equals_the_gather_of_the_lig
     assert got.shape == (p, 9, 3)
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4 * np.abs(want).max())
     assert np.ptp(want[..., 0] - want[..., 2]) > 0.1  # the channels differ
+
+
+def test_a_curved_emitters_lone_triangles_give_lamberts_light_near_and_far():
+    """A glowing ball's triangles are each a flat group of one: their light, summed at once
+    (far ones as small patches, near ones by Lambert's formula, the ones wholly behind a
+    point's tangent plane left out), is the per-triangle exact sum within the far patches'
+    error (FAR_RADII), and exactly it where every triangle is near."""
+    from cubegi.cubegi_engine import emitters
+
+    rng = np.random.default_rng(11)
+    # An icosphere-like ball: random points on a sphere of radius 0.2, triangulated as a fan strip.
+    theta = np.linspace(0.2, np.pi - 0.2, 9)
+    phi = np.linspace(0, 2 * np.pi, 13)[:-1]
+    ring = np.stack([np.sin(theta)[:, None] * np.cos(phi), np.sin(theta)[:, None] * np.sin(phi),
+                     np.cos(theta)[:, None] * np.ones_like(phi)], axis=-1) * 0.2
+    tris = []
+    for i in range(len(theta) - 1):
+        for j in range(len(phi)):
+            a, b, c, d = ring[i, j], ring[i, (j + 1) % len(phi)], ring[i + 1, j], ring[i + 1, (j + 1) % len(phi)]
+            tris += [(a, c, b), (b, c, d)]
+    verts = np.array(tris)
+    radiance = rng.uniform(0.5, 2.0, (len(verts), 3))
+    # Receivers: a floor and walls at 0.25-3 m, facing the ball, and points on the ball itself.
+    far = rng.uniform(-3, 3, (300, 3))
+    far *= np.clip(np.linalg.norm(far, axis=1, keepdims=True), 0.25, None) / np.linalg.norm(far, axis=1, keepdims=True)
+    normals = -far / np.linalg.norm(far, axis=1, keepdims=True) + rng.normal(scale=0.4, size=far.shape)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    on = ring[2:6, :4].reshape(-1, 3) * 1.0001
+    points = np.concatenate([far, on])
+    normals = np.concatenate([normals, on / np.linalg.norm(on, axis=1, keepdims=True)])
+    exact = sum(emitters._two_sided_ff(points, normals, tri)[:, None] * r for tri, r in zip(verts, radiance))
+    fast = emitters._lone_ff(points, normals, verts, radiance)
+    assert exact[:300].max() > 1e-3 and np.all(np.isfinite(fast))
+    np.testing.assert_allclose(fast, exact, rtol=0.01, atol=1e-6 * exact.max())
+    np.testing.assert_allclose(fast[300:], exact[300:], atol=1e-12)  # a convex ball's own points: none of its light
+    # Every triangle near (a far threshold past the room): Lambert's formula throughout, the same sums.
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(emitters, "FAR_RADII", 1e6)
+        np.testing.assert_allclose(emitters._lone_ff(points, normals, verts, radiance), exact, rtol=1e-12, atol=1e-15)

@@ -138,7 +138,7 @@ def _cut(origins, u, tid, planes):
     return t, ok & (b >= 0) & (c >= 0) & (b + c <= 1)
 
 
-def near_any_triangle(centres, radius, a, b, c, tiles=8, centre_normals=None, across=None):
+def near_any_triangle(centres, radius, a, b, c, tiles=8, centre_normals=None, across=None, least=False):
     """``(m,)`` bool: whether each of ``centres (m, 3)`` may lie within ``radius`` of any of
     the triangles ``a, b, c`` (each ``(k, 3)``). Conservative: the point is within ``radius``
     of the triangle's plane and its box and, projected onto it, within ``radius`` of the
@@ -146,12 +146,14 @@ def near_any_triangle(centres, radius, a, b, c, tiles=8, centre_normals=None, ac
     centres are tested tile by tile (about ``tiles`` along the longest side, no smaller than
     eight radii) against the triangles whose boxes reach the tile. With ``centre_normals``
     ``(m, 3)`` and ``across``, a triangle counts for a centre only where the cosine between
-    their normals is below ``across`` in magnitude (it runs across the centre's surface)."""
+    their normals is below ``across`` in magnitude (it runs across the centre's surface).
+    ``least``: also ``(m,)`` the least index of such a triangle for each centre (-1: none)."""
     m = len(centres)
     out = np.zeros(m, dtype=bool)
+    found = np.full(m, len(a), dtype=np.int64)
     tri = _Near(a, b, c, radius)
     if not m or not len(tri.a):
-        return out
+        return (out, np.full(m, -1, dtype=np.int64)) if least else out
     lo = centres.min(axis=0)
     edge = max(float(np.max(centres.max(axis=0) - lo)) / tiles, 8.0 * radius, 1e-300)
     tile = np.floor((centres - lo) / edge).astype(np.int64)
@@ -185,8 +187,10 @@ def near_any_triangle(centres, radius, a, b, c, tiles=8, centre_normals=None, ac
         if centre_normals is not None:
             near &= np.abs(centre_normals[cells] @ tri.n[sel].T) < across
         pi, ki = np.nonzero(near)
-        out[cells[pi[tri.near(pts[pi], sel[ki])]]] = True
-    return out
+        hit = tri.near(pts[pi], sel[ki])
+        out[cells[pi[hit]]] = True
+        np.minimum.at(found, cells[pi[hit]], tri.index[sel[ki[hit]]])
+    return (out, np.where(out, found, -1)) if least else out
 
 
 class _Near:
@@ -197,6 +201,7 @@ class _Near:
         n = np.cross(b - a, c - a)
         length = np.linalg.norm(n, axis=1)
         keep = length > 0
+        self.index = np.flatnonzero(keep)  # each one's place among those given
         self.a, self.b, self.c, self.n = a[keep], b[keep], c[keep], n[keep] / length[keep, None]
         self.radius = radius
         self.edges = [(self.a, self.b), (self.b, self.c), (self.c, self.a)]

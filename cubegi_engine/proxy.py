@@ -14,7 +14,9 @@ triangle whose corners land in three different clusters is kept (the others coll
 duplicates are dropped. So a thin wall's two faces stay two surfaces facing away from each
 other (no light through it), surfaces that meet in a cube are joined (no slit to see
 through), and each object keeps its identity (probes that see a moved object, the rug
-test).
+test). Where another object's surface runs across a cell (a wall's foot on a floor), the
+cell is halved, and its finest halves are clustered on each side of that surface apart: no
+cluster averages the light of both sides of a wall, and what touches stays touching.
 
 What it costs, as a bound: every captured surface lies within ``h sqrt(3)`` of where it
 is, and the radiance a probe sees is averaged over cells of edge ``h`` (each cluster sends
@@ -39,13 +41,17 @@ __all__ = ["CaptureProxy", "simplify"]
 # simplified: clustering it saves little and smears the light of its large triangles (a
 # room's walls cut to a cell's size for the light, cells of metres wide).
 KEEP_WHOLE, KEEP_WHOLE_SHARE = 64, 0.01
-# Rounds of adjusting the cluster size towards the budget; each one is a clustering pass.
-ROUNDS, STALL = 4, 0.1
-# How many times a cell that another object's surface crosses is halved before its points
-# are kept as they are (see _cluster).
+# Rounds of adjusting the cluster size towards the budget; each one is a clustering pass. The
+# least power of the cells' edge the triangles are taken to fall by (see simplify).
+ROUNDS, STALL, MIN_POWER = 4, 0.1, 0.5
+# How many times a cell that another object's surface crosses is halved before its halves
+# are clustered on each side of it (see _cluster).
 CONTACT_LEVELS = 3
 # How many cells around a crossed one hold what can cross its halves (see _finer_candidates).
 AROUND = 2
+# The coarse lattice that finds the points in a box (see _Prepared.points_in): about this many
+# points a cell, and at most this many cells along a side.
+BUCKET_POINTS, BUCKETS_ALONG = 256, 128
 
 
 @dataclass
@@ -97,9 +103,8 @@ class CaptureProxy:
 
 def simplify(scene, budget) -> CaptureProxy | None:
     """The scene's capture proxy with about ``budget`` triangles, or None where the scene has
-    no more than that (it is drawn as it is). Where objects touch, the points they keep as
-    they are can take it past the budget (by 13% for rooms subdivided to 19K triangles given
-    3,000); the report says what was drawn. The triangles that cutting long ones for the
+    no more than that (it is drawn as it is), within 10% of it where ROUNDS of clustering
+    reach it; the report says what was drawn. The triangles that cutting long ones for the
     bake added (``scene.sampled_triangles``) are added to the budget, and an object is kept
     whole by the triangles it was modelled with: a floor cut into 200 pieces counts as the
     two triangles it was (the Breakfast Room's cut walls, clustered 1.45 m wide, let more sky
@@ -128,7 +133,7 @@ def simplify(scene, budget) -> CaptureProxy | None:
     # A surface of area A tessellated into clusters of edge h has about 2 A / h^2 triangles.
     ratio = (budget - kept_whole) / max(int(tri_count[simplified].sum()), 1)
     cell = np.where(simplified, np.sqrt(2.0 * area / np.maximum(tri_count * ratio, 1.0)), 0.0)
-    best = None
+    best, before = None, None
     for _ in range(ROUNDS):
         proxy = _cluster(prep, cell)
         if best is not None and len(proxy.triangles) - kept_whole > (1.0 - STALL) * (len(best.triangles) - kept_whole):
@@ -137,11 +142,13 @@ def simplify(scene, budget) -> CaptureProxy | None:
         got = len(proxy.triangles) - kept_whole
         if len(proxy.triangles) <= budget * 1.1 or got <= 0:
             return proxy
-        # Wider cells; where objects touch, the points kept as they are cost more as cells
-        # grow, so the count need not fall: the fewest seen is kept, and a round that takes
-        # off less than STALL of those it can take is the last (the Breakfast Room: 90.6K, 89.7K, 84.2K,
-        # 91.1K triangles in four rounds of 0.7-1.1 s each).
-        cell = cell * np.sqrt(got / max(budget - kept_whole, 1)) * 1.05
+        # Wider cells. A surface's triangles fall as the square of the cell's edge, the cells
+        # where objects touch (clustered finer) more slowly: after two rounds, the power the
+        # count fell by. A round that takes off less than STALL of those it can take is the last,
+        # and the fewest seen are kept.
+        power = 2.0 if before is None else float(np.clip(np.log(before[1] / got) / np.log(before[0]), MIN_POWER, 2.0))
+        step = (got / max(budget - kept_whole, 1)) ** (1.0 / power) * 1.05
+        cell, before = cell * step, (step, got)
     return best
 
 
@@ -205,14 +212,13 @@ def _modelled(count, sampled):
 
 
 class _Prepared:
-    """What every clustering round of one scene reads: the points (and their areas) sorted
-    along X, each object's points, the triangles' boxes, sizes and normals."""
+    """What every clustering round of one scene reads: the points (and their areas), each
+    object's points, the triangles' boxes, sizes and normals, and lookups by place."""
 
     def __init__(self, points, normals, tris, owner, objects, areas):
         self.points, self.normals, self.tris, self.owner, self.areas = points, normals, tris, owner, areas
-        self.rel = points - points.min(axis=0)  # cells are counted from the scene's lowest corner
-        self.by_x = np.argsort(points[:, 0], kind="stable")
-        self.xs = points[self.by_x, 0]
+        self.origin = points.min(axis=0) if len(points) else np.zeros(3)
+        self.rel = points - self.origin  # cells are counted from the scene's lowest corner
         self.members = np.split(np.argsort(owner, kind="stable"), np.cumsum(np.bincount(owner, minlength=objects))[:-1])
         self.tri_owner = owner[tris[:, 0]]
         corners = points[tris]
@@ -223,6 +229,30 @@ class _Prepared:
         length = np.linalg.norm(n, axis=1)
         self.tri_area = 0.5 * length
         self.tri_normal = n / np.maximum(length, 1e-300)[:, None]
+
+    def points_in(self, lo, hi):
+        """The points that may lie in the box ``lo, hi`` (more, not fewer): those of the
+        cells of a coarse lattice (about BUCKET_POINTS a cell) that the box reaches."""
+        order, start, edge, shape = self._buckets
+        first = np.clip(np.floor((lo - self.origin) / edge), 0, shape - 1).astype(np.int64)
+        last = np.clip(np.floor((hi - self.origin) / edge), -1, shape - 1).astype(np.int64)
+        if np.any(last < first):
+            return order[:0]
+        cells = np.ravel_multi_index(np.meshgrid(*[np.arange(a, b + 1) for a, b in zip(first, last)], indexing="ij"), shape).ravel()
+        count = start[cells + 1] - start[cells]
+        return order[np.repeat(start[cells], count) + run_offsets(count)]
+
+    @once
+    def _buckets(self):
+        """The points by their cell of a coarse lattice: ``(order, start, edge, shape)``, the
+        points of cell ``k`` being ``order[start[k]:start[k + 1]]``."""
+        span = np.maximum(self.rel.max(axis=0), 1e-300) if len(self.rel) else np.ones(3)
+        cells = max(len(self.rel) / BUCKET_POINTS, 1.0)
+        edge = max(float(np.cbrt(np.prod(span) / cells)), float(span.max()) / BUCKETS_ALONG)
+        shape = np.minimum(np.floor(span / edge).astype(np.int64) + 1, BUCKETS_ALONG + 1)
+        key = np.ravel_multi_index(np.minimum(np.floor(self.rel / edge).astype(np.int64), shape - 1).T, shape)
+        order = np.argsort(key, kind="stable")
+        return order, np.searchsorted(key[order], np.arange(int(np.prod(shape)) + 1)), edge, shape
 
     def triangles_in(self, lo, hi):
         """The triangles whose boxes may reach the box ``lo, hi`` (more, not fewer): the
@@ -270,20 +300,23 @@ def _cluster(prep, cell):
     whole = h <= 0
     ijk = np.where(whole[:, None], 0, np.floor(rel / np.where(whole, 1.0, h)[:, None])).astype(np.int64)
     # A cell another object's surface runs across is halved, CONTACT_LEVELS times, each half
-    # asked again; the points whose finest cell is still crossed are kept as they are.
+    # asked again. The points of a finest cell still crossed are clustered on each side of
+    # the crossing surface apart (kept as they were, a subdivided Breakfast Room's walls'
+    # feet and contacts took its capture to 138K triangles against a budget of 69K: 70K now).
     level = np.zeros(s, dtype=np.int64)
-    touching, within = _contact(prep, cell, ijk)
+    touching, within, side = _contact(prep, cell, ijk)
     for k in range(1, CONTACT_LEVELS + 1):
         if not touching.any():
             break
         level[touching] = k
         h = np.where(touching, 0.5 * h, h)
         ijk[touching] = np.floor(rel[touching] / h[touching, None]).astype(np.int64)
-        touching, within = _contact(prep, cell / 2.0**k, ijk, touching, within)
-    whole = whole | touching
+        touching, within, side = _contact(prep, cell / 2.0**k, ijk, touching, within)
+    # A finest cell still crossed is clustered on each side of what crosses it apart.
+    level[touching] = CONTACT_LEVELS + 2 + side[touching]
     h = np.where(whole, 0.0, h)
-    # Points kept as they are are their own clusters (numbered after the cells: one key of
-    # every point's row would pass 64 bits and take the slow unique of whole rows).
+    # Objects kept whole are their own clusters (numbered after the cells: one key of every
+    # point's row would pass 64 bits and take the slow unique of whole rows).
     ijk[whole] = 0
     cells = np.empty(s, dtype=np.int64)
     grouped = ~whole
@@ -331,19 +364,22 @@ PARALLEL = 0.9
 
 
 def _contact(prep, cell, ijk, which=None, within=None):
-    """``((s,) bool, within)``: points of simplified objects (``which (s,)`` bool: of those
-    alone) whose cell (in their object's lattice: ``cell`` per object, ``ijk`` per point)
-    also holds another object's surface running across it: a wall's foot on a floor, a floor
-    under a wall. No cluster is made across such a cell, so that none averages light from
-    both sides of another surface (a floor running under a wall between a lit and a dark
+    """``((s,) bool, within, side)``: points of simplified objects (``which (s,)`` bool: of
+    those alone) whose cell (in their object's lattice: ``cell`` per object, ``ijk`` per
+    point) also holds another object's surface running across it: a wall's foot on a floor, a
+    floor under a wall. No cluster is made across such a cell, so that none averages light
+    from both sides of another surface (a floor running under a wall between a lit and a dark
     room) and nothing lifts off what it stands on (see :func:`_cluster`). A surface lying
     along the cell's (a rug on a floor) does not count: both are clustered, each on its own.
+    ``side (s,)`` int8: on which side of that surface each of those points lies (-1, 0, 1: of
+    the plane of the crossing point or triangle with the least index in its cell).
 
     ``within``: per object, ``(points, triangles)`` of other objects that can cross its
     cells, from the coarser level these cells halve (what this call returns for its crossed
     cells: see :func:`_finer_candidates`); None: all."""
     points, normals, owner, rel = prep.points, prep.normals, prep.owner, prep.rel
     out = np.zeros(len(points), dtype=bool)
+    side = np.zeros(len(points), dtype=np.int8)
     simplified = np.flatnonzero(cell > 0)
     finer = {}
     for obj in simplified:
@@ -361,7 +397,7 @@ def _contact(prep, cell, ijk, which=None, within=None):
         cell_normal = normals[mine[first]]
         # Other objects' points in this object's cells, across the cell's surface.
         if within is None:
-            near = prep.by_x[np.searchsorted(prep.xs, lo[0]) : np.searchsorted(prep.xs, hi[0], side="right")]
+            near = prep.points_in(lo, hi)
             near = near[owner[near] != obj]
             big = prep.triangles_in(lo, hi)
             big = big[prep.tri_owner[big] != obj]
@@ -375,20 +411,32 @@ def _contact(prep, cell, ijk, which=None, within=None):
         found = at < len(cells)
         found[found] = cells[at[found]] == theirs[found]
         across = np.abs(np.einsum("sc,sc->s", normals[near[found]], cell_normal[at[found]])) < PARALLEL
+        crossing, crossed = near[found][across], at[found][across]
         touched = np.zeros(len(cells), dtype=bool)
-        touched[at[found][across]] = True
+        touched[crossed] = True
+        # Each crossed cell's crossing surface: a plane through a point, or a triangle.
+        anchor, facing = np.zeros((len(cells), 3)), np.zeros((len(cells), 3))
         # Other objects' triangles larger than a cell, whose vertices may lie far outside.
-        big = big[prep.tri_extent[big] > h]
+        big = np.sort(big[prep.tri_extent[big] > h])
         big = big[np.all(prep.tri_lo[big] <= hi, axis=1) & np.all(prep.tri_hi[big] >= lo, axis=1)]
         if len(big):
             centres = points[mine[first]] - rel[mine[first]] + (ijk[mine[first]] + 0.5) * h
             c = points[prep.tris[big]]
-            touched |= near_any_triangle(centres, 0.5 * np.sqrt(3.0) * h, c[:, 0], c[:, 1], c[:, 2],
-                                         centre_normals=cell_normal, across=PARALLEL)
+            hit, least = near_any_triangle(centres, 0.5 * np.sqrt(3.0) * h, c[:, 0], c[:, 1], c[:, 2],
+                                           centre_normals=cell_normal, across=PARALLEL, least=True)
+            touched |= hit
+            anchor[hit], facing[hit] = c[least[hit], 0], prep.tri_normal[big[least[hit]]]
+        first_crossing = np.full(len(cells), len(points))
+        np.minimum.at(first_crossing, crossed, crossing)
+        by_point = first_crossing < len(points)
+        anchor[by_point], facing[by_point] = points[first_crossing[by_point]], normals[first_crossing[by_point]]
         if touched.any():
-            out[mine[np.isin(key, cells[touched])]] = True
+            inside = np.isin(key, cells[touched])
+            members, slot = mine[inside], np.searchsorted(cells, key[inside])
+            out[members] = True
+            side[members] = np.sign(np.einsum("sc,sc->s", points[members] - anchor[slot], facing[slot]))
             finer[obj] = _finer_candidates(prep, obj, near, theirs, cells[touched], shape, big, h)
-    return out, finer
+    return out, finer, side
 
 
 def _finer_candidates(prep, obj, near, theirs, crossed, shape, big, h):

@@ -125,26 +125,32 @@ def test_a_dense_floor_under_a_thin_wall_is_not_averaged_across_it():
     assert wall[:, 2].min() == pytest.approx(0.0, abs=1e-12)
 
 
-def test_only_the_finest_cells_a_wall_crosses_keep_their_points_as_they_are():
-    """A cell of the floor that the wall crosses is halved CONTACT_LEVELS times: the floor
-    points kept as they are (alone in their clusters, where a finest cell holds several
-    points) lie within about a finest cell of the wall, not a whole cell (a subdivided
-    room's walls' feet held most of its capture), and no floor cluster takes in points from
-    both sides of it."""
+@pytest.mark.parametrize("thickness", [0.02, 0.005])
+def test_the_finest_cells_a_wall_crosses_are_clustered_on_each_side_of_it(thickness):
+    """A cell of the floor that the wall crosses is halved CONTACT_LEVELS times, and its
+    finest halves are clustered on each side of the wall apart, even where they are wider
+    than the wall: the budget holds (the floor's points kept as they were took 150
+    triangles to 2,694), no floor cluster takes in points from both sides of the wall, the
+    floor's clusters at the wall are of halved cells, and the floor still
+    reaches the wall on both sides (no slit under it)."""
     front = _plane((0.0, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20)
-    back = _plane((-0.02, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20, flip=True)
+    back = _plane((-thickness, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20, flip=True)
     floor = _plane((-1.0, 0.0, 0.0), (2.0, 0, 0), (0, 1.0, 0), 200)  # 1 cm apart: 80,000 triangles
     scene = _scene([(0, front), (0, back), (1, floor)])
     proxy = simplify(scene, 150)
+    assert len(proxy.triangles) <= 1.1 * 150
     finest = proxy.cell[1] / 2**CONTACT_LEVELS
-    assert finest > 0.015  # several floor points in each finest cell
+    assert finest > 2.0 * thickness  # the finest cells are wider than the wall
     on_floor = scene.point_object == 1
-    alone = on_floor & (np.bincount(proxy.cluster)[proxy.cluster] == 1)
-    x = scene.points[alone, 0]
-    assert alone.any() and np.all((x >= -0.02 - 1.5 * finest) & (x <= 1.5 * finest))
-    left = on_floor & (scene.points[:, 0] < -0.02)
-    right = on_floor & (scene.points[:, 0] > 0.0)
+    x = scene.points[:, 0]
+    left, right = on_floor & (x < -thickness), on_floor & (x > 0.0)
     assert not np.intersect1d(proxy.cluster[left], proxy.cluster[right]).size
+    at_wall = np.unique(proxy.cluster[on_floor & (x > -thickness - 0.5 * finest) & (x < 0.5 * finest)])
+    spread = np.array([np.ptp(x[proxy.cluster == k]) for k in at_wall])
+    assert len(at_wall) and spread.max() <= 0.5 * proxy.cell[1]  # halved at least once
+    floor_points = proxy.points[np.unique(proxy.triangles[proxy.triangle_object == 1])]
+    assert np.any((floor_points[:, 0] < -thickness) & (floor_points[:, 0] > -thickness - finest))
+    assert np.any((floor_points[:, 0] > 0.0) & (floor_points[:, 0] < finest))
 
 
 # Three small upright triangles through the floor near the wall (each smaller than a floor
@@ -220,6 +226,10 @@ def test_near_any_triangle_is_conservative():
     r = 0.15
     got = near_any_triangle(pts, r, a, b, c, tiles=5)
     assert np.array_equal(got, near_any_triangle(pts, r, a, b, c, tiles=1))  # each tile gets every triangle near it
+    # Asked for it, the least index of a triangle near each point (-1: none), as one by one.
+    alone = np.stack([near_any_triangle(pts, r, a[k:k + 1], b[k:k + 1], c[k:k + 1]) for k in range(len(a))], axis=1)
+    _, least = near_any_triangle(pts, r, a, b, c, tiles=5, least=True)
+    assert np.array_equal(least, np.where(alone.any(axis=1), np.argmax(alone, axis=1), -1))
     # Distances by dense sampling of each triangle (an upper bound on the true distance).
     u, v = np.meshgrid(np.linspace(0, 1, 41), np.linspace(0, 1, 41))
     inside = (u + v) <= 1

@@ -4,6 +4,7 @@ add-on's :class:`~cubegi_engine.rays.RayCaster`."""
 import numpy as np
 from mathutils.bvhtree import BVHTree
 
+from ..cubegi_engine import working
 from ..cubegi_engine.rays import Hits, hits_from_distances
 
 # Resident memory of Blender's BVH tree per triangle (measured: about 160 MB for a million).
@@ -60,6 +61,7 @@ class BvhRays:
         reach = None if reach is None else np.broadcast_to(np.asarray(reach, dtype=np.float64), (len(local),))
         out = np.empty(len(local), dtype=bool)
         for at in range(0, len(local), RAYS_AT_ONCE):  # the tree's answers are Python objects: a few at a time
+            working.checkpoint()  # (a cancelled bake's rays stop here)
             part = slice(at, at + RAYS_AT_ONCE)
             found = self._found(local[part], dirs[part], None if reach is None else reach[part])
             out[part] = np.fromiter((f[2] is not None for f in found), dtype=bool, count=len(found))

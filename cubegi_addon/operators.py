@@ -6,6 +6,7 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, IntProperty, IntVectorProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper
 
+from ..cubegi_engine import working
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.settings import OPTIONS
 from . import animation, attributes, display, export, files, grid_objects, live, materials, pipeline, prefs, probe_view, props, session
@@ -25,10 +26,11 @@ def _settings_from(op, scene):
 
 class StepJob:
     """A generator of Progress driven a step at a time: by a modal operator's timer, or by
-    tests. :meth:`cancel` closes it (the generator undoes what it must)."""
+    tests. :meth:`cancel` closes it (the generator undoes what it must, and the threads its
+    steps started stop: :class:`~cubegi_engine.working.Driven`)."""
 
     def __init__(self, steps):
-        self.steps = steps
+        self.steps = working.Driven(steps)
         self.report_path = None
         self.last = None
         self.report = None
@@ -36,7 +38,7 @@ class StepJob:
     def step(self):
         """Run one step; True when the bake is done (the report is in ``self.report``)."""
         try:
-            self.last = next(self.steps)
+            self.last = self.steps.next()
         except StopIteration as stop:
             self.report = stop.value
             return True

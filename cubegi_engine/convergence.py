@@ -19,6 +19,8 @@ bounce per iteration.
 
 import numpy as np
 
+from .working import checkpoint
+
 __all__ = ["ratios", "converges", "geometric_factor", "remaining_share", "geometric_tail", "gmres", "fixed_point"]
 
 # Each bounce keeps this share of the light before (or more): the series is taken not to
@@ -99,6 +101,7 @@ def gmres(apply, b, tol=1e-5, max_iter=60):
     residual = 1.0
     j = 0
     for j in range(max_iter):
+        checkpoint()  # (a cancelled bake's tail stops here)
         w = np.asarray(apply(basis[j]), dtype=np.float64)
         for i in range(j + 1):  # modified Gram-Schmidt
             h[i, j] = float(w @ basis[i])
@@ -130,6 +133,7 @@ def fixed_point(step, x, tol=FIXED_POINT_TOLERANCE, max_steps=FIXED_POINT_STEPS,
     changes, outputs, last, gram = [], [], None, np.zeros((0, 0))
     steps, before, out, least = 0, None, x, np.inf
     for steps in range(1, max_steps + 1):
+        checkpoint()  # (a cancelled bake's tail stops here)
         out = np.asarray(step(x.reshape(shape)), dtype=np.float64).ravel()
         f = out - x
         change = float(np.max(np.abs(f), initial=0.0))

@@ -6,8 +6,10 @@ step that would run for seconds (drawing hundreds of probes, building the tables
 many lights) is cut: GPU work into batches of about WORKING_SECONDS each (the GPU context is
 the main thread's), numpy-only work run in a thread of its own while the generator yields
 *working* steps (``Progress.working``) every WORKING_SECONDS. A working step carries no light;
-:func:`~cubegi_engine.bake.run` does not report it. Closing the generator (a cancel) while a
-thread runs leaves the thread to finish in the background; its result is dropped.
+:func:`~cubegi_engine.bake.run` does not report it. A generator driven through
+:class:`Driven` (as :func:`run` and the add-on's operators drive it) stops the threads its
+steps started when it is closed (a cancel) or fails: each ends at its next piece of work
+(:func:`checkpoint`, raising :class:`Cancelled` there), and its result is dropped.
 """
 
 import ctypes
@@ -16,7 +18,7 @@ import threading
 from concurrent.futures import ThreadPoolExecutor
 
 __all__ = ["WORKING_SECONDS", "CAPTURE_DRAWS_PER_STEP", "WORKERS", "run", "in_background", "in_batches", "start", "wait",
-           "give_back_memory", "in_parallel", "made_once", "once", "result"]
+           "give_back_memory", "in_parallel", "made_once", "once", "result", "Driven", "Cancelled", "checkpoint"]
 
 # Seconds between the steps a long piece of work hands back.
 WORKING_SECONDS = 0.1
@@ -39,13 +41,78 @@ def _workers():
 WORKERS = _workers()
 
 
+class Cancelled(BaseException):
+    """Raised in a thread at its next piece of work (:func:`checkpoint`) once the generator
+    it works for was closed or failed (see :class:`Driven`). Not an Exception: no fallback
+    that catches those runs in its place."""
+
+
+# What the current thread works for: ``.stop``, the Event of the driven generator whose step
+# started it (None: nothing that stops).
+_work = threading.local()
+
+
+def checkpoint():
+    """Raise :class:`Cancelled` where the generator this thread works for has stopped:
+    called between pieces of work (each of :func:`in_parallel`'s, each batch of rays)."""
+    stop = getattr(_work, "stop", None)
+    if stop is not None and stop.is_set():
+        raise Cancelled()
+
+
+class _Stop:
+    """A driven generator's stop, set by it or by the one it runs inside (a nested
+    :func:`run` in a thread of a bake's)."""
+
+    def __init__(self, parent=None):
+        self.event, self.parent = threading.Event(), parent
+
+    def set(self):
+        self.event.set()
+
+    def is_set(self):
+        return self.event.is_set() or (self.parent is not None and self.parent.is_set())
+
+
+class Driven:
+    """A generator of Progress stepped with :meth:`next`: the threads its steps start (and
+    theirs) work for it, and stop at their next piece once it is closed (:meth:`close`, a
+    cancel) or raised an error (its tables, its simplification: at a million vertices tens
+    of seconds and gigabytes that a bake started next would wait on)."""
+
+    def __init__(self, steps):
+        self.steps, self.stop, self.done = steps, _Stop(getattr(_work, "stop", None)), False
+
+    def next(self):
+        before = getattr(_work, "stop", None)
+        _work.stop = self.stop
+        try:
+            return next(self.steps)
+        except StopIteration:
+            self.done = True  # (work it left running on purpose goes on)
+            raise
+        except BaseException:
+            self.stop.set()
+            raise
+        finally:
+            _work.stop = before
+
+    def close(self):
+        if not self.done:
+            self.stop.set()
+        self.steps.close()
+
+
 class Job:
-    """``fn(*args, **kwargs)`` running in a thread of its own (see :func:`start`)."""
+    """``fn(*args, **kwargs)`` running in a thread of its own (see :func:`start`), for what
+    the starting thread works for (see :class:`Driven`)."""
 
     def __init__(self, fn, args, kwargs):
         self.out = {}
+        stop = getattr(_work, "stop", None)
 
         def work():
+            _work.stop = stop
             try:
                 self.out["value"] = fn(*args, **kwargs)
             except BaseException as exc:  # handed to the generator's caller
@@ -111,24 +178,33 @@ _pool_lock = threading.Lock()
 _in_pool = threading.local()
 
 
-def _worker(fn, item):
+def _worker(fn, item, stop):
     _in_pool.inside = True
+    _work.stop = stop
+    checkpoint()
+    return fn(item)
+
+
+def _inline(fn, item):
+    checkpoint()
     return fn(item)
 
 
 def in_parallel(fn, items):
-    """``[fn(item) for item in items]``, run on up to WORKERS threads, in order. Each item's
-    result is its own (the pieces must not depend on one another), so the numbers are the same
-    on any machine. Called from inside one of those threads (a piece cut into pieces), it runs
-    in that thread: the pool never waits on itself."""
+    """``[fn(item) for item in items]``, run on up to WORKERS threads, in order, each piece
+    after a :func:`checkpoint`. Each item's result is its own (the pieces must not depend on
+    one another), so the numbers are the same on any machine. Called from inside one of
+    those threads (a piece cut into pieces), it runs in that thread: the pool never waits on
+    itself."""
     global _pool
     items = list(items)
     if WORKERS == 1 or len(items) < 2 or getattr(_in_pool, "inside", False):
-        return [fn(item) for item in items]
+        return [_inline(fn, item) for item in items]
     with _pool_lock:
         if _pool is None:
             _pool = ThreadPoolExecutor(max_workers=WORKERS, thread_name_prefix="cubegi-piece")
-    return list(_pool.map(_worker, [fn] * len(items), items))
+    stop = getattr(_work, "stop", None)
+    return list(_pool.map(_worker, [fn] * len(items), items, [stop] * len(items)))
 
 
 _made_lock = threading.RLock()
@@ -197,11 +273,17 @@ def in_batches(count, size, run_batch, working):
 def run(steps, progress=None):
     """Drain a generator of Progress, calling ``progress`` on each (but the working steps
     that only hand control back); return its result. The one driver: the operator's modal
-    timer steps the same generators with ``next``."""
-    while True:
-        try:
-            step = next(steps)
-        except StopIteration as stop:
-            return stop.value
-        if progress is not None and not step.working:
-            progress(step)
+    timer steps the same generators, a step at a time. Its threads stop where it fails or
+    is interrupted (Ctrl-C: see :class:`Driven`)."""
+    driven = Driven(steps)
+    try:
+        while True:
+            try:
+                step = driven.next()
+            except StopIteration as stop:
+                return stop.value
+            if progress is not None and not step.working:
+                progress(step)
+    except BaseException:
+        driven.stop.set()
+        raise

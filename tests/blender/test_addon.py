@@ -146,6 +146,36 @@ def test_cancelling_the_modal_bake_midway_leaves_the_scene_exactly_as_before(box
     assert scene_state() == before
 
 
+def test_a_cancelled_bake_stops_the_tables_it_started(box, monkeypatch):
+    """Esc while the tables are built (in threads, cut into pieces) stops them at their
+    next piece: none starts after the cancel but those already past it (one a worker), where
+    before every piece ran to the end (at a million vertices tens of seconds and gigabytes
+    that a bake started next waited on). The tables are cut into pieces of 8 points here,
+    each slowed by 0.1 s; the scene is as it was."""
+    from cubegi.cubegi_engine import geometry, visibility, working
+
+    monkeypatch.setattr(geometry, "piece_size", lambda size=0: 8)
+    monkeypatch.setattr(visibility, "piece_size", lambda size=0: 8)
+    depth_test, calls = visibility._depth_test, []
+
+    def slow(*args):
+        calls.append(time.perf_counter())
+        time.sleep(0.1)
+        return depth_test(*args)
+
+    monkeypatch.setattr(visibility, "_depth_test", slow)
+    before = scene_state()
+    job = _job(box, bounces=2)
+    while not calls:
+        assert not job.step()
+    job.cancel()
+    cancelled = time.perf_counter()
+    time.sleep(1.5)
+    late = [t for t in calls if t > cancelled]
+    assert len(late) <= working.WORKERS, (len(late), len(calls))
+    assert scene_state() == before
+
+
 def test_invoke_in_background_runs_to_completion_and_undo_takes_the_bake_back(box):
     bpy.ops.ed.undo_push(message="before the bake")
     before = scene_state()

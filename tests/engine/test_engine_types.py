@@ -309,3 +309,54 @@ def test_a_finished_step_hands_back_the_memory_its_thread_freed(monkeypatch):
     with pytest.raises(ZeroDivisionError):
         working.run(working.in_background(lambda: 1 / 0, None))
     assert len(given) == 2
+
+
+def test_a_closed_or_failed_generator_stops_the_threads_its_steps_started():
+    """The threads a driven generator's steps start (and the threads those start, and a
+    nested run's) stop at their next piece once it is closed (a cancel) or fails: no piece
+    starts after, where before all 200 ran. Run to its end, every piece runs, as before."""
+    import time
+
+    from cubegi.cubegi_engine import working
+
+    def pieces(ran):
+        def slow(item):
+            ran.append(time.perf_counter())
+            time.sleep(0.01)
+            return item
+
+        return lambda: working.in_parallel(slow, range(200))
+
+    def nested(ran):  # a job started inside a job, which drives a generator of its own
+        return working.result(working.start(lambda: working.run(working.in_background(pieces(ran), None))))
+
+    def settled(ran):
+        time.sleep(0.3)
+        count = len(ran)
+        time.sleep(0.3)
+        return count, len(ran)
+
+    ran = []
+    driven = working.Driven(working.in_background(nested, None, ran))
+    driven.next()
+    while not ran:
+        time.sleep(0.005)
+    driven.close()
+    stopped = time.perf_counter()
+    count, later = settled(ran)
+    assert count == later and count < 200 and sum(t > stopped for t in ran) <= working.WORKERS
+
+    def failing(ran):
+        working.start(pieces(ran))
+        while not ran:
+            yield None
+        raise ValueError("a failed step")
+
+    ran = []
+    with pytest.raises(ValueError):
+        working.run(failing(ran))
+    count, later = settled(ran)
+    assert count == later < 200
+    ran = []
+    assert working.run(working.in_background(pieces(ran), None)) == list(range(200)) and len(ran) == 200
+    assert not issubclass(working.Cancelled, Exception)  # no fallback catches it

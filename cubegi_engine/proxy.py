@@ -32,8 +32,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .geometry import corner_box, near_any_triangle, run_offsets
-from .working import once
+from . import crossing
+from .working import checkpoint
 
 __all__ = ["CaptureProxy", "simplify"]
 
@@ -42,16 +42,12 @@ __all__ = ["CaptureProxy", "simplify"]
 # room's walls cut to a cell's size for the light, cells of metres wide).
 KEEP_WHOLE, KEEP_WHOLE_SHARE = 64, 0.01
 # Rounds of adjusting the cluster size towards the budget; each one is a clustering pass. The
-# least power of the cells' edge the triangles are taken to fall by (see simplify).
-ROUNDS, STALL, MIN_POWER = 4, 0.1, 0.5
+# least power of the cells' edge the triangles are taken to fall by (see simplify: taken
+# lower, a round that fell faster than measured would land far under the budget).
+ROUNDS, STALL, MIN_POWER = 4, 0.1, 1.0
 # How many times a cell that another object's surface crosses is halved before its halves
 # are clustered on each side of it (see _cluster).
 CONTACT_LEVELS = 3
-# How many cells around a crossed one hold what can cross its halves (see _finer_candidates).
-AROUND = 2
-# The coarse lattice that finds the points in a box (see _Prepared.points_in): about this many
-# points a cell, and at most this many cells along a side.
-BUCKET_POINTS, BUCKETS_ALONG = 256, 128
 
 
 @dataclass
@@ -123,7 +119,7 @@ def simplify(scene, budget) -> CaptureProxy | None:
     owner = scene.point_object if scene.point_object is not None else np.zeros(s, dtype=np.int64)
     owner = np.asarray(owner, dtype=np.int64)
     objects = int(owner.max()) + 1 if s else 0
-    prep = _Prepared(points, np.asarray(scene.normals, dtype=np.float64), tris, owner, objects, scene.point_areas())
+    prep = crossing.Prepared(points, np.asarray(scene.normals, dtype=np.float64), tris, owner, objects, scene.point_areas())
     tri_count = np.bincount(prep.tri_owner, minlength=objects)
     area = np.bincount(prep.tri_owner, prep.tri_area, minlength=objects)
     simplified = _modelled(tri_count, sampled) > max(KEEP_WHOLE, KEEP_WHOLE_SHARE * budget)
@@ -135,6 +131,7 @@ def simplify(scene, budget) -> CaptureProxy | None:
     cell = np.where(simplified, np.sqrt(2.0 * area / np.maximum(tri_count * ratio, 1.0)), 0.0)
     best, before = None, None
     for _ in range(ROUNDS):
+        checkpoint()  # (a cancelled bake's simplification stops here)
         proxy = _cluster(prep, cell)
         if best is not None and len(proxy.triangles) - kept_whole > (1.0 - STALL) * (len(best.triangles) - kept_whole):
             return best if len(best.triangles) <= len(proxy.triangles) else proxy
@@ -211,78 +208,6 @@ def _modelled(count, sampled):
     return count
 
 
-class _Prepared:
-    """What every clustering round of one scene reads: the points (and their areas), each
-    object's points, the triangles' boxes, sizes and normals, and lookups by place."""
-
-    def __init__(self, points, normals, tris, owner, objects, areas):
-        self.points, self.normals, self.tris, self.owner, self.areas = points, normals, tris, owner, areas
-        self.origin = points.min(axis=0) if len(points) else np.zeros(3)
-        self.rel = points - self.origin  # cells are counted from the scene's lowest corner
-        self.members = np.split(np.argsort(owner, kind="stable"), np.cumsum(np.bincount(owner, minlength=objects))[:-1])
-        self.tri_owner = owner[tris[:, 0]]
-        corners = points[tris]
-        self.tri_lo, self.tri_hi = corner_box(corners)
-        size = self.tri_hi - self.tri_lo
-        self.tri_extent = np.maximum(np.maximum(size[:, 0], size[:, 1]), size[:, 2])
-        n = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-        length = np.linalg.norm(n, axis=1)
-        self.tri_area = 0.5 * length
-        self.tri_normal = n / np.maximum(length, 1e-300)[:, None]
-
-    def points_in(self, lo, hi):
-        """The points that may lie in the box ``lo, hi`` (more, not fewer): those of the
-        cells of a coarse lattice (about BUCKET_POINTS a cell) that the box reaches."""
-        order, start, edge, shape = self._buckets
-        first = np.clip(np.floor((lo - self.origin) / edge), 0, shape - 1).astype(np.int64)
-        last = np.clip(np.floor((hi - self.origin) / edge), -1, shape - 1).astype(np.int64)
-        if np.any(last < first):
-            return order[:0]
-        cells = np.ravel_multi_index(np.meshgrid(*[np.arange(a, b + 1) for a, b in zip(first, last)], indexing="ij"), shape).ravel()
-        count = start[cells + 1] - start[cells]
-        return order[np.repeat(start[cells], count) + run_offsets(count)]
-
-    @once
-    def _buckets(self):
-        """The points by their cell of a coarse lattice: ``(order, start, edge, shape)``, the
-        points of cell ``k`` being ``order[start[k]:start[k + 1]]``."""
-        span = np.maximum(self.rel.max(axis=0), 1e-300) if len(self.rel) else np.ones(3)
-        cells = max(len(self.rel) / BUCKET_POINTS, 1.0)
-        edge = max(float(np.cbrt(np.prod(span) / cells)), float(span.max()) / BUCKETS_ALONG)
-        shape = np.minimum(np.floor(span / edge).astype(np.int64) + 1, BUCKETS_ALONG + 1)
-        key = np.ravel_multi_index(np.minimum(np.floor(self.rel / edge).astype(np.int64), shape - 1).T, shape)
-        order = np.argsort(key, kind="stable")
-        return order, np.searchsorted(key[order], np.arange(int(np.prod(shape)) + 1)), edge, shape
-
-    def triangles_in(self, lo, hi):
-        """The triangles whose boxes may reach the box ``lo, hi`` (more, not fewer): the
-        largest, and those of the others whose lowest X lies within the largest's size of it."""
-        huge, by_lo, lo_x, reach = self._by_lowest_x
-        slab = by_lo[np.searchsorted(lo_x, lo[0] - reach) : np.searchsorted(lo_x, hi[0], side="right")]
-        return np.concatenate([huge, slab])
-
-    @once
-    def _by_lowest_x(self):
-        """The largest triangles (a hundredth of them: walls, floors), the others by their
-        boxes' lowest X, those X, and the others' largest size."""
-        reach = float(np.quantile(self.tri_extent, 0.99)) if len(self.tri_extent) else 0.0
-        huge = np.flatnonzero(self.tri_extent > reach)
-        rest = np.flatnonzero(self.tri_extent <= reach)
-        by_lo = rest[np.argsort(self.tri_lo[rest, 0], kind="stable")]
-        return huge, by_lo, self.tri_lo[by_lo, 0], reach
-
-    @once
-    def corner_triangles(self):
-        """``(start (s,), count (s,))``: each point's triangles in :attr:`triangles_by_corner`."""
-        count = np.bincount(self.tris.ravel(), minlength=len(self.points))
-        return np.cumsum(count) - count, count
-
-    @once
-    def triangles_by_corner(self):
-        """``(3t,)``: the triangles, listed under each of their corners, point by point."""
-        return np.argsort(self.tris.ravel(), kind="stable") // 3
-
-
 def _unique_rows(rows):
     """``np.unique(rows, axis=0, return_inverse=True)[1]`` for non-negative int rows, through
     one int64 key where the rows' ranges allow it (far faster)."""
@@ -304,16 +229,16 @@ def _cluster(prep, cell):
     # the crossing surface apart (kept as they were, a subdivided Breakfast Room's walls'
     # feet and contacts took its capture to 138K triangles against a budget of 69K: 70K now).
     level = np.zeros(s, dtype=np.int64)
-    touching, within, side = _contact(prep, cell, ijk)
+    touching, within, side = crossing.contact(prep, cell, ijk)
     for k in range(1, CONTACT_LEVELS + 1):
         if not touching.any():
             break
         level[touching] = k
         h = np.where(touching, 0.5 * h, h)
         ijk[touching] = np.floor(rel[touching] / h[touching, None]).astype(np.int64)
-        touching, within, side = _contact(prep, cell / 2.0**k, ijk, touching, within)
-    # A finest cell still crossed is clustered on each side of what crosses it apart.
-    level[touching] = CONTACT_LEVELS + 2 + side[touching]
+        touching, within, side = crossing.contact(prep, cell / 2.0**k, ijk, touching, within)
+    # A finest cell still crossed is clustered on each side of the surfaces crossing it apart.
+    level[touching] = CONTACT_LEVELS + 1 + side[touching]
     h = np.where(whole, 0.0, h)
     # Objects kept whole are their own clusters (numbered after the cells: one key of every
     # point's row would pass 64 bits and take the slow unique of whole rows).
@@ -356,107 +281,6 @@ def _cluster(prep, cell):
     cluster_object[cluster] = owner
     triangle_object = cluster_object[triangles[:, 0]]
     return CaptureProxy(centres, triangles, cluster, share, triangle_object, cell.copy(), len(tris))
-
-
-# Another object's surface within this of parallel to a cell's (|cos|) lies along it (a rug on
-# a floor), not across it: the cell is clustered all the same.
-PARALLEL = 0.9
-
-
-def _contact(prep, cell, ijk, which=None, within=None):
-    """``((s,) bool, within, side)``: points of simplified objects (``which (s,)`` bool: of
-    those alone) whose cell (in their object's lattice: ``cell`` per object, ``ijk`` per
-    point) also holds another object's surface running across it: a wall's foot on a floor, a
-    floor under a wall. No cluster is made across such a cell, so that none averages light
-    from both sides of another surface (a floor running under a wall between a lit and a dark
-    room) and nothing lifts off what it stands on (see :func:`_cluster`). A surface lying
-    along the cell's (a rug on a floor) does not count: both are clustered, each on its own.
-    ``side (s,)`` int8: on which side of that surface each of those points lies (-1, 0, 1: of
-    the plane of the crossing point or triangle with the least index in its cell).
-
-    ``within``: per object, ``(points, triangles)`` of other objects that can cross its
-    cells, from the coarser level these cells halve (what this call returns for its crossed
-    cells: see :func:`_finer_candidates`); None: all."""
-    points, normals, owner, rel = prep.points, prep.normals, prep.owner, prep.rel
-    out = np.zeros(len(points), dtype=bool)
-    side = np.zeros(len(points), dtype=np.int8)
-    simplified = np.flatnonzero(cell > 0)
-    finer = {}
-    for obj in simplified:
-        mine = prep.members[obj] if which is None else prep.members[obj][which[prep.members[obj]]]
-        if not len(mine) or (within is not None and obj not in within):
-            continue
-        h = cell[obj]
-        # The box and lattice reach AROUND cells past the object's own: what can cross the
-        # halves of its cells (see _finer_candidates).
-        lo, hi = points[mine].min(axis=0) - (AROUND + 1) * h, points[mine].max(axis=0) + (AROUND + 1) * h
-        base = ijk[mine].min(axis=0) - AROUND
-        shape = ijk[mine].max(axis=0) - base + AROUND + 1
-        key = np.ravel_multi_index((ijk[mine] - base).T, shape)
-        cells, first = np.unique(key, return_index=True)
-        cell_normal = normals[mine[first]]
-        # Other objects' points in this object's cells, across the cell's surface.
-        if within is None:
-            near = prep.points_in(lo, hi)
-            near = near[owner[near] != obj]
-            big = prep.triangles_in(lo, hi)
-            big = big[prep.tri_owner[big] != obj]
-        else:
-            near, big = within[obj]
-        near = near[np.all((points[near] >= lo) & (points[near] <= hi), axis=1)]
-        theirs = np.floor(rel[near] / h).astype(np.int64) - base
-        inside = np.all((theirs >= 0) & (theirs < shape), axis=1)
-        near, theirs = near[inside], np.ravel_multi_index(theirs[inside].T, shape)
-        at = np.searchsorted(cells, theirs)
-        found = at < len(cells)
-        found[found] = cells[at[found]] == theirs[found]
-        across = np.abs(np.einsum("sc,sc->s", normals[near[found]], cell_normal[at[found]])) < PARALLEL
-        crossing, crossed = near[found][across], at[found][across]
-        touched = np.zeros(len(cells), dtype=bool)
-        touched[crossed] = True
-        # Each crossed cell's crossing surface: a plane through a point, or a triangle.
-        anchor, facing = np.zeros((len(cells), 3)), np.zeros((len(cells), 3))
-        # Other objects' triangles larger than a cell, whose vertices may lie far outside.
-        big = np.sort(big[prep.tri_extent[big] > h])
-        big = big[np.all(prep.tri_lo[big] <= hi, axis=1) & np.all(prep.tri_hi[big] >= lo, axis=1)]
-        if len(big):
-            centres = points[mine[first]] - rel[mine[first]] + (ijk[mine[first]] + 0.5) * h
-            c = points[prep.tris[big]]
-            hit, least = near_any_triangle(centres, 0.5 * np.sqrt(3.0) * h, c[:, 0], c[:, 1], c[:, 2],
-                                           centre_normals=cell_normal, across=PARALLEL, least=True)
-            touched |= hit
-            anchor[hit], facing[hit] = c[least[hit], 0], prep.tri_normal[big[least[hit]]]
-        first_crossing = np.full(len(cells), len(points))
-        np.minimum.at(first_crossing, crossed, crossing)
-        by_point = first_crossing < len(points)
-        anchor[by_point], facing[by_point] = points[first_crossing[by_point]], normals[first_crossing[by_point]]
-        if touched.any():
-            inside = np.isin(key, cells[touched])
-            members, slot = mine[inside], np.searchsorted(cells, key[inside])
-            out[members] = True
-            side[members] = np.sign(np.einsum("sc,sc->s", points[members] - anchor[slot], facing[slot]))
-            finer[obj] = _finer_candidates(prep, obj, near, theirs, cells[touched], shape, big, h)
-    return out, finer, side
-
-
-def _finer_candidates(prep, obj, near, theirs, crossed, shape, big, h):
-    """What can cross the halves of an object's ``crossed`` cells (keys in a lattice of
-    ``shape``, edge ``h``): the other objects' points ``near`` (their keys ``theirs``) in
-    those cells or up to AROUND cells from them, and the triangles larger than a half:
-    ``big`` (those larger than a cell) and those with a corner among those points. A
-    triangle no larger than a cell (its box at most ``h`` along each axis) that passes
-    :func:`~.geometry.near_any_triangle` for a half's centre has that centre within its box
-    grown by the half's radius (0.43 h), so each of its corners lies within 1.43 h of the
-    crossed cell along each axis: within AROUND = 2 cells."""
-    steps = np.stack(np.meshgrid(*[np.arange(-AROUND, AROUND + 1)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
-    around = np.array(np.unravel_index(crossed, shape)).T[:, None, :] + steps[None]
-    ok = np.all((around >= 0) & (around < shape), axis=2)
-    around = np.unique(np.ravel_multi_index(around[ok].T, shape))
-    near = near[np.isin(theirs, around)]
-    start, count = prep.corner_triangles
-    tris = prep.triangles_by_corner[np.repeat(start[near], count[near]) + run_offsets(count[near])]
-    tris = tris[(prep.tri_owner[tris] != obj) & (prep.tri_extent[tris] > 0.5 * h)]
-    return near, np.union1d(big, tris)
 
 
 # Quadric placement: directions whose curvature is below this share of a cluster's largest

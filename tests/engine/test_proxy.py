@@ -4,6 +4,7 @@ surfaces move, thin parts kept apart, nothing turned over, radiance averaged by 
 import numpy as np
 import pytest
 
+from cubegi.cubegi_engine import crossing
 from cubegi.cubegi_engine.proxy import CONTACT_LEVELS, KEEP_WHOLE, simplify
 from cubegi.cubegi_engine.scene import SceneArrays
 
@@ -125,27 +126,35 @@ def test_a_dense_floor_under_a_thin_wall_is_not_averaged_across_it():
     assert wall[:, 2].min() == pytest.approx(0.0, abs=1e-12)
 
 
-@pytest.mark.parametrize("thickness", [0.02, 0.005])
-def test_the_finest_cells_a_wall_crosses_are_clustered_on_each_side_of_it(thickness):
+@pytest.mark.parametrize("thickness, pegs", [(0.02, False), (0.005, False), (0.005, True)])
+def test_the_finest_cells_a_wall_crosses_are_clustered_on_each_side_of_it(thickness, pegs):
     """A cell of the floor that the wall crosses is halved CONTACT_LEVELS times, and its
     finest halves are clustered on each side of the wall apart, even where they are wider
-    than the wall: the budget holds (the floor's points kept as they were took 150
-    triangles to 2,694), no floor cluster takes in points from both sides of the wall, the
-    floor's clusters at the wall are of halved cells, and the floor still
+    than the wall, and where other objects cross them too (small pegs at the wall's foot,
+    facing along it, listed first: split by the first crossing point's plane alone, 41 floor
+    clusters took in both sides): the budget holds (the floor's points kept as they were
+    took 150 triangles to 2,694), no floor cluster takes in points from both sides of the
+    wall, the floor's clusters under the wall are of halved cells, and the floor still
     reaches the wall on both sides (no slit under it)."""
+    parts = []
+    for k, y in enumerate(np.arange(0.0, 1.0, 0.02) if pegs else ()):
+        corners = np.array([[-0.002, y, -0.002], [0.002, y, -0.002], [0.0, y, 0.002]])
+        parts.append((2 + k, (corners, np.array([[0, 1, 2]]), np.tile([0.0, 1.0, 0.0], (3, 1)))))
     front = _plane((0.0, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20)
     back = _plane((-thickness, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20, flip=True)
     floor = _plane((-1.0, 0.0, 0.0), (2.0, 0, 0), (0, 1.0, 0), 200)  # 1 cm apart: 80,000 triangles
-    scene = _scene([(0, front), (0, back), (1, floor)])
-    proxy = simplify(scene, 150)
-    assert len(proxy.triangles) <= 1.1 * 150
+    scene = _scene(parts + [(0, front), (0, back), (1, floor)])
+    budget = 150 + len(parts)  # (the pegs are kept whole)
+    proxy = simplify(scene, budget)
+    # (Each peg splits the floor's cells it crosses: 270 triangles drawn for 200 there.)
+    assert len(proxy.triangles) <= (1.5 if pegs else 1.1) * budget
     finest = proxy.cell[1] / 2**CONTACT_LEVELS
     assert finest > 2.0 * thickness  # the finest cells are wider than the wall
     on_floor = scene.point_object == 1
     x = scene.points[:, 0]
     left, right = on_floor & (x < -thickness), on_floor & (x > 0.0)
     assert not np.intersect1d(proxy.cluster[left], proxy.cluster[right]).size
-    at_wall = np.unique(proxy.cluster[on_floor & (x > -thickness - 0.5 * finest) & (x < 0.5 * finest)])
+    at_wall = np.unique(proxy.cluster[on_floor & (x >= -thickness) & (x <= 0.0)])
     spread = np.array([np.ptp(x[proxy.cluster == k]) for k in at_wall])
     assert len(at_wall) and spread.max() <= 0.5 * proxy.cell[1]  # halved at least once
     floor_points = proxy.points[np.unique(proxy.triangles[proxy.triangle_object == 1])]
@@ -165,7 +174,6 @@ def test_finer_cells_ask_only_what_crossed_the_coarser_ones(monkeypatch, leaning
     """The halves of a crossed cell are tested against only the points and triangles that
     could cross them (those of the crossed cells and the cells around them, and the
     triangles larger than a half): the same clusters as testing every other object again."""
-    from cubegi.cubegi_engine import proxy as proxy_mod
 
     front = _plane((0.0, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20)
     back = _plane((-0.02, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20, flip=True)
@@ -179,8 +187,8 @@ def test_finer_cells_ask_only_what_crossed_the_coarser_ones(monkeypatch, leaning
             parts.append((2 + k, (corners, np.array([[0, 1, 2]]), np.tile(normal / np.linalg.norm(normal), (3, 1)))))
     scene = _scene(parts)
     pruned = simplify(scene, 150)
-    contact = proxy_mod._contact
-    monkeypatch.setattr(proxy_mod, "_contact", lambda prep, cell, ijk, which=None, within=None: contact(prep, cell, ijk, which))
+    contact = crossing.contact
+    monkeypatch.setattr(crossing, "contact", lambda prep, cell, ijk, which=None, within=None: contact(prep, cell, ijk, which))
     every = simplify(scene, 150)
     assert np.array_equal(pruned.cluster, every.cluster) and np.array_equal(pruned.triangles, every.triangles)
     assert len(np.unique(pruned.cluster[scene.point_object == 1])) < (scene.point_object == 1).sum() / 4
@@ -201,12 +209,12 @@ def test_a_triangle_past_an_objects_last_points_is_asked_by_the_finer_cells(monk
     normal = np.cross(upright[1] - upright[0], upright[2] - upright[0])
     parts.append((2, (upright, np.array([[0, 1, 2]]), np.tile(normal / np.linalg.norm(normal), (3, 1)))))
     scene = _scene(parts)
-    prep = proxy_mod._Prepared(scene.points, scene.normals, scene.triangles, scene.point_object, 3, np.ones(len(scene.points)))
+    prep = crossing.Prepared(scene.points, scene.normals, scene.triangles, scene.point_object, 3, np.ones(len(scene.points)))
     assert prep.tri_extent[-1] <= h and np.all(upright[:, 0] > scene.points[scene.point_object == 0, 0].max())
     cell = np.array([h, 0.0, 0.0])  # the floor clustered 8 cm wide, the others kept whole
     pruned = proxy_mod._cluster(prep, cell)
-    contact = proxy_mod._contact
-    monkeypatch.setattr(proxy_mod, "_contact", lambda prep, cell, ijk, which=None, within=None: contact(prep, cell, ijk, which))
+    contact = crossing.contact
+    monkeypatch.setattr(crossing, "contact", lambda prep, cell, ijk, which=None, within=None: contact(prep, cell, ijk, which))
     every = proxy_mod._cluster(prep, cell)
     assert np.array_equal(pruned.cluster, every.cluster)
 
@@ -346,3 +354,36 @@ def test_a_sheets_share_of_the_budget_is_of_its_triangles_as_modelled():
     front.sampled_triangles = None
     assert _front_budget(50_000, front, two_sided) == round(50_000 / (1 + 20_000 / 120_000))
     assert _front_budget(None, front, two_sided) is None
+
+
+def test_a_closed_bake_stops_its_simplification_at_the_next_round(monkeypatch):
+    """The simplification runs in a thread while the bake goes on; closed (a cancel), the
+    bake stops it before its next round and in each round before the next object's cells
+    (it took three rounds here, seconds at a million vertices)."""
+    import time
+
+    from cubegi.cubegi_engine import proxy as proxy_mod
+    from cubegi.cubegi_engine import working
+
+    rounds, cluster = [], proxy_mod._cluster
+
+    def slow(prep, cell):
+        rounds.append(cell.copy())
+        out = cluster(prep, cell)
+        time.sleep(0.3)
+        return out
+
+    monkeypatch.setattr(proxy_mod, "_cluster", slow)
+    front = _plane((0.0, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20)
+    back = _plane((-0.005, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20, flip=True)
+    floor = _plane((-1.0, 0.0, 0.0), (2.0, 0, 0), (0, 1.0, 0), 200)
+    scene = _scene([(0, front), (0, back), (1, floor)])
+    assert simplify(scene, 150) is not None and len(rounds) == 3
+    rounds.clear()
+    driven = working.Driven(working.in_background(simplify, None, scene, 150))
+    driven.next()
+    while not rounds:
+        time.sleep(0.01)
+    driven.close()
+    time.sleep(1.0)
+    assert len(rounds) == 1

@@ -120,8 +120,8 @@ class Transport:
             total = w.sum(axis=1, keepdims=True)
             weight = np.where(total > 1e-9, w / np.maximum(total, 1e-30), weight)
         self.index = index
-        # Per point: trilinear weight x diffuse SH basis of its normal, (s, 8 * 9), made after
-        # the near field (whose voxel index is the tables' high-water mark of memory).
+        # Per point: trilinear weights and the diffuse SH basis of its normal, kept after the
+        # near field (whose voxel index is the tables' high-water mark of memory).
         basis = sh.diffuse_basis(scene.normals)
         self._cells = points_by_cell(index)  # the points grouped by their 8 probes (or None): how the weights are kept
         self._dense = None  # the gather-project matrix, once made (gather_project_matrix)
@@ -136,7 +136,10 @@ class Transport:
             lit_if_open = None if spare is None else np.isin(np.arange(len(scene.points)), spare[0])
             self.near = nearfield.finish(working.result(tracing), hidden=self.covered, lit_if_open=lit_if_open,
                                          emitting=np.any(scene.emission > 0, axis=1))
-        self._weights = np.empty((len(index), COEFFS_PER_POINT), dtype=np.float32)  # see point_weights
+        # Each point's 8 probes' weights and its normal's diffuse basis, kept apart (their 72
+        # products are a point's light per coefficient: 4 times the memory, 0.7 GB at 2.5M points).
+        self._weight = np.empty((len(index), 8), dtype=np.float32)
+        self._basis = np.empty((len(index), 9), dtype=np.float32)
         self._put_weights(np.arange(len(index)), weight, basis)
         if spare is not None:
             self._light_from_behind(spare, basis, len(scene.points))
@@ -149,20 +152,20 @@ class Transport:
     @property
     def point_weights(self) -> np.ndarray:
         """``(s, 72)`` float32: each point's 8 probes' weights x its normal's diffuse basis, in
-        the points' order (a copy where they are kept by cell, :func:`.grid.points_by_cell`)."""
-        return self._weights if self._cells is None else self._weights[self._cells.rank]
+        the points' order (made when asked: the dense operators of :mod:`.relight`)."""
+        at = slice(None) if self._cells is None else self._cells.rank
+        return _outer_float32(self._weight[at], self._basis[at])
 
     def _put_weights(self, rows, weight, basis):
-        """The weights of the points ``rows (m,)``: their 8 probes' ``weight (m, 8)`` x their
-        diffuse ``basis (m, 9)`` (in chunks: no second (s, 72) array)."""
+        """The weights of the points ``rows (m,)``: their 8 probes' ``weight (m, 8)`` and their
+        diffuse ``basis (m, 9)``."""
         at = rows if self._cells is None else self._cells.rank[rows]
-        for k in range(0, len(rows), INTERPOLATE_CHUNK):
-            self._weights[at[k:k + INTERPOLATE_CHUNK]] = _outer_float32(weight[k:k + INTERPOLATE_CHUNK], basis[k:k + INTERPOLATE_CHUNK])
+        self._weight[at], self._basis[at] = weight, basis
 
     def _weightless(self, rows=None) -> np.ndarray:
         """``(m,)`` bool: which of the points ``rows`` (all: None) no probe light reaches."""
-        w = self._weights if rows is None else self._weights[rows if self._cells is None else self._cells.rank[rows]]
-        out = np.maximum(w.max(axis=1), -w.min(axis=1)) < NO_WEIGHT
+        at = slice(None) if rows is None else (rows if self._cells is None else self._cells.rank[rows])
+        out = _no_weight(self._weight[at], self._basis[at])
         return out if rows is not None or self._cells is None else out[self._cells.rank]
 
     def take_gathered(self, gathered):
@@ -328,11 +331,9 @@ class Transport:
         return np.einsum("mk,mkc->mc", basis, mixed.reshape(len(rows), 9, -1))
 
     def probe_weights(self, rows):
-        """``(m, 8)`` float64: the (visibility-aware) weights of the points ``rows``' 8 probes,
-        read back from :attr:`point_weights` (weight x diffuse basis, whose band-0 entry
-        is the constant ``sh.C0``)."""
+        """``(m, 8)`` float64: the (visibility-aware) weights of the points ``rows``' 8 probes."""
         at = rows if self._cells is None else self._cells.rank[rows]
-        return self._weights[at].reshape(len(rows), 8, 9)[:, :, 0].astype(np.float64) / sh.C0
+        return self._weight[at].astype(np.float64)
 
     def arrays(self):
         """The tables' arrays (for memory accounting)."""
@@ -340,7 +341,8 @@ class Transport:
         extra += [] if self.sky_projection_map is None else [self.sky_projection_map]
         extra += [] if self._dense is None else [self._dense]
         extra += [] if self.near is None else [self.near.rows, self.near.open_basis, self.near.hit_row, self.near.hit_corner, self.near.hit_weight]
-        return [self.sh_weights, self.corners, self.bary, self.sky_projection, self.probe_valid, self.index, self._weights, *extra]
+        return [self.sh_weights, self.corners, self.bary, self.sky_projection, self.probe_valid, self.index, self._weight, self._basis,
+                *extra]
 
     def landing_share(self):
         """Per point, the cosine-weighted share of its view that is surface, not sky:
@@ -394,13 +396,14 @@ class Transport:
 
     def _cell_light(self, coeffs):
         """``(s, 3)`` float32: the unclamped light of coefficients ``(p, 9, 3)`` at the points
-        in the cells' order (:class:`~.grid.PointCells`): each cell's points' weights x its
-        probes' 72 x 3 coefficients, one matrix product."""
-        flat = np.ascontiguousarray(coeffs, dtype=np.float32).reshape(len(coeffs), -1)  # (p, 27)
-        probes = flat[self._cells.probes].reshape(-1, COEFFS_PER_POINT, 3)
-        out = np.empty((len(self._weights), 3), dtype=np.float32)
+        in the cells' order (:class:`~.grid.PointCells`): each cell's points' bases x its 8
+        probes' 9 x 3 coefficients, one matrix product, then their 8 weights."""
+        flat = np.ascontiguousarray(coeffs, dtype=np.float32).reshape(len(coeffs), 9, 3)
+        probes = flat[self._cells.probes].reshape(-1, 8, 9, 3).transpose(0, 2, 1, 3).reshape(-1, 9, 24)  # (cells, 9, 8 x 3)
+        out = np.empty((len(self._weight), 3), dtype=np.float32)
         for k, (a, b) in enumerate(zip(self._cells.bounds[:-1], self._cells.bounds[1:])):
-            np.matmul(self._weights[a:b], probes[k], out=out[a:b])
+            seen = np.matmul(self._basis[a:b], probes[k]).reshape(b - a, 8, 3)  # each probe's light along the normal
+            np.matmul(self._weight[a:b, None, :], seen, out=out[a:b, None, :])
         return out
 
     def interpolate(self, coeffs, clamp=True):
@@ -417,12 +420,13 @@ class Transport:
         out = np.empty((s, 3), dtype=np.float32)
         if self._cells is not None:  # one matrix product per cell, to the points' places
             out[self._cells.order] = self._cell_light(coeffs)
-        else:  # in chunks (no (s, 72, 3) array): each point's 72 weights x its 72 x 3 coefficients, batched
+        else:  # in chunks (no (s, 8, 9, 3) array): each point's basis x its 8 probes' coefficients, then its weights
             flat = np.ascontiguousarray(coeffs, dtype=np.float32).reshape(len(coeffs), -1)  # (p, 27)
             for start in range(0, s, INTERPOLATE_CHUNK):
                 sl = slice(start, start + INTERPOLATE_CHUNK)
-                g = np.take(flat, self.index[sl], axis=0).reshape(-1, COEFFS_PER_POINT, 3)
-                out[sl] = np.matmul(self._weights[sl, None, :], g)[:, 0]
+                g = np.take(flat, self.index[sl], axis=0).reshape(-1, 8, 9, 3)
+                seen = np.matmul(self._basis[sl, None, None, :], g)[:, :, 0]  # (m, 8, 3)
+                out[sl] = np.matmul(self._weight[sl, None, :], seen)[:, 0]
         return np.maximum(out, 0.0) if clamp else out
 
 
@@ -438,16 +442,16 @@ def _trace_near_field(scene, grid, caster):
 
 
 def _no_weight(weight, basis):
-    """``(s,)`` bool: :meth:`Transport._weightless` of the weights :func:`_outer_float32`
-    makes of ``weight (s, 8)`` and ``basis (s, 9)``, before they are made: a point's largest
-    product, rounded once as they are (rounding keeps their order), under NO_WEIGHT."""
-    return (np.abs(weight).max(axis=1) * np.abs(basis).max(axis=1)).astype(np.float32) < np.float32(NO_WEIGHT)
+    """``(s,)`` bool: whether no probe light reaches each point of ``weight (s, 8)`` and
+    ``basis (s, 9)``, as the transport keeps them (float32; before they are kept, the same
+    answer): its largest product of the two under NO_WEIGHT."""
+    largest = np.abs(weight).max(axis=1).astype(np.float32) * np.abs(basis).max(axis=1).astype(np.float32)
+    return largest < np.float32(NO_WEIGHT)
 
 
 def _outer_float32(weight, basis):
     """``(s, 8 * 9)`` float32: each point's trilinear weights ``(s, 8)`` times its diffuse SH
-    basis ``(s, 9)``, products taken in float64 and rounded once (as a float64 array cast
-    would give), with no float64 array of that size made (1.2 GB at two million points)."""
+    basis ``(s, 9)``, with no float64 array of that size made (1.2 GB at two million points)."""
     out = np.empty((len(weight), 8, 9), dtype=np.float32)
     np.multiply(weight[:, :, None], basis[:, None, :], out=out, casting="same_kind")
     return out.reshape(len(weight), COEFFS_PER_POINT)

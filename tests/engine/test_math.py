@@ -522,19 +522,23 @@ def test_points_interpolated_cell_by_cell_equal_point_by_point():
     rows = np.stack([rng.choice(p, 8, replace=False) for _ in range(12)])
     rows[1, [0, -1]] = rows[0, [0, -1]]  # the same first and last probes as row 0
     index = rows[rng.integers(0, len(rows), s)]
-    weights = rng.uniform(-0.1, 1.0, (s, 72)).astype(np.float32)
+    weight = rng.uniform(-0.1, 1.0, (s, 8)).astype(np.float32)
+    basis = rng.uniform(-1.0, 1.0, (s, 9)).astype(np.float32)
     coeffs = rng.uniform(-0.2, 1.0, (p, 9, 3))
     plain = Transport.__new__(Transport)
-    plain.index, plain._weights, plain._cells = index, weights.copy(), None
+    plain.index, plain._weight, plain._basis, plain._cells = index, weight.copy(), basis.copy(), None
     cells = points_by_cell(index)
     assert cells is not None and len(cells.probes) == len(rows) and cells.bounds[-1] == s
     for k in range(len(cells.probes)):
         assert (index[cells.order[cells.bounds[k]:cells.bounds[k + 1]]] == cells.probes[k]).all()
     grouped = Transport.__new__(Transport)
-    grouped.index, grouped._weights, grouped._cells = index, weights[cells.order], cells
+    grouped.index, grouped._weight, grouped._basis, grouped._cells = index, weight[cells.order], basis[cells.order], cells
+    # Each point's light: its 8 probes' weights x its basis x their coefficients (float64).
+    light = np.einsum("sp,sj,spjc->sc", weight.astype(np.float64), basis.astype(np.float64), coeffs[index])
+    np.testing.assert_allclose(plain.interpolate(coeffs, clamp=False), light, rtol=1e-5, atol=1e-5)
     for clamp in (False, True):
         np.testing.assert_allclose(grouped.interpolate(coeffs, clamp), plain.interpolate(coeffs, clamp), rtol=1e-5, atol=1e-5)
-    np.testing.assert_array_equal(grouped.point_weights, weights)
+    np.testing.assert_array_equal(grouped.point_weights, (weight[:, :, None] * basis[:, None, :]).reshape(s, 72))
     some = rng.integers(0, s, 50)
     np.testing.assert_array_equal(grouped.probe_weights(some), plain.probe_weights(some))
     scattered = np.stack([rng.choice(p, 8, replace=False) for _ in range(s)])
@@ -555,7 +559,7 @@ def test_the_points_no_probe_reaches_are_found_before_their_weights_are_made():
     weight[edge] = 0.0
     weight[edge, 3] = 1e-6 / np.abs(basis[edge]).max(axis=1) * (1.0 + rng.uniform(-3e-7, 3e-7, len(edge)))
     transport = Transport.__new__(Transport)
-    transport._cells, transport._weights = None, np.empty((s, 72), dtype=np.float32)
+    transport._cells, transport._weight, transport._basis = None, np.empty((s, 8), dtype=np.float32), np.empty((s, 9), dtype=np.float32)
     transport._put_weights(np.arange(s), weight, basis)
     made = transport._weightless()
     np.testing.assert_array_equal(_no_weight(weight, basis), made)
@@ -574,7 +578,8 @@ def test_the_tail_step_through_a_simplified_capture_equals_the_gather_of_the_lig
     s, p, c, texels = 40000, 40, 300, 24
     rows = np.stack([rng.choice(p, 8, replace=False) for _ in range(9)])
     index = rows[rng.integers(0, len(rows), s)]
-    weights = rng.uniform(-0.1, 1.0, (s, 72)).astype(np.float32)
+    weight = rng.uniform(-0.1, 1.0, (s, 8)).astype(np.float32)
+    basis = rng.uniform(-1.0, 1.0, (s, 9)).astype(np.float32)
     coeffs = rng.uniform(-0.2, 1.0, (p, 9, 3))
     sent = rng.uniform(0.0, 0.9, (s, 3))
     cluster = rng.integers(0, c, s)
@@ -583,7 +588,7 @@ def test_the_tail_step_through_a_simplified_capture_equals_the_gather_of_the_lig
     cells = points_by_cell(index)
     assert cells is not None
     transport = Transport.__new__(Transport)
-    transport.index, transport._weights, transport._cells = index, weights[cells.order], cells
+    transport.index, transport._weight, transport._basis, transport._cells = index, weight[cells.order], basis[cells.order], cells
     transport.proxy = CaptureProxy(np.zeros((c, 3)), np.zeros((0, 3), dtype=np.int64), cluster, share, None, np.zeros(1), 0)
     transport.corners = rng.integers(0, c, (p, texels, 3))
     transport.bary = rng.dirichlet(np.ones(3), (p, texels)).astype(np.float32)

@@ -22,7 +22,7 @@ from . import convergence
 from .records import BounceRecord, Progress, Stage, TailReport
 from .series import Bounce, area_weighted_mean, bounce_series, conserve_energy, landed_power, near_factor, tail_sum
 from .settings import BakeSettings
-from .working import in_background
+from .working import checkpoint, in_background
 
 __all__ = ["LightSolution", "TableOperator", "solve_steps", "near_field_balanced", "SOLVE_GIVE_UP",
            "area_weighted_mean", "conserve_energy"]
@@ -220,6 +220,7 @@ def _one_bounce(series, scene, transport, albedo, areas, landing, seen_before) -
     ``seen_before`` (the light last gathered), its total kept where the bake is balanced
     (``landing`` not None): ``(bounce, gathered (s, 3))``."""
     bounce = next(series)
+    checkpoint()  # (a cancelled bake's bounce stops here)
     near, light = transport.near, bounce.light
     if near is None:
         return bounce, light

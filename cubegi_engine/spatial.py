@@ -7,7 +7,7 @@ import weakref
 import numpy as np
 
 from .geometry import chunks, in_pieces, planes_of, ray_cut, run_offsets, sorted_unique
-from .working import once
+from .working import checkpoint, once
 
 __all__ = ["VoxelIndex", "Corners", "corners_of", "voxel_index", "forget_indexes", "resting", "intersect_pairs",
            "over_triangles", "SLACK", "COORD_SLACK", "BARY_SLACK", "MAX_NEARBY"]
@@ -371,6 +371,7 @@ def voxel_index(points, tri, voxel, sheets=None, keep=True):
             return entry[2]
     index = VoxelIndex.over(corners_of(points, tri), voxel, sheets)
     if keep:
+        checkpoint()  # (a cancelled bake's thread keeps none past its end: forget_indexes)
         _INDEXES[:] = [(key, (points, tri, sheets), index)] + _INDEXES[: INDEXES_KEPT - 1]
     return index
 

@@ -3,6 +3,7 @@ field, the settings' checks and the report's JSON (pure numpy)."""
 
 import json
 import math
+import time
 
 import numpy as np
 import pytest
@@ -360,3 +361,37 @@ def test_a_closed_or_failed_generator_stops_the_threads_its_steps_started():
     ran = []
     assert working.run(working.in_background(pieces(ran), None)) == list(range(200)) and len(ran) == 200
     assert not issubclass(working.Cancelled, Exception)  # no fallback catches it
+
+
+def test_a_cancelled_bakes_thread_keeps_no_voxel_index():
+    """The voxel indexes a bake's stages share are let go at its end (``forget_indexes``);
+    a thread of a cancelled bake that makes one after that keeps none (it held its arrays
+    until the next bake ended)."""
+    import threading
+
+    from cubegi.cubegi_engine import spatial, working
+
+    points = np.array([[0.0, 0, 0], [1.0, 0, 0], [0.0, 1, 0]])
+    tri = np.array([[0, 1, 2]])
+    go = threading.Event()
+
+    def late():
+        go.wait(5.0)
+        return spatial.voxel_index(points, tri, 0.5)
+
+    def steps():
+        return (yield from working.in_background(late, None))
+
+    spatial.forget_indexes()
+    driven = working.Driven(steps())
+    driven.next()
+    driven.close()  # (the bake's end lets go of its indexes, then the thread asks)
+    spatial.forget_indexes()
+    go.set()
+    deadline = time.perf_counter() + 5.0
+    while time.perf_counter() < deadline and threading.active_count() > 1 and any(
+            t.name == "cubegi-work" and t.is_alive() for t in threading.enumerate()):
+        time.sleep(0.01)
+    assert spatial._INDEXES == []
+    assert spatial.voxel_index(points, tri, 0.5) is not None and len(spatial._INDEXES) == 1  # kept outside a cancelled bake
+    spatial.forget_indexes()

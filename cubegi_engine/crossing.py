@@ -103,10 +103,11 @@ def contact(prep, cell, ijk, which=None, within=None):
     """``((s,) bool, within, side)``: points of simplified objects (``which (s,)`` bool: of
     those alone) whose cell (in their object's lattice: ``cell`` per object, ``ijk`` per
     point) also holds another object's surface running across it: a wall's foot on a floor, a
-    floor under a wall. No cluster is made across such a cell, so that none averages light
-    from both sides of another surface (a floor running under a wall between a lit and a dark
-    room) and nothing lifts off what it stands on (see :func:`.proxy._cluster`). A surface lying
-    along the cell's (a rug on a floor) does not count: both are clustered, each on its own.
+    floor under a wall. Such a cell is halved, and its finest halves are clustered on each side
+    of what crosses them (see :func:`.proxy._cluster`), so that no cluster averages light from
+    both sides of another surface (a floor running under a wall between a lit and a dark room)
+    and nothing lifts off what it stands on. A surface lying along the cell's (a rug on a
+    floor) does not count: both are clustered, each on its own.
     ``side (s,)``: on which side of the surfaces crossing its cell each of those points
     lies (:func:`_sides`: bits).
 

@@ -313,8 +313,8 @@ class PointCells:
 # Rows checked at a time against their group's probes (points_by_cell).
 CHECK_CHUNK = 65536
 _PROBE_HASH = np.random.default_rng(0x5EED).integers(1, 2**62, 8, dtype=np.int64) | 1
-# Points are interpolated cell by cell (:meth:`~.transport.Transport.interpolate`) (one matrix product each, 3x faster than one per
-# point at a million points) where their groups average at least this many points.
+# Points are interpolated cell by cell (:meth:`~.transport.Transport.interpolate`) (two matrix products each, where one per
+# point was 3x slower at a million points) where their groups average at least this many points.
 CELL_POINTS = 256
 
 

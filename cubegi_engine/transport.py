@@ -420,13 +420,13 @@ class Transport:
         out = np.empty((s, 3), dtype=np.float32)
         if self._cells is not None:  # one matrix product per cell, to the points' places
             out[self._cells.order] = self._cell_light(coeffs)
-        else:  # in chunks (no (s, 8, 9, 3) array): each point's basis x its 8 probes' coefficients, then its weights
+        else:  # in chunks (no (s, 8, 27) array): each point's 8 probes' coefficients mixed by its weights, then its basis
             flat = np.ascontiguousarray(coeffs, dtype=np.float32).reshape(len(coeffs), -1)  # (p, 27)
             for start in range(0, s, INTERPOLATE_CHUNK):
                 sl = slice(start, start + INTERPOLATE_CHUNK)
-                g = np.take(flat, self.index[sl], axis=0).reshape(-1, 8, 9, 3)
-                seen = np.matmul(self._basis[sl, None, None, :], g)[:, :, 0]  # (m, 8, 3)
-                out[sl] = np.matmul(self._weight[sl, None, :], seen)[:, 0]
+                g = np.take(flat, self.index[sl], axis=0).reshape(-1, 8, 27)
+                mixed = np.matmul(self._weight[sl, None, :], g)[:, 0].reshape(-1, 9, 3)
+                out[sl] = np.matmul(self._basis[sl, None, :], mixed)[:, 0]
         return np.maximum(out, 0.0) if clamp else out
 
 

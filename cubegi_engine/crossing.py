@@ -99,7 +99,7 @@ class Prepared:
 PARALLEL = 0.9
 
 
-def contact(prep, cell, ijk, which=None, within=None):
+def contact(prep, cell, ijk, which=None, within=None, sides=False):
     """``((s,) bool, within, side)``: points of simplified objects (``which (s,)`` bool: of
     those alone) whose cell (in their object's lattice: ``cell`` per object, ``ijk`` per
     point) also holds another object's surface running across it: a wall's foot on a floor, a
@@ -109,7 +109,7 @@ def contact(prep, cell, ijk, which=None, within=None):
     and nothing lifts off what it stands on. A surface lying along the cell's (a rug on a
     floor) does not count: both are clustered, each on its own.
     ``side (s,)``: on which side of the surfaces crossing its cell each of those points
-    lies (:func:`_sides`: bits).
+    lies (:func:`_sides`: bits), asked for the finest cells alone (``sides``; else zeros).
 
     ``within``: per object, ``(points, triangles)`` of other objects that can cross its
     cells, from the coarser level these cells halve (what this call returns for its crossed
@@ -152,7 +152,7 @@ def contact(prep, cell, ijk, which=None, within=None):
         crossing, crossed = near[found][across], at[found][across]
         touched = np.zeros(len(cells), dtype=bool)
         touched[crossed] = True
-        planes = _point_planes(prep, crossing, crossed)
+        planes = _point_planes(prep, crossing, crossed) if sides else None
         # Other objects' triangles larger than a cell, whose vertices may lie far outside.
         big = np.sort(big[prep.tri_extent[big] > h])
         big = big[np.all(prep.tri_lo[big] <= hi, axis=1) & np.all(prep.tri_hi[big] >= lo, axis=1)]
@@ -162,13 +162,15 @@ def contact(prep, cell, ijk, which=None, within=None):
             hit, least = near_any_triangle(centres, 0.5 * np.sqrt(3.0) * h, c[:, 0], c[:, 1], c[:, 2],
                                            centre_normals=cell_normal, across=PARALLEL, least=True)
             touched |= hit
-            cut = (np.flatnonzero(hit), c[least[hit], 0], prep.tri_normal[big[least[hit]]], np.full(int(hit.sum()), len(points)))
-            planes = [np.concatenate([a, b]) for a, b in zip(planes, cut)]
+            if sides:
+                cut = (np.flatnonzero(hit), c[least[hit], 0], prep.tri_normal[big[least[hit]]], np.full(int(hit.sum()), len(points)))
+                planes = [np.concatenate([a, b]) for a, b in zip(planes, cut)]
         if touched.any():
             inside = np.isin(key, cells[touched])
             members, slot = mine[inside], np.searchsorted(cells, key[inside])
             out[members] = True
-            side[members] = _sides(points[members], slot, len(cells), planes, h)
+            if sides:
+                side[members] = _sides(points[members], slot, len(cells), planes, h)
             finer[obj] = _finer_candidates(prep, obj, near, theirs, cells[touched], shape, big, h)
     return out, finer, side
 

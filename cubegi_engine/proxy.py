@@ -227,16 +227,16 @@ def _cluster(prep, cell):
     # A cell another object's surface runs across is halved, CONTACT_LEVELS times, each half
     # asked again. The points of a finest cell still crossed are clustered on each side of
     # the crossing surface apart (kept as they were, a subdivided Breakfast Room's walls'
-    # feet and contacts took its capture to 138K triangles against a budget of 69K: 70K now).
+    # feet and contacts took its capture to 138K triangles against a budget of 69K: 71K now).
     level = np.zeros(s, dtype=np.int64)
-    touching, within, side = crossing.contact(prep, cell, ijk)
+    touching, within, side = crossing.contact(prep, cell, ijk, sides=CONTACT_LEVELS == 0)
     for k in range(1, CONTACT_LEVELS + 1):
         if not touching.any():
             break
         level[touching] = k
         h = np.where(touching, 0.5 * h, h)
         ijk[touching] = np.floor(rel[touching] / h[touching, None]).astype(np.int64)
-        touching, within, side = crossing.contact(prep, cell / 2.0**k, ijk, touching, within)
+        touching, within, side = crossing.contact(prep, cell / 2.0**k, ijk, touching, within, sides=k == CONTACT_LEVELS)
     # A finest cell still crossed is clustered on each side of the surfaces crossing it apart.
     level[touching] = CONTACT_LEVELS + 1 + side[touching]
     h = np.where(whole, 0.0, h)

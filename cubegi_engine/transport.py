@@ -396,14 +396,15 @@ class Transport:
 
     def _cell_light(self, coeffs):
         """``(s, 3)`` float32: the unclamped light of coefficients ``(p, 9, 3)`` at the points
-        in the cells' order (:class:`~.grid.PointCells`): each cell's points' bases x its 8
-        probes' 9 x 3 coefficients, one matrix product, then their 8 weights."""
-        flat = np.ascontiguousarray(coeffs, dtype=np.float32).reshape(len(coeffs), 9, 3)
-        probes = flat[self._cells.probes].reshape(-1, 8, 9, 3).transpose(0, 2, 1, 3).reshape(-1, 9, 24)  # (cells, 9, 8 x 3)
+        in the cells' order (:class:`~.grid.PointCells`): each cell's points' weights x its 8
+        probes' 27 coefficients, one matrix product, then each point's basis (as
+        :meth:`interpolate` mixes points that are not grouped)."""
+        flat = np.ascontiguousarray(coeffs, dtype=np.float32).reshape(len(coeffs), -1)  # (p, 27)
+        probes = flat[self._cells.probes]  # (cells, 8, 27)
         out = np.empty((len(self._weight), 3), dtype=np.float32)
         for k, (a, b) in enumerate(zip(self._cells.bounds[:-1], self._cells.bounds[1:])):
-            seen = np.matmul(self._basis[a:b], probes[k]).reshape(b - a, 8, 3)  # each probe's light along the normal
-            np.matmul(self._weight[a:b, None, :], seen, out=out[a:b, None, :])
+            mixed = np.matmul(self._weight[a:b], probes[k]).reshape(b - a, 9, 3)
+            np.matmul(self._basis[a:b, None, :], mixed, out=out[a:b, None, :])
         return out
 
     def interpolate(self, coeffs, clamp=True):

@@ -188,7 +188,7 @@ def test_finer_cells_ask_only_what_crossed_the_coarser_ones(monkeypatch, leaning
     scene = _scene(parts)
     pruned = simplify(scene, 150)
     contact = crossing.contact
-    monkeypatch.setattr(crossing, "contact", lambda prep, cell, ijk, which=None, within=None: contact(prep, cell, ijk, which))
+    monkeypatch.setattr(crossing, "contact", lambda prep, cell, ijk, which=None, within=None, **kw: contact(prep, cell, ijk, which, **kw))
     every = simplify(scene, 150)
     assert np.array_equal(pruned.cluster, every.cluster) and np.array_equal(pruned.triangles, every.triangles)
     assert len(np.unique(pruned.cluster[scene.point_object == 1])) < (scene.point_object == 1).sum() / 4
@@ -214,7 +214,7 @@ def test_a_triangle_past_an_objects_last_points_is_asked_by_the_finer_cells(monk
     cell = np.array([h, 0.0, 0.0])  # the floor clustered 8 cm wide, the others kept whole
     pruned = proxy_mod._cluster(prep, cell)
     contact = crossing.contact
-    monkeypatch.setattr(crossing, "contact", lambda prep, cell, ijk, which=None, within=None: contact(prep, cell, ijk, which))
+    monkeypatch.setattr(crossing, "contact", lambda prep, cell, ijk, which=None, within=None, **kw: contact(prep, cell, ijk, which, **kw))
     every = proxy_mod._cluster(prep, cell)
     assert np.array_equal(pruned.cluster, every.cluster)
 

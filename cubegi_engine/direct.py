@@ -5,10 +5,11 @@ Pure numpy; must not import bpy. Lights and emissive triangles (as two-sided are
 the injected renderer. The sky reaches the points through the probes (the capture's
 tables), as in the paper, less the directions the near field finds blocked close by; a
 vertex no probe lights and nothing encloses (the outer face of a thick wall) sees it along
-its own lines of sight, 64 orthographic depth maps as a sun's. Cycles counts both as
-direct. (Every vertex along its own lines of sight was measured too: on the courtyard that
-took the direct error from 3.7% to 3.8-1.8% with 64-256 maps but the total from 3.6% to
-4.9-4.7%, and added 0.2-0.9 s to a 0.4 s bake.)
+its own lines of sight, SKY_DIRECTIONS orthographic depth maps as a sun's. Cycles counts
+both as direct. (Every vertex along its own lines of sight was measured too: on the
+courtyard that took the direct error from 3.7% to 3.8-1.8% with 64-256 maps but the total
+from 3.6% to 4.9-4.7%, and added 0.2-0.9 s to a 0.4 s bake.) No light reaches a point lying
+on another surface (:meth:`~cubegi_engine.transport.Transport.resting`).
 
 Keeping each source's share apart is what lets a later edit of one light's power or colour
 be a weighted sum, and a moved light be recomputed alone.
@@ -21,7 +22,7 @@ from functools import partial
 
 import numpy as np
 
-from . import cubemap, sh, spatial
+from . import cubemap, sh
 from . import eyes as eyes_mod
 from . import lights as lights_mod
 from .cubemap import CubeCapture, clip_planes, no_barycentrics
@@ -42,8 +43,7 @@ SUN_BOX_MARGIN = 1.01
 SUN_EYE_DISTANCE = 2.0
 SUN_NEAR, SUN_FAR = 1e-3, 4.0
 # A light whose strongest light at any point (before shadows) is at most this share of the
-# brightest light's is left out (no shadow map drawn) and named in the report: a spot
-# turned away, a light under the floor, a candle beside the sun.
+# brightest light's is left out (no shadow map drawn) and named in the report: a spot turned away, a light under the floor, a candle beside the sun.
 LIGHT_LEFT_OUT = 1e-4
 # Area light shadow eyes sit this share of the scene's size off the light's plane, so the
 # light's own geometry (if any) and surfaces it rests on do not shadow it.
@@ -118,8 +118,7 @@ class Shadow:
 def draw_shadow(scene, renderer, settings, light, size=None, eyes=None) -> Shadow:
     """Draw ``light``'s depth maps of ``scene`` (see :class:`Shadow`); ``size``: the maps'
     edge (default: the light's own ``shadow_size``, else the settings' for its kind);
-    ``eyes``: how many points a soft light is drawn from (see :func:`~cubegi_engine.eyes.shadow_eyes`; None: all
-    of its own)."""
+    ``eyes``: how many points a soft light is drawn from (see :func:`~cubegi_engine.eyes.shadow_eyes`; None: all of its own)."""
     return run(draw_shadow_steps(scene, renderer, settings, light, size, eyes=eyes))
 
 
@@ -336,6 +335,9 @@ def direct_light_steps(scene, renderer, settings, transport, landing=None, shado
     if np.any(scene.sky > 0):
         coeffs = coeffs + transport.sky_coefficients(scene.sky)  # what the probes see of it (the field)
         parts[SKY] = scene.sky[None, :] * (yield from unit_sky_direct_steps(scene, renderer, transport, settings.sky_per_vertex, step))
+    resting = yield from in_background(transport.resting, step("direct light: the points lying on other surfaces"), scene)
+    for value in parts.values():  # none reaches them (a lamp's shadow maps miss a wall thinner than their bias)
+        value[resting] = 0.0
     counts = {light.shadow_key: n for light, n in zip(scene.lights, eyes) if n is not None}
     return DirectLight(parts, coeffs, factor, light_seconds, time.perf_counter() - t, left_out, counts)
 
@@ -361,9 +363,7 @@ def unit_sky_direct_steps(scene, renderer, transport, per_vertex=False, step=Non
         # half-enclosed points were left out).
         alone &= ~transport.near.enclosed(len(alone), SKY_ENCLOSED)
     if alone.any():  # not the underside of a block standing on the ground
-        resting = yield from in_background(spatial.resting, _working(step, "direct light: the sky's open points"), scene.points,
-                                           scene.normals, scene.triangles, scene.scale, np.flatnonzero(alone), scene.sheets())
-        alone[alone] = ~resting
+        alone &= ~(yield from in_background(transport.resting, _working(step, "direct light: the sky's open points"), scene))
     if per_vertex:  # every vertex its probes give any sky (one under a roof has none)
         alone |= ~transport.covered & (light.max(axis=1) > 0)
     if transport.gathered is not None:  # their own rays say it

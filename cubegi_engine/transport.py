@@ -23,7 +23,7 @@ radiance of a surface of albedo rho receiving diffuse light l is ``rho * l`` (+ 
 
 import numpy as np
 
-from . import cubemap, nearfield, sh, working
+from . import cubemap, nearfield, sh, spatial, working
 from .gather import same_side
 from .grid import points_by_cell
 from .nearfield import NEAR_REACH
@@ -128,6 +128,7 @@ class Transport:
         # (s,) points another object covers (no probe sees them: a floor point under a wall
         # standing on it, the underside of a block on the ground): no probe light, no sky.
         self.covered = _no_weight(weight, basis) & ~self.no_probe
+        self._resting = None  # which of them lie on another surface (resting: once asked)
         # The near field (a final gather of each point's short-range surroundings), or None.
         self.near = None
         self.gathered = None  # the points gathered by rays over their whole view (take_gathered)
@@ -182,6 +183,22 @@ class Transport:
         """The points whose emitting these tables hold (which points emit across a gap
         decides the near field's hidden ones) that ``scene`` changed (none: they hold)."""
         return np.zeros(0, dtype=np.int64) if self.own_near is None else self.own_near.emitters_changed(np.any(scene.emission > 0, axis=1))
+
+    def resting(self, scene) -> np.ndarray:
+        """``(s,)`` bool: the covered points that lie on another surface facing them
+        (:func:`~cubegi_engine.spatial.resting`: a wall's points inside a partition's end
+        standing against it, a floor's under a wall), but the gathered ones (their corners'
+        own rays decide). No light reaches them: not the sky's, nor a lamp's through a
+        partition thinner than its shadow maps' bias. ``scene``: the one these tables are of."""
+        if self._resting is None:
+            which = np.flatnonzero(self.covered)
+            rest = np.zeros(len(self.covered), dtype=bool)
+            rest[which] = spatial.resting(scene.points, scene.normals, scene.triangles, scene.scale, which, scene.sheets())
+            self._resting = rest
+        out = self._resting.copy()
+        if self.gathered is not None:
+            out[self.gathered.rows] = False
+        return out
 
     @property
     def exact(self) -> np.ndarray:

@@ -143,7 +143,7 @@ class Transport:
         self._basis = np.empty((len(index), 9), dtype=np.float32)
         self._put_weights(np.arange(len(index)), weight, basis)
         if spare is not None:
-            self._light_from_behind(spare, basis, len(scene.points))
+            self._light_from_behind(spare, basis, scene)
         if self.near is not None and visibility and self.covered.any():
             self._light_under(scene, grid, index, trilinear_weight, basis, positions)
         self.own_near = self.near
@@ -234,16 +234,21 @@ class Transport:
         alone = np.flatnonzero(~seen.any(axis=1) & behind.any(axis=1))
         return seen, ((alone, behind[alone]) if len(alone) else None)
 
-    def _light_from_behind(self, spare, basis, count):
+    def _light_from_behind(self, spare, basis, scene):
         """A point only probes behind its plane see (a block's underside below the lowest
         probes) is lit by its near field where that encloses at least half its view (the
         probes' light in the few open directions comes out too bright); elsewhere (a sofa's
         underside well above the floor, no near field) by them. Cornell box at 12 cells: 7.1%
-        (at least half), 7.9% (three quarters), 9.2% (always by them)."""
+        (at least half), 7.9% (three quarters), 9.2% (always by them). Not a point lying on
+        another surface (a partition's top against the ceiling, its end against a wall: the
+        probes under it see it in the ceiling's plane and lit it as the ceiling; it stays
+        covered)."""
         rows, w = spare
         if self.near is not None:
-            keep = ~self.near.enclosed(count)[rows]
+            keep = ~self.near.enclosed(len(scene.points))[rows]
             rows, w = rows[keep], w[keep]
+        keep = ~spatial.resting(scene.points, scene.normals, scene.triangles, scene.scale, rows, scene.sheets())
+        rows, w = rows[keep], w[keep]
         self._put_weights(rows, w, basis[rows])
         self.covered[rows] = self._weightless(rows)
 

@@ -235,3 +235,27 @@ def test_the_id_pass_and_the_depth_pass_agree(cubegi):
         np.testing.assert_array_equal(tid, tid2)
         np.testing.assert_allclose(dist[hit], dist2[hit], rtol=1e-5)
         assert bary[hit].min() > -1e-4
+
+
+def test_a_partitions_faces_lying_on_the_ceiling_and_a_wall_take_no_light(empty_scene, cubegi):
+    """A 1.5 cm partition standing from the floor to the ceiling of a room of 1.5 m quads, an
+    area light on one side: its top lies on the ceiling, one end on a wall. No probe is in
+    front of those faces; the probes under the ceiling saw them in its plane, from behind,
+    and lit them as the ceiling (2.8 and 3.2 against the lit face's 7.6). Cycles gives them
+    none (a hand-made flat: its partition's indirect light +10.7% -> -0.6% against Cycles)."""
+    white = scenes.material("White", (0.8, 0.8, 0.8))
+    v, f = scenes.box_mesh((-3.0, -2.05, 0.0), (3.0, 2.05, 2.55), (4, 4, 4), inward=True)
+    scenes.mesh_object("Shell", v, f, white)
+    v, f = scenes.box_mesh((-0.0075, -0.9, 0.0), (0.0075, 2.05, 2.55), (1, 5, 5), inward=False)
+    scenes.mesh_object("Partition", v, f, white)
+    scenes.add_light("AREA", (-1.6, 0.3, 2.45), 300.0, size=0.5)
+    assert bpy.ops.cubegi.bake() == {"FINISHED"}
+    kept = cubegi.cubegi_addon.session.kept(bpy.context.scene)
+    arrays, solution = kept.bake.arrays, kept.bake.result.solution
+    lit = (np.asarray(solution.direct) + np.asarray(solution.indirect)).mean(axis=1)
+    wall = arrays.point_object == list(arrays.object_names).index("Partition")
+    on_others = wall & ((arrays.normals[:, 2] > 0.9) | (arrays.normals[:, 1] > 0.9))  # the top, the end at y = 2.05
+    assert on_others.sum() >= 20
+    print(lit[on_others].max(), lit[wall & (arrays.normals[:, 0] < -0.9)].mean())
+    assert np.all(lit[on_others] == 0.0), lit[on_others].max()
+    assert lit[wall & (arrays.normals[:, 0] < -0.9)].mean() > 1.0  # its face towards the light

@@ -203,11 +203,14 @@ class Transport:
     @property
     def exact(self) -> np.ndarray:
         """``(s,)`` bool: the points whose light the energy balance neither counts nor scales:
-        those no probe lights (:attr:`covered`: their light is the near field's alone) and
-        the gathered points (their own rays' light, whole)."""
+        those no probe lights (:attr:`covered`: their light is the near field's alone), the
+        gathered points (their own rays' light, whole) and those the near field gathers
+        through the host's caster (:attr:`NearField.whole`: lit by what no probe sees)."""
         out = self.covered.copy()
         if self.gathered is not None:
             out[self.gathered.rows] = True
+        if self.near is not None and self.near.whole is not None:
+            out[self.near.whole] = True
         return out
 
     def _sky_pattern_projection(self, dirs, sky):

@@ -381,15 +381,14 @@ def _small_objects(points, owner, reach, asked):
     if owner is None or not len(asked):
         return out
     obj = np.asarray(owner, dtype=np.int64)[asked]
-    count = int(obj.max()) + 1
-    lo = np.full((count, 3), np.inf)
-    hi = np.full((count, 3), -np.inf)
-    np.minimum.at(lo, obj, points[asked])
-    np.maximum.at(hi, obj, points[asked])
-    size = np.linalg.norm(hi - lo, axis=1)
-    cell = np.zeros(count)
-    np.maximum.at(cell, obj, reach[asked] / NEAR_REACH)
-    out[asked] = size[obj] < SMALL_OBJECT * cell[obj]
+    order = np.argsort(obj, kind="stable")
+    starts = np.flatnonzero(np.r_[True, obj[order][1:] != obj[order][:-1]])
+    p = points[asked][order]
+    size = np.linalg.norm(np.maximum.reduceat(p, starts) - np.minimum.reduceat(p, starts), axis=1)
+    cell = np.maximum.reduceat(reach[asked][order], starts) / NEAR_REACH
+    small = np.zeros(len(asked), dtype=bool)
+    small[order] = np.repeat(size < SMALL_OBJECT * cell, np.diff(np.r_[starts, len(order)]))
+    out[asked] = small
     return out
 
 
@@ -430,7 +429,14 @@ def finish(traced, *, hidden=None, lit_if_open=None, hidden_as_given=False, emit
                      traced.rays, traced.longest, traced.pairs, int(traced.crowded.sum()), "",
                      traced.seconds + time.perf_counter() - t0, share,
                      None if hidden is None else np.flatnonzero(hidden), alias, traced.crowded_objects, emitters,
-                     members if len(members) else None)
+                     _whole(members, rows))
+
+
+def _whole(members, rows):
+    """:attr:`NearField.whole`: the caster's ``members`` that gather (have a row; one whose
+    cluster met nothing keeps the probes' light, balanced as every point's is), or None."""
+    whole = members[np.isin(members, rows)]
+    return whole if len(whole) else None
 
 
 def _candidate_pairs(index, points, normals, reach, asked, sheets, max_pairs, owner=None):

@@ -235,6 +235,10 @@ class Transport:
                                     sheet=None if scene.sheets() is None else scene.sheets().point_sheet)
         seen, behind = lit_by.weights, lit_by.behind
         alone = np.flatnonzero(~seen.any(axis=1) & behind.any(axis=1))
+        # Not a point lying on another surface (a partition's top against the ceiling, its end
+        # against a wall: the probes under a ceiling of large quads see it in the ceiling's
+        # plane, and lit it as the ceiling): it stays covered, and hidden from the near field.
+        alone = alone[~spatial.resting(scene.points, scene.normals, scene.triangles, scene.scale, alone, scene.sheets())]
         return seen, ((alone, behind[alone]) if len(alone) else None)
 
     def _light_from_behind(self, spare, basis, scene):
@@ -242,16 +246,11 @@ class Transport:
         probes) is lit by its near field where that encloses at least half its view (the
         probes' light in the few open directions comes out too bright); elsewhere (a sofa's
         underside well above the floor, no near field) by them. Cornell box at 12 cells: 7.1%
-        (at least half), 7.9% (three quarters), 9.2% (always by them). Not a point lying on
-        another surface (a partition's top against the ceiling, its end against a wall: the
-        probes under it see it in the ceiling's plane and lit it as the ceiling; it stays
-        covered)."""
+        (at least half), 7.9% (three quarters), 9.2% (always by them)."""
         rows, w = spare
         if self.near is not None:
             keep = ~self.near.enclosed(len(scene.points))[rows]
             rows, w = rows[keep], w[keep]
-        keep = ~spatial.resting(scene.points, scene.normals, scene.triangles, scene.scale, rows, scene.sheets())
-        rows, w = rows[keep], w[keep]
         self._put_weights(rows, w, basis[rows])
         self.covered[rows] = self._weightless(rows)
 

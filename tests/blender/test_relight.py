@@ -127,6 +127,26 @@ def test_light_edits_redraw_only_that_light_and_equal_a_full_bake(room, edit):
     _assert_same(updated, _full_bake(room))
 
 
+def test_a_light_edit_with_small_objects_equals_a_full_bake(room):
+    """Two boxes smaller than a probe cell: their points gather their near field through
+    Blender's BVH tree, whole (the near field's balance leaves them alone). Those whose rays
+    meet nothing (their tops, under an empty ceiling) keep the probes' light, balanced as
+    every point's is; the update scaled them when the bake did not."""
+    for name, lo, hi in (("Small", (1.0, -1.2, 0.0), (1.3, -0.9, 0.3)), ("Shelf box", (-1.6, -1.6, 1.2), (-1.35, -1.35, 1.45))):
+        v, f = scenes.box_mesh(lo, hi, (2, 2, 2), inward=False)
+        scenes.mesh_object(name, v, f, scenes.material(name, (0.6, 0.7, 0.5)))
+    assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
+    near = room.cubegi_addon.session.kept(bpy.context.scene).bake.result.capture.transport.near
+    assert near.whole is not None and len(near.whole)
+    bpy.data.objects["point"].location = (-0.6, -1.2, 1.4)
+    _update(room)
+    read = room.cubegi_addon.attributes.read
+    names = ("Room", "Block", "Small", "Shelf box")
+    updated = {(n, a): read(bpy.data.objects[n].data, a) for n in names for a in LAYERS}
+    _full_bake(room)
+    _assert_same(updated, {(n, a): read(bpy.data.objects[n].data, a) for n in names for a in LAYERS})
+
+
 def test_world_colour_and_material_edits_equal_a_full_bake(empty_scene, cubegi):
     from benchmarks.scenes import courtyard
 

@@ -43,7 +43,8 @@ SUN_BOX_MARGIN = 1.01
 SUN_EYE_DISTANCE = 2.0
 SUN_NEAR, SUN_FAR = 1e-3, 4.0
 # A light whose strongest light at any point (before shadows) is at most this share of the
-# brightest light's is left out (no shadow map drawn) and named in the report: a spot turned away, a light under the floor, a candle beside the sun.
+# brightest light's is left out (no shadow map drawn) and named in the report: a spot
+# turned away, a light under the floor, a candle beside the sun.
 LIGHT_LEFT_OUT = 1e-4
 # Area light shadow eyes sit this share of the scene's size off the light's plane, so the
 # light's own geometry (if any) and surfaces it rests on do not shadow it.
@@ -335,7 +336,7 @@ def direct_light_steps(scene, renderer, settings, transport, landing=None, shado
     if np.any(scene.sky > 0):
         coeffs = coeffs + transport.sky_coefficients(scene.sky)  # what the probes see of it (the field)
         parts[SKY] = scene.sky[None, :] * (yield from unit_sky_direct_steps(scene, renderer, transport, settings.sky_per_vertex, step))
-    resting = yield from in_background(transport.resting, step("direct light: the points lying on other surfaces"), scene)
+    resting = transport.resting()
     for value in parts.values():  # none reaches them (a lamp's shadow maps miss a wall thinner than their bias)
         value[resting] = 0.0
     counts = {light.shadow_key: n for light, n in zip(scene.lights, eyes) if n is not None}
@@ -362,8 +363,7 @@ def unit_sky_direct_steps(scene, renderer, transport, per_vertex=False, step=Non
         # sight (the Breakfast Room's walls: direct light 0.0002 against Cycles' 0.16 when
         # half-enclosed points were left out).
         alone &= ~transport.near.enclosed(len(alone), SKY_ENCLOSED)
-    if alone.any():  # not the underside of a block standing on the ground
-        alone &= ~(yield from in_background(transport.resting, _working(step, "direct light: the sky's open points"), scene))
+    alone &= ~transport.resting()  # not the underside of a block standing on the ground
     if per_vertex:  # every vertex its probes give any sky (one under a roof has none)
         alone |= ~transport.covered & (light.max(axis=1) > 0)
     if transport.gathered is not None:  # their own rays say it

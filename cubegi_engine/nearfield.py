@@ -392,9 +392,10 @@ def _small_objects(points, owner, reach, asked):
     return out
 
 
-def finish(traced, *, hidden=None, lit_if_open=None, hidden_as_given=False, emitting=None):
+def finish(traced, *, hidden=None, lit_if_open=None, hidden_as_given=False, emitting=None, lying=None):
     """The :class:`NearField` of ``traced`` (a :class:`Traced`; a NearField is handed back as
-    it is), with the hidden points decided (arguments as in :func:`build`)."""
+    it is), with the hidden points decided (arguments as in :func:`build`; ``lying``: as in
+    :func:`~.nearhits.hidden_points`)."""
     if isinstance(traced, NearField):
         return traced
     t0 = time.perf_counter()
@@ -413,7 +414,7 @@ def finish(traced, *, hidden=None, lit_if_open=None, hidden_as_given=False, emit
         hidden = np.asarray(hidden, dtype=bool).copy()
         if not hidden_as_given:
             hidden, emitters = hidden_points(hidden, traced.openness, lit_if_open, traced.sheets, cast[point], corners, points, traced.normals,
-                                       tri, emitting)
+                                             tri, emitting, lying)
         hidden[members] = False  # lit by their own rays: a surface's light
         weight = uncover(index, weight, corners, hidden, hits.triangle, traced.rch[point], by_voxels)
     if OPENNESS_RAYS:

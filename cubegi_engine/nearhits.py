@@ -29,7 +29,7 @@ OPENNESS_CLOSED, OPENNESS_OPEN, OPENNESS_FLOOR = 0.3, 0.6, 0.05
 OPENNESS_CELL = 0.05
 
 
-def hidden_points(covered, openness, lit_if_open, sheets, hit_point, corners, points, normals, tri, emitting=None):
+def hidden_points(covered, openness, lit_if_open, sheets, hit_point, corners, points, normals, tri, emitting=None, lying=None):
     """``((s,) bool, ((w,) int, (w,) bool))``: the ``covered`` points hidden from the near
     field's hits, and the points whose emitting or not that depends on, with whether each
     emits (:attr:`NearField.emitters`: while none of them starts or stops, the set holds).
@@ -44,7 +44,9 @@ def hidden_points(covered, openness, lit_if_open, sheets, hit_point, corners, po
     A floor under a block standing 2 cm above it faces the block's own underside: hidden.
     Not so an emitter's points (``emitting (s,)``) and a point facing one across a gap
     (neither lying on another surface): a box lamp's top 1 cm under a ceiling lights it, and
-    the ceiling lights it back; a glowing wall's foot on the ground stays hidden."""
+    the ceiling lights it back; a glowing wall's foot on the ground stays hidden. ``lying
+    (s,)``: which covered points lie on another surface, where that was asked already (else
+    :func:`~.spatial.resting` is asked here)."""
     hidden = covered.copy()
     open_ = openness >= 1.0 - HIDDEN_SHARE
     if lit_if_open is not None:
@@ -53,7 +55,9 @@ def hidden_points(covered, openness, lit_if_open, sheets, hit_point, corners, po
         hidden &= ~_facing(sheets.back, hit_point, corners)
     ask = np.flatnonzero(hidden)
     rest = np.zeros(len(hidden), dtype=bool)
-    if len(ask):
+    if lying is not None:  # the covered points' answers, asked once (Transport.resting)
+        rest[ask] = lying[ask]
+    elif len(ask):
         scale = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
         rest[ask] = resting(points, normals, tri, scale, ask, sheets)
     gap = hidden & ~rest & ~open_  # where an emitter across the gap counts: those points, and their hits' corners

@@ -243,7 +243,7 @@ class SceneLight:
 
     def _add(self, key, direct, own, weight, light=None):
         direct = self.scene.zero_dark_points_inplace(np.asarray(direct, dtype=np.float64).copy())
-        direct[self.transport.resting(self.scene)] = 0.0  # as the bake's (direct.direct_light_steps)
+        direct[self.transport.resting()] = 0.0  # as the bake's (direct.direct_light_steps)
         first = self.op.project(self.op.albedo * direct)
         self.sources[key] = Source(key, direct, first, own, np.asarray(weight, dtype=np.float64), light)
         return self.sources[key]

@@ -128,7 +128,7 @@ class Transport:
         # (s,) points another object covers (no probe sees them: a floor point under a wall
         # standing on it, the underside of a block on the ground): no probe light, no sky.
         self.covered = _no_weight(weight, basis) & ~self.no_probe
-        self._resting = None  # which of them lie on another surface (resting: once asked)
+        self._resting, spare = self._lying(scene, spare)  # which of them lie on another surface (see resting)
         # The near field (a final gather of each point's short-range surroundings), or None.
         self.near = None
         self.gathered = None  # the points gathered by rays over their whole view (take_gathered)
@@ -136,14 +136,14 @@ class Transport:
         if tracing is not None:
             lit_if_open = None if spare is None else np.isin(np.arange(len(scene.points)), spare[0])
             self.near = nearfield.finish(working.result(tracing), hidden=self.covered, lit_if_open=lit_if_open,
-                                         emitting=np.any(scene.emission > 0, axis=1))
+                                         emitting=np.any(scene.emission > 0, axis=1), lying=self._resting)
         # Each point's 8 probes' weights and its normal's diffuse basis, kept apart (their 72
         # products are a point's light per coefficient: 4 times the memory, 0.7 GB at 2.5M points).
         self._weight = np.empty((len(index), 8), dtype=np.float32)
         self._basis = np.empty((len(index), 9), dtype=np.float32)
         self._put_weights(np.arange(len(index)), weight, basis)
         if spare is not None:
-            self._light_from_behind(spare, basis, scene)
+            self._light_from_behind(spare, basis, len(scene.points))
         if self.near is not None and visibility and self.covered.any():
             self._light_under(scene, grid, index, trilinear_weight, basis, positions)
         self.own_near = self.near
@@ -184,17 +184,12 @@ class Transport:
         decides the near field's hidden ones) that ``scene`` changed (none: they hold)."""
         return np.zeros(0, dtype=np.int64) if self.own_near is None else self.own_near.emitters_changed(np.any(scene.emission > 0, axis=1))
 
-    def resting(self, scene) -> np.ndarray:
+    def resting(self) -> np.ndarray:
         """``(s,)`` bool: the covered points that lie on another surface facing them
         (:func:`~cubegi_engine.spatial.resting`: a wall's points inside a partition's end
         standing against it, a floor's under a wall), but the gathered ones (their corners'
-        own rays decide). No light reaches them: not the sky's, nor a lamp's through a
-        partition thinner than its shadow maps' bias. ``scene``: the one these tables are of."""
-        if self._resting is None:
-            which = np.flatnonzero(self.covered)
-            rest = np.zeros(len(self.covered), dtype=bool)
-            rest[which] = spatial.resting(scene.points, scene.normals, scene.triangles, scene.scale, which, scene.sheets())
-            self._resting = rest
+        own rays decide). No light reaches them: not the probes' from behind, not the sky's,
+        nor a lamp's through a partition thinner than its shadow maps' bias."""
         out = self._resting.copy()
         if self.gathered is not None:
             out[self.gathered.rows] = False
@@ -235,13 +230,23 @@ class Transport:
                                     sheet=None if scene.sheets() is None else scene.sheets().point_sheet)
         seen, behind = lit_by.weights, lit_by.behind
         alone = np.flatnonzero(~seen.any(axis=1) & behind.any(axis=1))
-        # Not a point lying on another surface (a partition's top against the ceiling, its end
-        # against a wall: the probes under a ceiling of large quads see it in the ceiling's
-        # plane, and lit it as the ceiling): it stays covered, and hidden from the near field.
-        alone = alone[~spatial.resting(scene.points, scene.normals, scene.triangles, scene.scale, alone, scene.sheets())]
         return seen, ((alone, behind[alone]) if len(alone) else None)
 
-    def _light_from_behind(self, spare, basis, scene):
+    def _lying(self, scene, spare):
+        """``(lying, spare)``: which covered points lie on another surface facing them, asked
+        once a bake (:meth:`resting`, the near field's hidden points and the sky read it), and
+        ``spare`` (see :meth:`_seen_weights`) without them: such a point takes no light from
+        the probes behind it (a partition's top against the ceiling: the probes under a
+        ceiling of large quads see it in the ceiling's plane, and lit it as the ceiling)."""
+        lying = np.zeros(len(self.covered), dtype=bool)
+        which = np.flatnonzero(self.covered)
+        lying[which] = spatial.resting(scene.points, scene.normals, scene.triangles, scene.scale, which, scene.sheets())
+        if spare is not None:
+            keep = ~lying[spare[0]]
+            spare = (spare[0][keep], spare[1][keep]) if keep.any() else None
+        return lying, spare
+
+    def _light_from_behind(self, spare, basis, count):
         """A point only probes behind its plane see (a block's underside below the lowest
         probes) is lit by its near field where that encloses at least half its view (the
         probes' light in the few open directions comes out too bright); elsewhere (a sofa's
@@ -249,7 +254,7 @@ class Transport:
         (at least half), 7.9% (three quarters), 9.2% (always by them)."""
         rows, w = spare
         if self.near is not None:
-            keep = ~self.near.enclosed(len(scene.points))[rows]
+            keep = ~self.near.enclosed(count)[rows]
             rows, w = rows[keep], w[keep]
         self._put_weights(rows, w, basis[rows])
         self.covered[rows] = self._weightless(rows)

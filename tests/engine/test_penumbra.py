@@ -51,16 +51,19 @@ def test_a_straight_edge_over_a_point_leaves_it_the_share_of_the_disk_past_the_e
 
 def _two_ledges():
     """A ground at z = 0 under two ledges running along y: a low one 0.5 m up over x < -1,
-    a high one 3 m up over x > 1.5; and a sun of 2 degrees straight overhead, its depth map
-    256 texels over 8 m (texels of 3.1 cm), traced by rays as the GPU would draw it."""
+    a high one 3 m up over x > 1.5 (see _sun_map)."""
     big = 50.0
-    quads = [((-big, 0.0), (big, 0.0)), ((-big, 0.5), (-1.0, 0.5)), ((1.5, 3.0), (big, 3.0))]
-    points, triangles = [], []
-    for (x0, z), (x1, _) in quads:
-        k = len(points)
-        points += [(x0, -big, z), (x1, -big, z), (x1, big, z), (x0, big, z)]
-        triangles += [(k, k + 1, k + 2), (k, k + 2, k + 3)]
-    points, triangles = np.array(points), np.array(triangles)
+    return _sun_map([[(-big, -big, 0.0), (big, -big, 0.0), (big, big, 0.0), (-big, big, 0.0)],
+                     [(-big, -big, 0.5), (-1.0, -big, 0.5), (-1.0, big, 0.5), (-big, big, 0.5)],
+                     [(1.5, -big, 3.0), (big, -big, 3.0), (big, big, 3.0), (1.5, big, 3.0)]])
+
+
+def _sun_map(quads):
+    """``(occluders, view, depth map)`` of ``quads`` (each 4 corners) under a sun straight
+    overhead, its depth map 256 texels over 8 m (texels of 3.1 cm), traced by rays as the
+    GPU would draw it."""
+    points = np.array([c for quad in quads for c in quad], dtype=np.float64)
+    triangles = np.array([(k, k + 1, k + 2) for k in range(0, len(points), 4)] + [(k, k + 2, k + 3) for k in range(0, len(points), 4)])
     caster = NumpyRays(points, triangles)
     occluders = Occluders(triangles, points, 100.0, None, lambda: caster)
     axis, eye, half, n = np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.0, 10.0]), 4.0, 256
@@ -131,3 +134,34 @@ def test_receivers_sharing_a_texel_ask_the_first_rays_from_their_outermost_alone
     assert np.abs(got - truth).max() <= 0.13
     partial = (truth > 0.0) & (truth < 1.0)
     assert partial.sum() >= 16 and np.all((got[partial] > 0.0) & (got[partial] < 1.0))
+
+
+@pytest.mark.parametrize("turn, offset", [(17.8, (-0.0007, -0.00904)), (28.5, (-0.00692, -0.00585))])
+def test_a_shadows_corner_inside_a_texel_leaves_every_receiver_its_own_share(turn, offset):
+    """A square plate 20 cm over the ground, turned about the vertical, its corner 9 mm from
+    the middle of a texel that 400 receivers share: its sharp shadow cuts a notch into the
+    texel's lit receivers, and those about the notch stand in a penumbra that the group's
+    outermost members do not see. None there takes the group's answer: each share is within
+    16 rays' steps of the receiver's own."""
+    texel, big = 8.0 / 256, 50.0
+    middle = (np.array([37, 41]) + 0.5) * texel - 4.0
+    phi = np.radians(turn)
+    spin = np.array([[np.cos(phi), -np.sin(phi)], [np.sin(phi), np.cos(phi)]])
+    plate = np.array([[-big, -big], [0.0, -big], [0.0, 0.0], [-big, 0.0]]) @ spin.T + middle + offset
+    occluders, view, depth = _sun_map([[(-big, -big, 0.0), (big, -big, 0.0), (big, big, 0.0), (-big, big, 0.0)],
+                                       [(px, py, 0.2) for px, py in plate]])
+    spread = np.tan(np.radians(1.0))
+    worst = 0.0
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        r, t = np.sqrt(rng.random(400)) * 0.45 * texel, rng.random(400) * 2.0 * np.pi
+        points = np.stack([middle[0] + r * np.cos(t), middle[1] + r * np.sin(t), np.zeros(400)], axis=1)
+        receivers = Receivers(points, np.tile([0.0, 0.0, 1.0], (400, 1)), np.full(400, -1))
+        lookup, _ = lights.ortho_lookup(receivers, view, depth.size)
+        ask = np.flatnonzero(penumbra._near_an_edge(depth, lookup, spread, depth.size))
+        sharp = lights.ortho_visibility(receivers, occluders, view, depth)[ask]
+        got, _ = penumbra._shared_disk_share(receivers, occluders, view.axis, spread, lookup, ask, depth.size, sharp)
+        own, _ = penumbra._disk_share(receivers, occluders, view.axis, spread, lookup.footprint, ask)
+        assert len(ask) > 100
+        worst = max(worst, np.abs(got - own).max())
+    assert worst <= 0.13, worst

@@ -94,22 +94,32 @@ def _shared_disk_share(receivers, occluders, axis, spread, lookup, ask, n, sharp
     545,940 receivers, whose disk rays are 4.98M each on its own and 4.27M so.)"""
     texel = lookup.row[ask] * n + lookup.col[ask]
     depth, normals, at = lookup.depth[ask], receivers.normals[ask], lookup.origins[ask]
-    order = np.lexsort((depth, sharp, texel))
+    order = np.lexsort((depth, texel))
     change = np.ones(len(order), dtype=bool)
-    change[1:] = ((texel[order][1:] != texel[order][:-1]) | (sharp[order][1:] != sharp[order][:-1])
-                  | (np.diff(depth[order]) > GROUP_DEPTH * lookup.footprint[ask][order][1:])
-                  | (np.einsum("kc,kc->k", normals[order][1:], normals[order][:-1]) < GROUP_TURN))
+    change[1:] = texel[order][1:] != texel[order][:-1]
+    starts = np.flatnonzero(change)
+    # A texel the map answers differently holds a shadow's corner, which cuts a notch into a
+    # group: the receivers about it stand in a penumbra that the outermost members, beyond
+    # the notch, do not see. None there shares an answer.
+    mixed = np.empty(len(ask), dtype=bool)
+    mixed[order] = np.repeat(np.minimum.reduceat(sharp[order], starts) != np.maximum.reduceat(sharp[order], starts),
+                             np.diff(np.append(starts, len(order))))
+    change[1:] |= ((np.diff(depth[order]) > GROUP_DEPTH * lookup.footprint[ask][order][1:])
+                   | (np.einsum("kc,kc->k", normals[order][1:], normals[order][:-1]) < GROUP_TURN))
     group = np.empty(len(ask), dtype=np.int64)
     group[order] = np.cumsum(change) - 1
     e1 = cubemap.any_perpendicular(np.asarray(axis, dtype=np.float64))
     e2 = np.cross(axis, e1)
+    firsts = np.flatnonzero(change)  # each group's run in ``order``
+    sizes = np.diff(np.append(firsts, len(order)))
     outer = np.zeros(len(ask), dtype=bool)
     for d in (e1, e2, e1 + e2, e1 - e2):
-        for along in (at @ d, -(at @ d)):
-            last = np.lexsort((along, group))
-            ends = np.ones(len(last), dtype=bool)
-            ends[:-1] = group[last][1:] != group[last][:-1]
-            outer[last[ends]] = True
+        along = at[order] @ d
+        for x in (along, -along):  # the first of each group's farthest (one of a row of ties)
+            at_most = np.flatnonzero(x >= np.repeat(np.maximum.reduceat(x, firsts), sizes))
+            run = group[order[at_most]]
+            outer[order[at_most[np.append(True, run[1:] != run[:-1])]]] = True
+    outer &= ~mixed
     reps = np.flatnonzero(outer)
     share, centre_open, split = np.zeros(len(ask)), np.zeros(len(ask), dtype=bool), np.zeros(len(ask), dtype=bool)
     start = ray_starts(receivers, occluders, lookup.footprint, ask[reps])
@@ -123,16 +133,6 @@ def _shared_disk_share(receivers, occluders, axis, spread, lookup, ask, n, sharp
     np.minimum.at(lo, k, code)
     np.maximum.at(hi, k, code)
     agree = (lo == hi) & (lo < 4.0)
-    # Nor where the map answers the texel's receivers differently: a shadow's corner in the
-    # texel cuts a notch into a group, whose receivers about it stand in a penumbra that its
-    # outermost members, beyond the notch, do not see.
-    _, in_texel = np.unique(texel, return_inverse=True)
-    highest, lowest = np.full(in_texel.max() + 1, -np.inf), np.full(in_texel.max() + 1, np.inf)
-    np.maximum.at(highest, in_texel, sharp)
-    np.minimum.at(lowest, in_texel, sharp)
-    group_texel = np.empty(groups, dtype=np.int64)
-    group_texel[group] = in_texel
-    agree &= (highest == lowest)[group_texel]
     rest = np.flatnonzero(~outer & ~agree[group])
     inner = np.flatnonzero(~outer & agree[group])
     if len(inner):  # each takes its group's answer (any outermost member's)

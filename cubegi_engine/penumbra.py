@@ -84,8 +84,8 @@ def _shared_disk_share(receivers, occluders, axis, spread, lookup, ask, n, sharp
     """:func:`_disk_share` of the receivers ``ask`` (their map's answers ``sharp``), the first
     rays of a group of them cast from its outermost members alone.
 
-    A group is the receivers of one texel that the map answers alike, on one surface (their
-    depths step by at most GROUP_DEPTH texels, their normals turn by at most GROUP_TURN); its
+    A group is the receivers of one texel on one surface (their depths step by at most
+    GROUP_DEPTH texels, their normals turn by at most GROUP_TURN); its
     outermost members are those farthest along each of 8 directions across the map. A
     penumbra's straight edge that reaches into the group reaches the member nearest it, an
     outermost one: where those all see the whole disk, or none of it, alike, so do the others

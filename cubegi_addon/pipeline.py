@@ -273,9 +273,10 @@ def _note_capture(collected, result, grid, coarse=()):
         collected.notes.append(
             f"{names[trap.emitter]}: an emitter {100 * trap.gap:.2g} cm from {names[trap.surface]} ({trap.points} points of "
             f"{names[trap.surface]} see it over up to {100 * trap.view:.0f}% of their view), a gap finer than the probes "
-            "resolve: the light bouncing between them is gathered by the near field alone and comes out darker than "
-            "Cycles' there, and the light leaking out of the gap is only estimated by the energy balance, so the rest "
-            "of the scene's indirect light can be off by a fifth either way (see docs/accuracy.md, a lamp close to a surface)"
+            "resolve: the light bouncing between them is gathered by the near field alone, from both surfaces sampled "
+            "finely there, and the bake leaves out the energy balance (it cannot weigh light sent and received within "
+            "such a gap), so the rest of the scene's indirect light can be off by up to a tenth either way (see "
+            "docs/accuracy.md, a lamp close to a surface)"
         )
     if len(traps) > TRAPPED_NOTES:
         collected.notes.append(f"and {len(traps) - TRAPPED_NOTES} more emitters as close to a surface (the same holds there)")

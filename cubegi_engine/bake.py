@@ -22,6 +22,7 @@ import numpy as np
 
 from .capture import ProbeCapture
 from .direct import DirectLight, direct_light_steps, sun_steps
+from .emitters import balanced_landing
 from .errors import BakeError
 from .field import ProbeField
 from .gather import gathered_for
@@ -228,8 +229,8 @@ def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field, s
 
     yield Progress(Stage.DIRECT, 1, total, f"direct light from {len(scene.lights)} lights")
     t = time.perf_counter()
-    landing = (yield from in_background(transport.landing_share, working(Stage.DIRECT, 1)("the share of each point's view that is "
-                                                                                       "surface"))) if settings.conserve_energy else None
+    landing = (yield from in_background(lambda: balanced_landing(scene, transport), working(Stage.DIRECT, 1)(
+        "the share of each point's view that is surface"))) if settings.conserve_energy else None
     t_landing = time.perf_counter() - t
     parts = yield from direct_light_steps(scene, renderer, settings, transport, landing, shadows, step=working(Stage.DIRECT, 1),
                                           done=suns)

@@ -27,7 +27,7 @@ from . import lights as lights_mod
 from .cubemap import capture_cubes, clip_planes
 from .geometry import run_offsets
 
-__all__ = ["emissive_triangles", "emitter_direct", "trapped_light", "TrappedLight", "SAMPLES"]
+__all__ = ["balanced_landing", "emissive_triangles", "emitting_triangles", "emitter_direct", "trapped_light", "TrappedLight", "SAMPLES"]
 
 # Shadow sample points per emissive object (each drawn from both faces). The white box's
 # 0.5 m panel (8 triangles), direct light against Cycles: 8 points at the triangles'
@@ -42,12 +42,26 @@ EYE_LIFT = 1e-4
 
 
 def emissive_triangles(scene):
-    """``(triangle indices (e,), radiance (e, 3))``: triangles whose three corners emit, with
-    the mean of their corners' emission."""
-    corner = scene.emission[scene.triangles]  # (t, 3, 3)
-    # A sheet's twins emit what the sheet does, from the same place: counted once (both faces).
-    emits = np.all(np.any(corner > 0, axis=2), axis=1) & ~scene.back_triangles()
-    return np.nonzero(emits)[0], corner[emits].mean(axis=1)
+    """``(corners (e, 3), radiance (e, 3))``: the triangles whose three corners emit, by point
+    indices, with the mean of their corners' emission. Where the bake cut emissive triangles
+    to sample the light they reflect (``scene.emitting``), the triangles as modelled: their
+    light is the same, and a panel stays one flat group walked by its outline."""
+    corners = np.asarray(scene.triangles, dtype=np.int64).reshape(-1, 3)[emitting_triangles(scene)]
+    if getattr(scene, "emitting", None) is not None:  # an emitter's pieces give way to it (it may emit no more)
+        modelled = np.asarray(scene.emitting, dtype=np.int64).reshape(-1, 3)
+        still = np.all(np.any(scene.emission[modelled] > 0, axis=2), axis=1)
+        corners = np.concatenate([corners, modelled[still]])
+    return corners, scene.emission[corners].mean(axis=1)
+
+
+def emitting_triangles(scene) -> np.ndarray:
+    """``(t,)`` bool: the triangles of ``scene.triangles`` whose three corners emit, but a
+    sheet's twins (they emit what the sheet does, from the same place: counted once) and the
+    pieces of an emitter the bake cut (``scene.emitter_pieces``: it counts as modelled)."""
+    corner = np.any(np.asarray(scene.emission)[scene.triangles] > 0, axis=2)  # (t, 3)
+    out = np.all(corner, axis=1) & ~scene.back_triangles()
+    pieces = getattr(scene, "emitter_pieces", None)
+    return out & ~np.asarray(pieces, dtype=bool) if pieces is not None else out
 
 
 # Receivers are moved this share of the scene's size off their surface and into their own
@@ -107,6 +121,19 @@ def trapped_light(scene, near, at_least=TRAPPED_VIEW):
         found.append(TrappedLight(e, surface, float(np.median(np.abs(dist[mine]))), len(facing),
                                   float(view[np.isin(near.rows, facing)].max())))
     return sorted(found, key=lambda t: -t.points)
+
+
+def balanced_landing(scene, transport):
+    """``transport``'s :meth:`~cubegi_engine.transport.Transport.landing_share`, or None where
+    the energy balance cannot hold: where an emitter lies close in front of a surface
+    (:func:`trapped_light`). The balance weighs the power the points send that lands against
+    the light the probes bring; the light bouncing in such a gap is sent and received within
+    it, by the near field alone, so it counts on one side only (McGuire's Cornell box, its
+    ceiling sampled finely over the lamp: the walls 1.6x Cycles' indirect light, 1.05x
+    without the balance; a hand-made room with a panel 1 cm under its ceiling 1.7x and 1.00x)."""
+    if trapped_light(scene, transport.near):
+        return None
+    return transport.landing_share()
 
 
 def _two_sided_ff(points, normals, tri):
@@ -268,15 +295,15 @@ def emitter_direct(scene, renderer, shadow_size, shadows=True):
     lamp sees the box's top lit and its bottom (whose light the top stops) dark, where one
     share of the whole box, weighted by each sample's nearness, gave the ceiling's two
     vertices over it 1.9 and 0.02 times Cycles' light."""
-    ids, radiance = emissive_triangles(scene)
+    corners, radiance = emissive_triangles(scene)
     out = np.zeros((len(scene.points), 3))
-    if not len(ids):
+    if not len(corners):
         return out
-    verts = scene.points[scene.triangles[ids]]  # (e, 3, 3)
+    verts = scene.points[corners]  # (e, 3, 3)
     lifted = _into_faces(scene, RECEIVER_NUDGE * scene.scale)
-    owner = scene.triangle_object()[ids]
+    owner = np.zeros(len(corners), dtype=np.int64) if scene.point_object is None else np.asarray(scene.point_object)[corners[:, 0]]
     groups = _flat_groups(verts, radiance, owner, scene.scale)
-    group = np.zeros(len(ids), dtype=np.int64)
+    group = np.zeros(len(corners), dtype=np.int64)
     for g, members in enumerate(groups):
         group[members] = g
     for obj in np.unique(owner):
@@ -293,7 +320,7 @@ def emitter_direct(scene, renderer, shadow_size, shadows=True):
         for g in np.unique(group[mine]):
             if len(groups[g]) == 1 and g not in own:
                 continue  # (above)
-            ff = _group_ff(lifted, scene.normals, scene.triangles[ids[groups[g]]], verts[groups[g]])
+            ff = _group_ff(lifted, scene.normals, corners[groups[g]], verts[groups[g]])
             if g in own:
                 form[g] = ff
             else:

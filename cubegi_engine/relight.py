@@ -30,6 +30,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .emitters import balanced_landing
 from .errors import BakeError
 from .lights import light_keys
 from .series import bounce_series, landed_power, near_factor, tail_sum
@@ -439,7 +440,7 @@ def from_bake(result, scene, light_direct, add_tail=True, conserve_energy=True, 
     ``sky_light``: for lights, emission and a sky that change later."""
     transport = result.capture.transport
     albedo = scene.sent_on()
-    landing = transport.landing_share() if conserve_energy else None
+    landing = balanced_landing(scene, transport) if conserve_energy else None
     op = MatrixOperator(transport, albedo, landing, scene.point_areas())
     state = SceneLight(scene, transport, light_direct, op, len(result.solution.bounces), add_tail, emitter_light, sky_light)
     parts = result.direct_parts.parts

@@ -80,6 +80,12 @@ class SceneArrays:
     # modelled (:func:`cubegi_engine.proxy.simplify`). None: none added.
     sampled_triangles: np.ndarray | None = None
     reflectance: np.ndarray | None = None  # see above
+    # (e, 3) int: the emissive triangles as modelled that the bake cut into smaller ones to
+    # sample the light they reflect (:func:`cubegi_engine.refine.refine_near_emitters`), by point
+    # indices, and (t,) bool: which of ``triangles`` are their pieces. Their light is that of
+    # the triangles as modelled (:func:`cubegi_engine.emitters.emissive_triangles`). None: none cut.
+    emitting: np.ndarray | None = None
+    emitter_pieces: np.ndarray | None = None
 
     def sent_on(self) -> np.ndarray:
         """``(s, 3)``: what each point sends on of the light reaching it (:attr:`reflectance`,

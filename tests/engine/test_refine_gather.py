@@ -240,3 +240,66 @@ def test_a_hit_takes_only_the_corners_it_sees_along_its_triangle():
     assert got[1] == pytest.approx(bary[1])  # its corner (2, 0, 0) stands at the wall's foot: seen
     boxed = gather._seen_corners(caster, points, np.array([[1, 1, 1]]), np.array([[1.0, 1.0, 0.0]]), bary[:1], 4.0)
     assert boxed[0] == pytest.approx(bary[0])  # no corner seen: all kept
+
+
+def _patch(lo, u, v, n, up):
+    """An ``n x n`` grid of squares from corner ``lo`` along ``u`` and ``v``, facing along
+    ``u x v`` (or against it unless ``up``)."""
+    g = np.linspace(0.0, 1.0, n + 1)
+    pts = np.array([np.add(lo, a * np.asarray(u) + b * np.asarray(v)) for b in g for a in g], dtype=float)
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    tris = np.concatenate([np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:]], -1).reshape(-1, 3),
+                           np.stack([idx[:-1, :-1], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 3)])
+    return pts, tris if up else tris[:, ::-1]
+
+
+def test_surfaces_close_to_an_emitter_are_cut_as_fine_as_the_gap_and_its_light_stays_as_modelled():
+    """A lamp's quad (0.5 m in 25 cm squares) 1 cm under a ceiling of 25 cm squares, a floor
+    2 m below: the ceiling's triangles by the lamp, and the lamp's own, are cut until each
+    lies farther from the other than NEAR_EMITTER of its longest edge, or is 2 EMITTER_CELLS
+    of a cell long; the floor is left as it is. The lamp's light is its triangles' as
+    modelled (the same at every point as before the cut; its pieces do not count again), and
+    an object that starts to emit later (an edit of its material) emits as any."""
+    from cubegi.cubegi_engine import emitters
+    from cubegi.cubegi_engine.grid import ProbeGrid
+
+    ceiling = _patch((0.0, 0.0, 2.0), (0, 4, 0), (4, 0, 0), 16, up=True)  # faces down
+    lamp = _patch((1.75, 1.75, 1.99), (0, 0.5, 0), (0.5, 0, 0), 2, up=True)  # faces down
+    floor = _patch((0.0, 0.0, 0.0), (4, 0, 0), (0, 4, 0), 4, up=True)
+    scene = _scene([(*ceiling, (0.8, 0.8, 0.8)), (*lamp, (0.8, 0.8, 0.8)), (*floor, (0.5, 0.5, 0.5))])
+    scene.emission[scene.point_object == 1] = (5.0, 5.0, 5.0)
+    grid = ProbeGrid((0.0, 0.0, 0.0), (4.0, 4.0, 2.0), (16, 16, 8))  # cells of 25 cm
+    cell = 0.25
+    out, moved = refine.refine_near_emitters(scene, grid)
+    assert np.array_equal(out.points[moved], scene.points)
+
+    p = out.points[out.triangles]
+    longest = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2).max(axis=1)
+    centre = p.mean(axis=1)
+    owner = out.point_object[out.triangles[:, 0]]
+    s = np.linspace(0.0, 1.0, 101)  # the lamp and the ceiling over it sampled every 5 mm
+    lamp_at = np.array([(1.75 + 0.5 * a, 1.75 + 0.5 * b, 1.99) for a in s for b in s])
+    over_at = np.array([(1.5 + a, 1.5 + b, 2.0) for a in s for b in s])
+    for mine, other in ((0, lamp_at), (1, over_at)):
+        sel = np.flatnonzero(owner == mine)
+        near = np.linalg.norm(centre[sel] - other.mean(axis=0), axis=1) < 1.5  # (the rest lies metres away)
+        dist = np.full(len(sel), np.inf)
+        dist[near] = [np.linalg.norm(other - c, axis=1).min() + 3.6e-3 for c in centre[sel[near]]]
+        fine = longest[sel] <= 2.0 * refine.EMITTER_CELLS * cell + 1e-9
+        assert np.all(fine | (dist > refine.NEAR_EMITTER * longest[sel])), mine
+        assert fine.sum() >= 32  # cut down to the finest by the gap
+    assert (owner == 0).sum() > 2 * 16 * 16 and (owner == 1).sum() > 8
+    assert (owner == 2).sum() == 2 * 4 * 4  # the floor, 2 m away, as modelled
+
+    corners, radiance = emitters.emissive_triangles(out)
+    before, _ = emitters.emissive_triangles(scene)
+    assert len(corners) == len(before) == 8 and np.allclose(np.sort(out.points[corners].reshape(-1, 9), axis=0),
+                                                            np.sort(scene.points[before].reshape(-1, 9), axis=0))
+    assert radiance == pytest.approx(5.0)
+    light = emitters.emitter_direct(out, None, 0, shadows=False)[moved]
+    assert light[scene.point_object == 2].min() > 0
+    assert light == pytest.approx(emitters.emitter_direct(scene, None, 0, shadows=False), rel=5e-3, abs=1e-9)
+
+    out.emission[out.point_object == 2] = (1.0, 1.0, 1.0)  # the floor glows after the bake
+    corners, _ = emitters.emissive_triangles(out)
+    assert len(corners) == 8 + 2 * 4 * 4

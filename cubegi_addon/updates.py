@@ -215,6 +215,7 @@ def _material_edits(context, kept, changed):
     bake, live = kept.bake, kept.live
     arrays = scene_data.collect(context, only=bake.only, grid=bake.result.grid.whole()).arrays
     if not arrays.fingerprint().same_geometry(bake.arrays.fingerprint()):
+        _refuse_new_cuts(arrays, bake.arrays)
         raise BakeError("the geometry changed since the bake: Bake again (an update keeps the capture, which only a bake redraws)")
     albedo = emission = sent = None
     if not (np.array_equal(effective_albedo(arrays, arrays.albedo), effective_albedo(bake.arrays, live.albedo))
@@ -240,6 +241,23 @@ def _refuse_new_tables(arrays, points):
         names = sorted({arrays.object_names[k] for k in np.unique(arrays.point_object[points])})
         raise TablesChanged(f"{', '.join(names)} started or stopped emitting across a covered gap, which the tables hold: "
                             "Bake again (the probes' cube maps are kept; only the tables are built again)")
+
+
+def _refuse_new_cuts(arrays, baked):
+    """Refuse (TablesChanged) an emission edit that changes how the surfaces by an emitter
+    are sampled (:func:`cubegi_engine.refine.refine_near_emitters`: ``arrays``, read now, and
+    the bake's ``baked`` differ only in those cuts), naming the objects that started or
+    stopped emitting."""
+    if arrays.cut_from is None or baked.cut_from is None or not arrays.cut_from.same_geometry(baked.cut_from):
+        return
+    names = sorted(_emitting_objects(arrays) ^ _emitting_objects(baked)) or ["an emitter"]
+    raise TablesChanged(f"{', '.join(names)} started or stopped emitting close in front of a surface, which the bake samples "
+                        "finer there: Bake again")
+
+
+def _emitting_objects(arrays) -> set:
+    emits = np.any(np.asarray(arrays.emission) > 0, axis=1)
+    return {arrays.object_names[k] for k in np.unique(np.asarray(arrays.point_object)[emits])}
 
 
 def _moved_objects(context, kept):

@@ -73,6 +73,8 @@ RECEIVER_NUDGE = 1e-5
 # A surface point is between an emitter and itself (light trapped in the gap) where emissive
 # surfaces fill at least this share of its cosine-weighted view within the near field's reach.
 TRAPPED_VIEW = 0.5
+# ... and where they fill at least this share, the light is held in a gap (see balanced_landing).
+GAP_VIEW = 0.9
 
 
 @dataclass(frozen=True)
@@ -125,13 +127,15 @@ def trapped_light(scene, near, at_least=TRAPPED_VIEW):
 
 def balanced_landing(scene, transport):
     """``transport``'s :meth:`~cubegi_engine.transport.Transport.landing_share`, or None where
-    the energy balance cannot hold: where an emitter lies close in front of a surface
-    (:func:`trapped_light`). The balance weighs the power the points send that lands against
-    the light the probes bring; the light bouncing in such a gap is sent and received within
-    it, by the near field alone, so it counts on one side only (McGuire's Cornell box, its
-    ceiling sampled finely over the lamp: the walls 1.6x Cycles' indirect light, 1.05x
-    without the balance; a hand-made room with a panel 1 cm under its ceiling 1.7x and 1.00x)."""
-    if trapped_light(scene, transport.near):
+    the energy balance cannot hold: where an emitter closes a surface point in over GAP_VIEW of
+    its view (:func:`trapped_light`: a lamp close in front of a ceiling; not a glowing wall's
+    foot on the floor, which it fills half the view of). The balance weighs the power the
+    points send that lands against the light the probes bring; the light bouncing in such a
+    gap is sent and received within it, by the near field alone, so it counts on one side
+    only (McGuire's Cornell box, its ceiling sampled finely over the lamp: the walls 1.6x
+    Cycles' indirect light, 1.05x without the balance; a hand-made room with a panel 1 cm
+    under its ceiling 1.7x and 1.00x)."""
+    if trapped_light(scene, transport.near, at_least=GAP_VIEW):
         return None
     return transport.landing_share()
 

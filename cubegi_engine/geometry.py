@@ -160,7 +160,7 @@ def _cut(origins, u, tid, planes):
     return t, ok & (b >= 0) & (c >= 0) & (b + c <= 1)
 
 
-def near_any_triangle(centres, radius, a, b, c, tiles=8, centre_normals=None, across=None, least=False):
+def near_any_triangle(centres, radius, a, b, c, tiles=8, centre_normals=None, across=None, least=False, apart=0.0, facing=None):
     """``(m,)`` bool: whether each of ``centres (m, 3)`` may lie within ``radius`` of any of
     the triangles ``a, b, c`` (each ``(k, 3)``). Conservative: the point is within ``radius``
     of the triangle's plane and its box and, projected onto it, within ``radius`` of the
@@ -169,11 +169,15 @@ def near_any_triangle(centres, radius, a, b, c, tiles=8, centre_normals=None, ac
     eight radii) against the triangles whose boxes reach the tile. With ``centre_normals``
     ``(m, 3)`` and ``across``, a triangle counts for a centre only where the cosine between
     their normals is below ``across`` in magnitude (it runs across the centre's surface).
-    ``least``: also ``(m,)`` the least index of such a triangle for each centre (-1: none)."""
+    ``least``: also ``(m,)`` the least index of such a triangle for each centre (-1: none).
+    ``apart``: a triangle counts only where the centre lies farther than this from its plane
+    (not in it: a panel set into a ceiling is not in front of the ceiling around it); with
+    ``centre_normals`` and ``facing``, only where the cosine between their normals is at
+    least ``facing`` in magnitude (it faces the centre's surface)."""
     m = len(centres)
     out = np.zeros(m, dtype=bool)
     found = np.full(m, len(a), dtype=np.int64)
-    tri = _Near(a, b, c, radius)
+    tri = _Near(a, b, c, radius, apart)
     if not m or not len(tri.a):
         return (out, np.full(m, -1, dtype=np.int64)) if least else out
     lo = centres.min(axis=0)
@@ -207,7 +211,8 @@ def near_any_triangle(centres, radius, a, b, c, tiles=8, centre_normals=None, ac
         # pairs left (few: a tile's triangles' boxes hold few of its centres each).
         near = np.all((pts[:, None, :] >= tri.box_lo[None, sel]) & (pts[:, None, :] <= tri.box_hi[None, sel]), axis=2)
         if centre_normals is not None:
-            near &= np.abs(centre_normals[cells] @ tri.n[sel].T) < across
+            cosine = np.abs(centre_normals[cells] @ tri.n[sel].T)
+            near &= (cosine < across) if across is not None else (cosine >= facing)
         pi, ki = np.nonzero(near)
         hit = tri.near(pts[pi], sel[ki])
         out[cells[pi[hit]]] = True
@@ -219,13 +224,13 @@ class _Near:
     """The triangles ``a, b, c`` that :func:`near_any_triangle` tests (the degenerate ones
     left out): their unit normals, edges' inward directions and boxes grown by ``radius``."""
 
-    def __init__(self, a, b, c, radius):
+    def __init__(self, a, b, c, radius, apart=0.0):
         n = cross(b - a, c - a)
         length = np.linalg.norm(n, axis=1)
         keep = length > 0
         self.index = np.flatnonzero(keep)  # each one's place among those given
         self.a, self.b, self.c, self.n = a[keep], b[keep], c[keep], n[keep] / length[keep, None]
-        self.radius = radius
+        self.radius, self.apart = radius, apart
         self.edges = [(self.a, self.b), (self.b, self.c), (self.c, self.a)]
         self.inward = []  # inward unit directions of the three edges, in the plane
         for p, q in self.edges:
@@ -236,9 +241,11 @@ class _Near:
 
     def near(self, x, k):
         """``(p,)`` bool: whether each point ``x (p, 3)`` (within triangle ``k (p,)``'s box) lies
-        within the radius of its plane and of the inside of each of its edges."""
+        within the radius of its plane (and farther than ``apart``) and of the inside of each
+        of its edges."""
         r = self.radius
-        ok = np.abs(np.einsum("pc,pc->p", x - self.a[k], self.n[k])) <= r
+        height = np.abs(np.einsum("pc,pc->p", x - self.a[k], self.n[k]))
+        ok = (height <= r) & (height > self.apart) if self.apart > 0 else height <= r
         for (p, _), d in zip(self.edges, self.inward):
             ok &= np.einsum("pc,pc->p", x - p[k], d[k]) >= -r
         return ok

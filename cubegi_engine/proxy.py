@@ -160,7 +160,8 @@ def _simplify_sheets(scene, sheets, budget):
                         emission=scene.emission[front], triangles=index[scene.triangles[~sheets.triangle_back]],
                         point_object=np.asarray(scene.point_object)[front], back=None,
                         dark=None if scene.dark is None else scene.dark[front],
-                        reflectance=None if scene.reflectance is None else scene.reflectance[front], emitting=None)
+                        reflectance=None if scene.reflectance is None else scene.reflectance[front], emitting=None,
+                        emitter_pieces=None, cut_from=None)
     two_sided = np.zeros(int(np.max(scene.point_object, initial=0)) + 1, dtype=bool)
     two_sided[np.asarray(scene.point_object)[sheets.back]] = True
     proxy = simplify(one_sided, _front_budget(budget, one_sided, two_sided))

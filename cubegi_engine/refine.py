@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .emitters import emitting_triangles
-from .geometry import mix64, near_any_triangle
+from .geometry import cross, mix64, near_any_triangle
 from .scene import SceneArrays
 
 __all__ = ["refine", "refine_for_grid", "refine_near_emitters", "split_counts", "MAX_SPLIT", "MAX_NEW_SHARE"]
@@ -302,12 +302,18 @@ def refine_for_grid(scene: SceneArrays, grid, cells=SAMPLE_CELLS, gathered_cells
 # 12.6 cm squares): the ceiling's 9 vertices over the lamp got 0.45-0.86 of Cycles' indirect
 # light (see docs/accuracy.md, a lamp close to a surface).
 NEAR_EMITTER, EMITTER_CELLS, EMITTER_ROUNDS = 0.5, 1.0 / 16.0, 8
+# A surface nearer an emitter's plane than APART of the distance asked lies in it, and one
+# turned from it by more than acos(FACING) does not face it (a floor meeting a glowing wall:
+# no gap holds light between them; see near_any_triangle).
+APART, FACING = 1e-3, 0.5
 
 
 def refine_near_emitters(scene: SceneArrays, grid) -> tuple[SceneArrays, np.ndarray]:
     """``scene`` with the triangles close to emissive ones, and the emissive ones close to
     other surfaces, cut until each is no longer than twice its distance from the other (see
-    NEAR_EMITTER), and ``(s,)`` each of ``scene``'s points' new index.
+    NEAR_EMITTER), and ``(s,)`` each of ``scene``'s points' new index; its ``cut_from`` is
+    ``scene``'s fingerprint (an edit that makes a surface start or stop emitting changes the
+    cuts, not that).
 
     The light an emitter sends a surface close in front of it changes over the width of the
     gap between them (a lamp's quad 1 cm under a ceiling lights the ceiling over it ten
@@ -315,40 +321,66 @@ def refine_near_emitters(scene: SceneArrays, grid) -> tuple[SceneArrays, np.ndar
     gap is what each side's points gather from the other's by the near field's rays, mixed
     over the triangles they land on: sampled a cell apart, a ceiling triangle reaching past
     the lamp's edge, or the lamp's own triangle reaching to its edge (where half its view is
-    open), passes that edge's light across the whole triangle. Bounded as :func:`refine` is
-    (MAX_NEW_SHARE of the scene's points, plus MIN_NEW_POINTS, over all rounds)."""
-    moved = np.arange(len(scene.points))
+    open), passes that edge's light across the whole triangle. A surface in the emitter's
+    plane (a panel set into a ceiling), or turned away from facing it (a floor meeting a
+    glowing wall), is not in front of it. The new points are at most MAX_NEW_SHARE of the
+    scene's, plus MIN_NEW_POINTS, over all rounds: the triangles nearest their emitter (the
+    shortest) are cut first."""
+    before, moved = scene.fingerprint(), np.arange(len(scene.points))
     budget = (1.0 + MAX_NEW_SHARE) * len(scene.points) + MIN_NEW_POINTS
-    for _ in range(EMITTER_ROUNDS):
-        split, longest = _near_emitters(scene, grid)
-        if not split.any() or len(scene.points) > budget:
+    for _ in range(EMITTER_ROUNDS if emitting_triangles(scene).any() else 0):
+        tri = np.asarray(scene.triangles, dtype=np.int64).reshape(-1, 3)
+        longest = _longest_edges(scene.points, tri)
+        split = _near_emitters(scene, grid, tri, longest, max(int(budget) - len(scene.points), 0) // 6)
+        if not split.any():
             break
-        scene, step = refine(scene, np.where(split, 0.5 * longest * (1.0 + 1e-9), np.inf), emitters=True)
-        moved = step[moved]
+        cut, step = refine(scene, np.where(split, 0.5 * longest * (1.0 + 1e-9), np.inf), emitters=True)
+        if len(cut.points) == len(scene.points):
+            break
+        scene, moved = cut, step[moved]
+    scene.cut_from = before  # (a new snapshot where it cut; else the one given)
     return scene, moved
 
 
-def _near_emitters(scene, grid):
-    """``(split (t,) bool, longest (t,))``: the front triangles to cut in this round of
-    :func:`refine_near_emitters`, and every triangle's longest edge."""
-    p = np.asarray(scene.points, dtype=np.float64)
-    tri = np.asarray(scene.triangles, dtype=np.int64).reshape(-1, 3)
+def _longest_edges(points, tri) -> np.ndarray:
+    p = np.asarray(points, dtype=np.float64)
     a, b, c = p[tri[:, 0]], p[tri[:, 1]], p[tri[:, 2]]
-    longest = np.sqrt(np.max(np.stack([np.einsum("ij,ij->i", x - y, x - y) for x, y in ((a, b), (b, c), (c, a))]), axis=0))
+    return np.sqrt(np.max(np.stack([np.einsum("ij,ij->i", x - y, x - y) for x, y in ((a, b), (b, c), (c, a))]), axis=0))
+
+
+def _near_emitters(scene, grid, tri, longest, at_most):
+    """``(t,)`` bool: the front triangles to cut in a round of :func:`refine_near_emitters`
+    (``longest``: their longest edges), at most ``at_most`` of them (each adds up to 6
+    points, with a sheet's twins), the shortest first."""
+    p = np.asarray(scene.points, dtype=np.float64)
+    a, b, c = p[tri[:, 0]], p[tri[:, 1]], p[tri[:, 2]]
     split = np.zeros(len(tri), dtype=bool)
     emits = emitting_triangles(scene) | pieces_of(scene)
     if not emits.any():
-        return split, longest
+        return split
     front = ~scene.back_triangles()
     centre = (a + b + c) / 3.0
+    unit = cross(b - a, c - a)
+    unit /= np.maximum(np.linalg.norm(unit, axis=1, keepdims=True), 1e-300)
     ask = front & (longest > 2.0 * EMITTER_CELLS * grid.point_cell_edge(centre))
     level = np.floor(np.log2(np.maximum(longest, 1e-300))).astype(np.int64)
+    lo_corner, hi_corner = np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
     for asked, source in ((~emits, emits), (emits, front & ~emits)):
+        if not source.any():
+            continue
+        source_lo, source_hi = lo_corner[source].min(axis=0), hi_corner[source].max(axis=0)
         for k in np.unique(level[ask & asked]):
             radius = NEAR_EMITTER * 2.0 ** (k + 1)  # at least NEAR_EMITTER of each one's longest edge
             sel = np.flatnonzero(ask & asked & (level == k))
+            sel = sel[np.all((centre[sel] >= source_lo - radius) & (centre[sel] <= source_hi + radius), axis=1)]
+            if not len(sel):
+                continue
             lo, hi = centre[sel].min(axis=0) - radius, centre[sel].max(axis=0) + radius
-            near = np.flatnonzero(source & np.all((np.maximum(np.maximum(a, b), c) >= lo) & (np.minimum(np.minimum(a, b), c) <= hi), axis=1))
+            near = np.flatnonzero(source & np.all((hi_corner >= lo) & (lo_corner <= hi), axis=1))
             if len(near):
-                split[sel] = near_any_triangle(centre[sel], radius, a[near], b[near], c[near])
-    return split, longest
+                split[sel] = near_any_triangle(centre[sel], radius, a[near], b[near], c[near], centre_normals=unit[sel],
+                                               apart=APART * radius, facing=FACING)
+    if split.sum() > at_most:  # the budget: the shortest first (the nearest their emitters)
+        chosen = np.flatnonzero(split)
+        split[chosen[np.argsort(longest[chosen], kind="stable")[at_most:]]] = False
+    return split

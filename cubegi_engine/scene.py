@@ -86,6 +86,10 @@ class SceneArrays:
     # the triangles as modelled (:func:`cubegi_engine.emitters.emissive_triangles`). None: none cut.
     emitting: np.ndarray | None = None
     emitter_pieces: np.ndarray | None = None
+    # The fingerprint of the arrays before the cuts by emitters (:func:`cubegi_engine.refine.
+    # refine_near_emitters`), or None: an edit that makes a surface close in front of another
+    # start or stop emitting changes the cuts (the fingerprint), not this.
+    cut_from: object = None
 
     def sent_on(self) -> np.ndarray:
         """``(s, 3)``: what each point sends on of the light reaching it (:attr:`reflectance`,

@@ -512,6 +512,19 @@ def test_lamps_sharing_their_shadow_eyes_update_as_a_full_bake(lamp_room, edit):
     _assert_same(_light(), _full_bake(lamp_room))
 
 
+def _dark_box_lamp_under_a_ceiling(room_height, squares, lamp_squares):
+    """A room 2 m wide, a ceiling patch of ``squares`` squares 1 cm under its top (or lower),
+    a 2 cm box lamp 1 cm under that (``lamp_squares`` squares a side, not glowing: the
+    material "Glow") and a point light."""
+    v, f = scenes.box_mesh((-1, -1, 0), (1, 1, room_height), (8, 8, int(round(4 * room_height))), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    ceiling_v, ceiling_f = scenes.grid_patch((-1, -1, 1.99), (0, 2, 0), (2, 0, 0), squares, squares)  # faces down
+    scenes.mesh_object("Ceiling", ceiling_v, ceiling_f, scenes.material("Plaster", (0.8, 0.8, 0.8)))
+    lamp_v, lamp_f = scenes.box_mesh((-0.25, -0.25, 1.96), (0.25, 0.25, 1.98), (lamp_squares, lamp_squares, 1), inward=False)
+    scenes.mesh_object("Panel", lamp_v, lamp_f, scenes.material("Glow", (0.8, 0.8, 0.8), emission=(1, 1, 1), strength=0.0))
+    scenes.add_light("POINT", (0.3, 0.4, 0.8), 60.0)
+
+
 def test_a_lamp_lit_across_a_covered_gap_after_the_bake_builds_the_tables_again(empty_scene, cubegi):
     """A box lamp 1 cm under a ceiling (as test_bad_input's), baked dark and then made to
     glow: which points emit across that gap decides what the near field hides (the lamp's
@@ -519,14 +532,10 @@ def test_a_lamp_lit_across_a_covered_gap_after_the_bake_builds_the_tables_again(
     kept tables no longer hold. An update refuses, naming the lamp, and writes nothing; a
     bake keeps the cube maps and builds the tables again, equal to a bake from nothing; Live
     makes that bake by itself. (A glowing wall's foot on the ground is no such gap: the
-    world-and-material test above stays an update.)"""
-    v, f = scenes.box_mesh((-1, -1, 0), (1, 1, 2), (8, 8, 8), inward=True)
-    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
-    ceiling_v, ceiling_f = scenes.grid_patch((-1, -1, 1.99), (0, 2, 0), (2, 0, 0), 16, 16)  # faces down
-    scenes.mesh_object("Ceiling", ceiling_v, ceiling_f, scenes.material("Plaster", (0.8, 0.8, 0.8)))
-    lamp_v, lamp_f = scenes.box_mesh((-0.25, -0.25, 1.96), (0.25, 0.25, 1.98), (4, 4, 1), inward=False)
-    scenes.mesh_object("Panel", lamp_v, lamp_f, scenes.material("Glow", (0.8, 0.8, 0.8), emission=(1, 1, 1), strength=0.0))
-    scenes.add_light("POINT", (0.3, 0.4, 0.8), 60.0)
+    world-and-material test above stays an update.) The ceiling and the lamp are modelled in
+    2 cm squares, as finely as the bake samples surfaces by an emitter (the next test: coarser,
+    the glow changes that sampling too), and the room's own ceiling stands well above them."""
+    _dark_box_lamp_under_a_ceiling(room_height=2.5, squares=96, lamp_squares=24)
     settings = dict(bounces=3, cube_size=8)
     live, session = cubegi.cubegi_addon.live, cubegi.cubegi_addon.session
     read = cubegi.cubegi_addon.attributes.read
@@ -561,3 +570,31 @@ def test_a_lamp_lit_across_a_covered_gap_after_the_bake_builds_the_tables_again(
     scene.cubegi.live = False
     for name, light in dark.items():
         np.testing.assert_allclose(read(bpy.data.objects[name].data, "CubeGI"), light, rtol=0, atol=1e-6 * light.max(), err_msg=name)
+
+
+def test_a_lamp_lit_close_under_a_coarse_ceiling_after_the_bake_is_sampled_anew(empty_scene, cubegi):
+    """The same lamp under a ceiling of 12.5 cm squares: lit, it has the ceiling over it and
+    its own faces sampled finer (cubegi_engine.refine.refine_near_emitters), which the bake's
+    arrays and capture do not hold. An update refuses, naming the lamp, and writes nothing;
+    a bake equals a bake from nothing; so does one after the glow is off again."""
+    _dark_box_lamp_under_a_ceiling(room_height=2.0, squares=16, lamp_squares=4)
+    settings = dict(bounces=2, cube_size=8)
+    read, session = cubegi.cubegi_addon.attributes.read, cubegi.cubegi_addon.session
+    glow = bpy.data.materials["Glow"].node_tree.nodes["Principled BSDF"].inputs["Emission Strength"]
+    assert bpy.ops.cubegi.bake(**settings) == {"FINISHED"}
+    points = len(session.kept(bpy.context.scene).bake.arrays.points)
+    dark = read(bpy.data.objects["Ceiling"].data, "CubeGI")
+    glow.default_value = 10.0
+    with pytest.raises(cubegi.cubegi_addon.updates.TablesChanged, match="Panel started or stopped emitting close in front of a surface"):
+        cubegi.cubegi_addon.live.update(bpy.context, materials=True)
+    np.testing.assert_array_equal(read(bpy.data.objects["Ceiling"].data, "CubeGI"), dark)
+    for strength in (10.0, 0.0):
+        glow.default_value = strength
+        assert bpy.ops.cubegi.bake(**settings) == {"FINISHED"}
+        again = read(bpy.data.objects["Ceiling"].data, "CubeGI")
+        cut = len(session.kept(bpy.context.scene).bake.arrays.points)
+        session.forget()
+        assert bpy.ops.cubegi.bake(**settings) == {"FINISHED"}
+        np.testing.assert_allclose(again, read(bpy.data.objects["Ceiling"].data, "CubeGI"), rtol=0, atol=1e-6 * again.max())
+        assert (cut > points) == (strength > 0)
+    np.testing.assert_allclose(again, dark, rtol=0, atol=1e-6 * dark.max())

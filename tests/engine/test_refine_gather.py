@@ -303,3 +303,42 @@ def test_surfaces_close_to_an_emitter_are_cut_as_fine_as_the_gap_and_its_light_s
     out.emission[out.point_object == 2] = (1.0, 1.0, 1.0)  # the floor glows after the bake
     corners, _ = emitters.emissive_triangles(out)
     assert len(corners) == 8 + 2 * 4 * 4
+
+
+def _lamp_under_a_ceiling(lamp_z=1.99, squares=16):
+    ceiling = _patch((0.0, 0.0, 2.0), (0, 4, 0), (4, 0, 0), squares, up=True)  # faces down
+    lamp = _patch((1.75, 1.75, lamp_z), (0, 0.5, 0), (0.5, 0, 0), 2, up=True)
+    scene = _scene([(*ceiling, (0.8, 0.8, 0.8)), (*lamp, (0.8, 0.8, 0.8))])
+    scene.emission[scene.point_object == 1] = (5.0, 5.0, 5.0)
+    return scene
+
+
+def test_cuts_by_an_emitter_keep_the_arrays_they_cut_and_spare_a_panel_in_its_ceilings_plane(monkeypatch):
+    """The arrays cut by an emitter keep the fingerprint of the arrays they were cut from,
+    which the same geometry with the lamp dark (not cut) has too: an update tells an edit
+    that lit or darkened a lamp close to a surface from one that changed the geometry. A
+    panel set into its ceiling's plane lights nothing in front of it there, so nothing is
+    cut; a budget too small for every cut the gap asks still cuts the triangles nearest the
+    lamp."""
+    from cubegi.cubegi_engine.grid import ProbeGrid
+
+    grid = ProbeGrid((0.0, 0.0, 0.0), (4.0, 4.0, 2.0), (16, 16, 8))
+    scene = _lamp_under_a_ceiling()
+    lit, _ = refine.refine_near_emitters(scene, grid)
+    dark = _lamp_under_a_ceiling()
+    dark.emission[:] = 0.0  # the lamp switched off
+    plain, _ = refine.refine_near_emitters(dark, grid)
+    assert len(lit.points) > len(scene.points) == len(plain.points)
+    assert not lit.fingerprint().same_geometry(plain.fingerprint()) and lit.cut_from.same_geometry(plain.cut_from)
+    moved = _lamp_under_a_ceiling()
+    moved.points[moved.point_object == 1, 0] += 0.1
+    assert not refine.refine_near_emitters(moved, grid)[0].cut_from.same_geometry(lit.cut_from)
+
+    flush, _ = refine.refine_near_emitters(_lamp_under_a_ceiling(lamp_z=2.0), grid)
+    assert len(flush.points) == len(scene.points)
+
+    monkeypatch.setattr(refine, "MAX_NEW_SHARE", 0.05)
+    monkeypatch.setattr(refine, "MIN_NEW_POINTS", 0)
+    small = _lamp_under_a_ceiling(squares=64)  # 6 cm squares: 49 ceiling squares over the lamp alone
+    out, _ = refine.refine_near_emitters(small, grid)
+    assert len(small.points) < len(out.points) <= 1.05 * len(small.points)

@@ -58,8 +58,8 @@ def emitting_triangles(scene) -> np.ndarray:
     """``(t,)`` bool: the triangles of ``scene.triangles`` whose three corners emit, but a
     sheet's twins (they emit what the sheet does, from the same place: counted once) and the
     pieces of an emitter the bake cut (``scene.emitter_pieces``: it counts as modelled)."""
-    corner = np.any(np.asarray(scene.emission)[scene.triangles] > 0, axis=2)  # (t, 3)
-    out = np.all(corner, axis=1) & ~scene.back_triangles()
+    emits = np.any(np.asarray(scene.emission) > 0, axis=1)  # (s,)
+    out = np.all(emits[scene.triangles], axis=1) & ~scene.back_triangles()
     pieces = getattr(scene, "emitter_pieces", None)
     return out & ~np.asarray(pieces, dtype=bool) if pieces is not None else out
 

@@ -300,7 +300,7 @@ def refine_for_grid(scene: SceneArrays, grid, cells=SAMPLE_CELLS, gathered_cells
 # of its centre, round after round (at most EMITTER_ROUNDS), down to edges of EMITTER_CELLS of
 # the cell edge. McGuire's Cornell box (a lamp's quad 1 cm under the ceiling, the ceiling in
 # 12.6 cm squares): the ceiling's 9 vertices over the lamp got 0.45-0.86 of Cycles' indirect
-# light (see docs/accuracy.md, a lamp close to a surface).
+# light, now 0.93-1.07 (see docs/accuracy.md, a lamp close to a surface).
 NEAR_EMITTER, EMITTER_CELLS, EMITTER_ROUNDS = 0.5, 1.0 / 16.0, 8
 # A surface nearer an emitter's plane than APART of the distance asked lies in it, and one
 # turned from it by more than acos(FACING) does not face it (a floor meeting a glowing wall:

@@ -269,14 +269,17 @@ def _note_capture(collected, result, grid, coarse=()):
         )
     names = collected.arrays.object_names
     traps = emitters.trapped_light(collected.arrays, result.capture.transport.near)
+    unbalanced = any(trap.view >= emitters.GAP_VIEW for trap in traps)  # as emitters.balanced_landing decides, for the scene
     for trap in traps[:TRAPPED_NOTES]:
         collected.notes.append(
             f"{names[trap.emitter]}: an emitter {100 * trap.gap:.2g} cm from {names[trap.surface]} ({trap.points} points of "
             f"{names[trap.surface]} see it over up to {100 * trap.view:.0f}% of their view), a gap finer than the probes "
             "resolve: the light bouncing between them is gathered by the near field alone, from both surfaces sampled "
-            "finely there, and the bake leaves out the energy balance (it cannot weigh light sent and received within "
-            "such a gap), so the rest of the scene's indirect light can be off by up to a tenth either way (see "
-            "docs/accuracy.md, a lamp close to a surface)"
+            "finely there, " + (
+                "and the bake leaves out the energy balance (it cannot weigh light sent and received within such a "
+                "gap), so the rest of the scene's indirect light can be off by up to a tenth either way" if unbalanced
+                else "and the light leaking out of it is only estimated by the energy balance") +
+            " (see docs/accuracy.md, a lamp close to a surface)"
         )
     if len(traps) > TRAPPED_NOTES:
         collected.notes.append(f"and {len(traps) - TRAPPED_NOTES} more emitters as close to a surface (the same holds there)")

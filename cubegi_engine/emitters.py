@@ -47,21 +47,22 @@ def emissive_triangles(scene):
     to sample the light they reflect (``scene.emitting``), the triangles as modelled: their
     light is the same, and a panel stays one flat group walked by its outline."""
     corners = np.asarray(scene.triangles, dtype=np.int64).reshape(-1, 3)[emitting_triangles(scene)]
-    if getattr(scene, "emitting", None) is not None:  # an emitter's pieces give way to it (it may emit no more)
+    if scene.emitting is not None:  # an emitter's pieces give way to it (it may emit no more)
         modelled = np.asarray(scene.emitting, dtype=np.int64).reshape(-1, 3)
-        still = np.all(np.any(scene.emission[modelled] > 0, axis=2), axis=1)
-        corners = np.concatenate([corners, modelled[still]])
+        corners = np.concatenate([corners, modelled[_emitting_points(scene)[modelled].all(axis=1)]])
     return corners, scene.emission[corners].mean(axis=1)
+
+
+def _emitting_points(scene) -> np.ndarray:
+    return np.any(np.asarray(scene.emission) > 0, axis=1)
 
 
 def emitting_triangles(scene) -> np.ndarray:
     """``(t,)`` bool: the triangles of ``scene.triangles`` whose three corners emit, but a
     sheet's twins (they emit what the sheet does, from the same place: counted once) and the
     pieces of an emitter the bake cut (``scene.emitter_pieces``: it counts as modelled)."""
-    emits = np.any(np.asarray(scene.emission) > 0, axis=1)  # (s,)
-    out = np.all(emits[scene.triangles], axis=1) & ~scene.back_triangles()
-    pieces = getattr(scene, "emitter_pieces", None)
-    return out & ~np.asarray(pieces, dtype=bool) if pieces is not None else out
+    out = np.all(_emitting_points(scene)[scene.triangles], axis=1) & ~scene.back_triangles()
+    return out & ~np.asarray(scene.emitter_pieces, dtype=bool) if scene.emitter_pieces is not None else out
 
 
 # Receivers are moved this share of the scene's size off their surface and into their own

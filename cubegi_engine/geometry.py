@@ -212,7 +212,10 @@ def near_any_triangle(centres, radius, a, b, c, tiles=8, centre_normals=None, ac
         near = np.all((pts[:, None, :] >= tri.box_lo[None, sel]) & (pts[:, None, :] <= tri.box_hi[None, sel]), axis=2)
         if centre_normals is not None:
             cosine = np.abs(centre_normals[cells] @ tri.n[sel].T)
-            near &= (cosine < across) if across is not None else (cosine >= facing)
+            if across is not None:
+                near &= cosine < across
+            if facing is not None:
+                near &= cosine >= facing
         pi, ki = np.nonzero(near)
         hit = tri.near(pts[pi], sel[ki])
         out[cells[pi[hit]]] = True

@@ -38,10 +38,7 @@ MAX_NEW_SHARE, MIN_NEW_POINTS = 0.5, 20_000
 def split_counts(points, triangles, max_edge) -> np.ndarray:
     """``(t,)`` int: the parts each triangle's edges are cut into so that none is longer than
     ``max_edge`` (one length, or ``(t,)``), at least 1, at most MAX_SPLIT."""
-    p = np.asarray(points, dtype=np.float64)
-    tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
-    a, b, c = p[tri[:, 0]], p[tri[:, 1]], p[tri[:, 2]]
-    longest = np.sqrt(np.max(np.stack([np.einsum("ij,ij->i", x - y, x - y) for x, y in ((a, b), (b, c), (c, a))]), axis=0))
+    longest = _longest_edges(points, np.asarray(triangles, dtype=np.int64).reshape(-1, 3))
     limit = np.broadcast_to(np.asarray(max_edge, dtype=np.float64), longest.shape)
     with np.errstate(divide="ignore", invalid="ignore"):
         n = np.ceil(np.where(limit > 0, longest / limit, 1.0) - 1e-9)
@@ -100,7 +97,8 @@ def refine(scene: SceneArrays, max_edge, emitters=False) -> tuple[SceneArrays, n
     counts = split_counts(scene.points, tri, max_edge)
     # An emitter's own light is exact from its triangles (cubegi_engine.emitters), whose flat
     # panels are clipped by their outlines: it is left as it is.
-    emits = emitting_triangles(scene) | pieces_of(scene)
+    were_pieces = pieces_of(scene)
+    emits = emitting_triangles(scene) | were_pieces
     refine_tri = (counts > 1) & ~back_pt[tri[:, 0]] & (emitters | ~emits)
     if refine_tri.any():
         counts = _budgeted(counts, refine_tri, s)
@@ -116,7 +114,7 @@ def refine(scene: SceneArrays, max_edge, emitters=False) -> tuple[SceneArrays, n
         if twin is not None:
             twin_parts.append(twin)
     kept_tri = lay.moved[tri[~refine_tri]]
-    pieces = pieces_of(scene) | (emits & refine_tri)  # (t,) whether each is, or is cut into, pieces of an emitter
+    pieces = were_pieces | (emits & refine_tri)  # (t,) whether each is, or is cut into, pieces of an emitter
     kept_pieces = pieces[~refine_tri]
     if twin_parts:  # the refined triangles' old twins leave with them
         two = lay.sheet[lay.row_obj]
@@ -130,7 +128,7 @@ def refine(scene: SceneArrays, max_edge, emitters=False) -> tuple[SceneArrays, n
                           dark=out.get("dark"), object_names=list(scene.object_names), sky_map=scene.sky_map,
                           back=out["back"] if scene.back is not None else None, gathered=out.get("gathered"),
                           sampled_triangles=_added(scene, lay, counts), reflectance=out.get("reflectance"),
-                          **_emitters_as_modelled(scene, tri, emits & refine_tri & ~pieces_of(scene), lay.moved,
+                          **_emitters_as_modelled(scene, tri, emits & refine_tri & ~were_pieces, lay.moved,
                                                   np.concatenate([kept_pieces, *piece_parts])))
     return refined, lay.moved
 
@@ -343,6 +341,7 @@ def refine_near_emitters(scene: SceneArrays, grid) -> tuple[SceneArrays, np.ndar
 
 
 def _longest_edges(points, tri) -> np.ndarray:
+    """``(t,)`` the longest edge of each of the triangles ``tri (t, 3)`` over ``points``."""
     p = np.asarray(points, dtype=np.float64)
     a, b, c = p[tri[:, 0]], p[tri[:, 1]], p[tri[:, 2]]
     return np.sqrt(np.max(np.stack([np.einsum("ij,ij->i", x - y, x - y) for x, y in ((a, b), (b, c), (c, a))]), axis=0))

@@ -45,6 +45,9 @@ KEEP_WHOLE, KEEP_WHOLE_SHARE = 64, 0.01
 # least power of the cells' edge the triangles are taken to fall by (see simplify: taken
 # lower, a round that fell faster than measured would land far under the budget).
 ROUNDS, STALL, MIN_POWER = 4, 0.1, 1.0
+# The searches for the next round's edge (see _wider): at most this many, done within this
+# share of the target, each widening or narrowing the edge by at most this factor.
+SEARCHES, SEARCH_TOLERANCE, WIDEST = 6, 0.1, 4.0
 # How many times a cell that another object's surface crosses is halved before its halves
 # are clustered on each side of it (see _cluster).
 CONTACT_LEVELS = 3
@@ -129,7 +132,7 @@ def simplify(scene, budget) -> CaptureProxy | None:
     # A surface of area A tessellated into clusters of edge h has about 2 A / h^2 triangles.
     ratio = (budget - kept_whole) / max(int(tri_count[simplified].sum()), 1)
     cell = np.where(simplified, np.sqrt(2.0 * area / np.maximum(tri_count * ratio, 1.0)), 0.0)
-    best, before = None, None
+    best = None
     for _ in range(ROUNDS):
         checkpoint()  # (a cancelled bake's simplification stops here)
         proxy = _cluster(prep, cell)
@@ -139,14 +142,32 @@ def simplify(scene, budget) -> CaptureProxy | None:
         got = len(proxy.triangles) - kept_whole
         if len(proxy.triangles) <= budget * 1.1 or got <= 0:
             return proxy
-        # Wider cells. A surface's triangles fall as the square of the cell's edge, the cells
-        # where objects touch (clustered finer) more slowly: after two rounds, the power the
-        # count fell by. A round that takes off less than STALL of those it can take is the last,
-        # and the fewest seen are kept.
-        power = 2.0 if before is None else float(np.clip(np.log(before[1] / got) / np.log(before[0]), MIN_POWER, 2.0))
-        step = (got / max(budget - kept_whole, 1)) ** (1.0 / power) * 1.05
-        cell, before = cell * step, (step, got)
+        # Wider cells, searched on rounds that leave out the cells where objects touch (a
+        # tenth of a round's cost): those cells are clustered finer, and their triangles
+        # change little with the edge (the Breakfast Room's 14-20K over a fourfold edge). They
+        # count as this round found them.
+        plain = len(_cluster(prep, cell, contact=False).triangles) - kept_whole
+        cell = _wider(prep, cell, plain, budget - kept_whole - max(got - plain, 0), kept_whole)
     return best
+
+
+def _wider(prep, cell, plain, target, kept_whole):
+    """``cell`` widened until rounds without the touching cells (:func:`_cluster`'s
+    ``contact``) give about ``target`` triangles (``plain`` at ``cell``, both less the
+    ``kept_whole``): a surface's triangles fall as the square of the edge, then by the power
+    the last two searches measured; at most SEARCHES of them, each step at most WIDEST."""
+    if target <= 0:  # the touching cells alone are over the budget: as wide as a step goes
+        return cell * WIDEST
+    scale, before = 1.0, None
+    for _ in range(SEARCHES):
+        power = 2.0 if before is None else float(np.clip(np.log(before[1] / plain) / np.log(scale / before[0]), MIN_POWER, 2.0))
+        step = float(np.clip((plain / target) ** (1.0 / power), 1.0 / WIDEST, WIDEST))
+        before, scale = (scale, plain), scale * step
+        checkpoint()
+        plain = len(_cluster(prep, cell * scale, contact=False).triangles) - kept_whole
+        if abs(plain - target) <= SEARCH_TOLERANCE * target or plain == before[1]:
+            break
+    return cell * scale
 
 
 def _simplify_sheets(scene, sheets, budget):
@@ -219,7 +240,7 @@ def _unique_rows(rows):
     return np.unique(rows, axis=0, return_inverse=True)[1].ravel()
 
 
-def _cluster(prep, cell):
+def _cluster(prep, cell, contact=True):
     points, normals, tris, owner, rel, point_areas = prep.points, prep.normals, prep.tris, prep.owner, prep.rel, prep.areas
     s = len(points)
     h = cell[owner]
@@ -230,7 +251,10 @@ def _cluster(prep, cell):
     # the crossing surface apart (kept as they were, a subdivided Breakfast Room's walls'
     # feet and contacts took its capture to 138K triangles against a budget of 69K: 71K now).
     level = np.zeros(s, dtype=np.int64)
-    touching, within, side = crossing.contact(prep, cell, ijk, sides=CONTACT_LEVELS == 0)
+    if contact:
+        touching, within, side = crossing.contact(prep, cell, ijk, sides=CONTACT_LEVELS == 0)
+    else:
+        touching, within, side = np.zeros(s, dtype=bool), None, np.zeros(s, dtype=np.int64)
     for k in range(1, CONTACT_LEVELS + 1):
         if not touching.any():
             break

@@ -305,9 +305,11 @@ def test_rounds_that_no_longer_take_triangles_off_stop(monkeypatch):
     made, counts = [], iter([9000, 8900, 8400, 9100])
     real = proxy_module._cluster
 
-    def cluster(prep, cell):
+    def cluster(prep, cell, contact=True):
+        out = real(prep, cell, contact)
+        if not contact:  # (the searches for the next edge)
+            return out
         made.append(cell.copy())
-        out = real(prep, cell)
         return proxy_module.CaptureProxy(out.points, np.zeros((next(counts), 3), dtype=np.int64), out.cluster, out.share,
                                          np.zeros(0, dtype=np.int64), out.cell, out.source_triangles)
 
@@ -328,9 +330,11 @@ def test_the_stall_is_judged_on_the_triangles_a_round_can_take_off(monkeypatch):
     made, counts = [], iter([kept + 6000, kept + 5000, kept + 4900, kept + 100])
     real = proxy_module._cluster
 
-    def cluster(prep, cell):
+    def cluster(prep, cell, contact=True):
+        out = real(prep, cell, contact)
+        if not contact:  # (the searches for the next edge)
+            return out
         made.append(1)
-        out = real(prep, cell)
         return proxy_module.CaptureProxy(out.points, np.zeros((next(counts), 3), dtype=np.int64), out.cluster, out.share,
                                          np.zeros(0, dtype=np.int64), out.cell, out.source_triangles)
 
@@ -359,7 +363,7 @@ def test_a_sheets_share_of_the_budget_is_of_its_triangles_as_modelled():
 def test_a_closed_bake_stops_its_simplification_at_the_next_round(monkeypatch):
     """The simplification runs in a thread while the bake goes on; closed (a cancel), the
     bake stops it before its next round and in each round before the next object's cells
-    (it took three rounds here, seconds at a million vertices)."""
+    (it took two rounds here, seconds at a million vertices)."""
     import time
 
     from cubegi.cubegi_engine import proxy as proxy_mod
@@ -367,10 +371,11 @@ def test_a_closed_bake_stops_its_simplification_at_the_next_round(monkeypatch):
 
     rounds, cluster = [], proxy_mod._cluster
 
-    def slow(prep, cell):
-        rounds.append(cell.copy())
-        out = cluster(prep, cell)
-        time.sleep(0.3)
+    def slow(prep, cell, contact=True):
+        out = cluster(prep, cell, contact)
+        if contact:  # (a round, not a search for the next edge)
+            rounds.append(cell.copy())
+            time.sleep(0.3)
         return out
 
     monkeypatch.setattr(proxy_mod, "_cluster", slow)
@@ -378,7 +383,7 @@ def test_a_closed_bake_stops_its_simplification_at_the_next_round(monkeypatch):
     back = _plane((-0.005, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20, flip=True)
     floor = _plane((-1.0, 0.0, 0.0), (2.0, 0, 0), (0, 1.0, 0), 200)
     scene = _scene([(0, front), (0, back), (1, floor)])
-    assert simplify(scene, 150) is not None and len(rounds) == 3
+    assert simplify(scene, 150) is not None and len(rounds) == 2
     rounds.clear()
     driven = working.Driven(working.in_background(simplify, None, scene, 150))
     driven.next()
@@ -387,3 +392,30 @@ def test_a_closed_bake_stops_its_simplification_at_the_next_round(monkeypatch):
     driven.close()
     time.sleep(1.0)
     assert len(rounds) == 1
+
+
+def test_the_next_rounds_edge_is_searched_without_the_touching_cells(monkeypatch):
+    """A sheet standing on a dense floor: the cells it crosses are clustered finer, and their
+    triangles barely fall as the cells widen, so the edge the second round takes is found by
+    rounds that leave those cells out (cheap), their triangles counted as the first round
+    found them: two rounds reach the budget, where widening by the whole count's fall took
+    three."""
+    from cubegi.cubegi_engine import proxy as proxy_mod
+
+    rounds, searches, cluster = [], [], proxy_mod._cluster
+
+    def counted(prep, cell, contact=True):
+        (rounds if contact else searches).append(cell.copy())
+        return cluster(prep, cell, contact)
+
+    monkeypatch.setattr(proxy_mod, "_cluster", counted)
+    front = _plane((0.0, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20)
+    back = _plane((-0.005, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20, flip=True)
+    floor = _plane((-1.0, 0.0, 0.0), (2.0, 0, 0), (0, 1.0, 0), 200)
+    scene = _scene([(0, front), (0, back), (1, floor)])
+    budget = 150
+    proxy = simplify(scene, budget)
+    assert len(rounds) == 2 and 1 <= len(searches) <= proxy_mod.SEARCHES + 1
+    assert len(proxy.triangles) <= 1.1 * budget
+    assert np.all(rounds[1][rounds[0] > 0] > rounds[0][rounds[0] > 0])  # wider
+    assert np.all(rounds[1] <= proxy_mod.WIDEST * rounds[0] + 1e-12)  # by at most a step

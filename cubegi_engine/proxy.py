@@ -146,7 +146,7 @@ def simplify(scene, budget) -> CaptureProxy | None:
         # tenth of a round's cost): those cells are clustered finer, and their triangles
         # change little with the edge (the Breakfast Room's 14-20K over a fourfold edge). They
         # count as this round found them.
-        plain = len(_cluster(prep, cell, contact=False).triangles) - kept_whole
+        plain = max(len(_cluster(prep, cell, contact=False).triangles) - kept_whole, 1)
         cell = _wider(prep, cell, plain, budget - kept_whole - max(got - plain, 0), kept_whole)
     return best
 
@@ -164,7 +164,7 @@ def _wider(prep, cell, plain, target, kept_whole):
         step = float(np.clip((plain / target) ** (1.0 / power), 1.0 / WIDEST, WIDEST))
         before, scale = (scale, plain), scale * step
         checkpoint()
-        plain = len(_cluster(prep, cell * scale, contact=False).triangles) - kept_whole
+        plain = max(len(_cluster(prep, cell * scale, contact=False).triangles) - kept_whole, 1)  # (none: narrower)
         if abs(plain - target) <= SEARCH_TOLERANCE * target or plain == before[1]:
             break
     return cell * scale

@@ -41,13 +41,16 @@ __all__ = ["CaptureProxy", "simplify"]
 # simplified: clustering it saves little and smears the light of its large triangles (a
 # room's walls cut to a cell's size for the light, cells of metres wide).
 KEEP_WHOLE, KEEP_WHOLE_SHARE = 64, 0.01
-# Rounds of adjusting the cluster size towards the budget; each one is a clustering pass. The
-# least power of the cells' edge the triangles are taken to fall by (see simplify: taken
-# lower, a round that fell faster than measured would land far under the budget).
+# Rounds of adjusting the cluster size towards the budget; each one is a clustering pass, and
+# a round that takes off less than STALL of the triangles a round can take off is the last.
+# The least power of the cells' edge the triangles are taken to fall by (see _wider: taken
+# lower, a search that fell faster than measured would land far under its target).
 ROUNDS, STALL, MIN_POWER = 4, 0.1, 1.0
 # The searches for the next round's edge (see _wider): at most this many, done within this
-# share of the target, each widening or narrowing the edge by at most this factor.
-SEARCHES, SEARCH_TOLERANCE, WIDEST = 6, 0.1, 4.0
+# share of the target, each step widening or narrowing the edge by at most this factor; asked
+# only where the touching cells, counted as they are, leave the rest at least TARGET_FLOOR
+# of its share of the budget (see simplify).
+SEARCHES, SEARCH_TOLERANCE, WIDEST, TARGET_FLOOR = 6, 0.1, 4.0, 0.5
 # How many times a cell that another object's surface crosses is halved before its halves
 # are clustered on each side of it (see _cluster).
 CONTACT_LEVELS = 3
@@ -132,42 +135,62 @@ def simplify(scene, budget) -> CaptureProxy | None:
     # A surface of area A tessellated into clusters of edge h has about 2 A / h^2 triangles.
     ratio = (budget - kept_whole) / max(int(tri_count[simplified].sum()), 1)
     cell = np.where(simplified, np.sqrt(2.0 * area / np.maximum(tri_count * ratio, 1.0)), 0.0)
-    best = None
+    best, before = None, None
     for _ in range(ROUNDS):
         checkpoint()  # (a cancelled bake's simplification stops here)
         proxy = _cluster(prep, cell)
+        # A round that takes off less than STALL of what it can (objects kept whole are in
+        # every count) is the last, and the fewest seen are kept.
         if best is not None and len(proxy.triangles) - kept_whole > (1.0 - STALL) * (len(best.triangles) - kept_whole):
             return best if len(best.triangles) <= len(proxy.triangles) else proxy
         best = proxy if best is None or len(proxy.triangles) < len(best.triangles) else best
         got = len(proxy.triangles) - kept_whole
         if len(proxy.triangles) <= budget * 1.1 or got <= 0:
             return proxy
-        # Wider cells, searched on rounds that leave out the cells where objects touch (a
-        # tenth of a round's cost): those cells are clustered finer, and their triangles
-        # change little with the edge (the Breakfast Room's 14-20K over a fourfold edge). They
-        # count as this round found them.
+        # Wider cells. Where objects touch, cells are clustered finer, and their triangles
+        # change little with the edge (the Breakfast Room's 14-20K over a fourfold edge):
+        # where they leave the rest at least TARGET_FLOOR of its share of the budget, the
+        # edge is searched on rounds that leave those cells out (a tenth of a round's cost),
+        # counting them as this round found them. Where they hold most of the budget (pegs
+        # along a wall's foot), the cells widen by the power the whole count fell by in the
+        # round before (2, a surface's, at the first), and the stall above ends the rounds.
         plain = max(len(_cluster(prep, cell, contact=False).triangles) - kept_whole, 1)
-        cell = _wider(prep, cell, plain, budget - kept_whole - max(got - plain, 0), kept_whole)
+        left = budget - kept_whole
+        target = left - max(got - plain, 0)
+        if target >= TARGET_FLOOR * plain * left / got:
+            step = _wider(prep, cell, plain, target, kept_whole)
+        else:
+            power = 2.0 if before is None else float(np.clip(np.log(before[1] / got) / np.log(before[0]), MIN_POWER, 2.0))
+            step = (got / max(left, 1)) ** (1.0 / power) * 1.05
+        cell, before = cell * step, (step, got)
     return best
 
 
 def _wider(prep, cell, plain, target, kept_whole):
-    """``cell`` widened until rounds without the touching cells (:func:`_cluster`'s
-    ``contact``) give about ``target`` triangles (``plain`` at ``cell``, both less the
-    ``kept_whole``): a surface's triangles fall as the square of the edge, then by the power
-    the last two searches measured; at most SEARCHES of them, each step at most WIDEST."""
-    if target <= 0:  # the touching cells alone are over the budget: as wide as a step goes
-        return cell * WIDEST
-    scale, before = 1.0, None
+    """How much wider than ``cell`` (a factor) rounds without the touching cells
+    (:func:`_cluster`'s ``contact``) give about ``target`` triangles (``plain`` at ``cell``,
+    both less the ``kept_whole``). Each step takes the triangles to fall as the square of the
+    edge, then by the power the last two steps measured (at least MIN_POWER), and moves the
+    edge by at most WIDEST either way; once two tries lie on either side of the target, the
+    next is their geometric mean. At most SEARCHES steps; the factor returned is the try
+    nearest the target at or under it, else the one with the fewest triangles."""
+    tries = [(1.0, plain)]
+    scale = 1.0
     for _ in range(SEARCHES):
-        power = 2.0 if before is None else float(np.clip(np.log(before[1] / plain) / np.log(scale / before[0]), MIN_POWER, 2.0))
-        step = float(np.clip((plain / target) ** (1.0 / power), 1.0 / WIDEST, WIDEST))
-        before, scale = (scale, plain), scale * step
+        over = [s for s, n in tries if n > target]
+        under = [s for s, n in tries if n <= target]
+        if over and under and max(over) < min(under):  # bracketed: halve the gap (in log)
+            scale = float(np.sqrt(max(over) * min(under)))
+        else:
+            (s0, n0), (s1, n1) = (tries[-2] if len(tries) > 1 else (None, None)), tries[-1]
+            power = 2.0 if s0 is None or n0 <= n1 else float(np.clip(np.log(n0 / n1) / np.log(s1 / s0), MIN_POWER, 2.0))
+            scale = s1 * float(np.clip((n1 / target) ** (1.0 / power), 1.0 / WIDEST, WIDEST))
         checkpoint()
-        plain = max(len(_cluster(prep, cell * scale, contact=False).triangles) - kept_whole, 1)  # (none: narrower)
-        if abs(plain - target) <= SEARCH_TOLERANCE * target or plain == before[1]:
+        tries.append((scale, max(len(_cluster(prep, cell * scale, contact=False).triangles) - kept_whole, 1)))
+        if abs(tries[-1][1] - target) <= SEARCH_TOLERANCE * target:
             break
-    return cell * scale
+    near = [(abs(target - n), s) for s, n in tries if n <= target * (1.0 + SEARCH_TOLERANCE)]
+    return min(near)[1] if near else min(tries, key=lambda t: t[1])[0]
 
 
 def _simplify_sheets(scene, sheets, budget):

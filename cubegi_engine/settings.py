@@ -110,8 +110,9 @@ class BakeSettings:
     # The probes draw a simplified copy of the scene with at most about this many triangles
     # (:mod:`cubegi_engine.proxy`; None: always the full scene). Direct light, shadows and the
     # shading points always use the full scene. 100K -> 50K: the Breakfast Room's capture
-    # 2.74 -> 1.89 s (125,870 -> 69,638 triangles drawn), its errors the same; the Room
-    # subdivided to 95K vertices, indirect 24.9 -> 18.9% off Cycles (see docs/accuracy.md).
+    # 2.67 -> 1.65 s (125,692 -> 71,795 triangles drawn), the bake 18.4 -> 17.8 s, its errors
+    # the same; the Room subdivided to 95K vertices, indirect 24.9 -> 18.9% off Cycles (see
+    # docs/accuracy.md).
     capture_triangles: int | None = option(
         50_000, "Capture Triangles", "The probes draw a simplified copy of the scene with at most about this many "
         "triangles (0: the full scene). Direct light, shadows and the baked vertices always use every triangle",

@@ -269,7 +269,7 @@ def _note_capture(collected, result, grid, coarse=()):
         )
     names = collected.arrays.object_names
     traps = emitters.trapped_light(collected.arrays, result.capture.transport.near)
-    unbalanced = any(trap.view >= emitters.GAP_VIEW for trap in traps)  # as emitters.balanced_landing decides, for the scene
+    unbalanced = emitters.gap_closed(traps)  # the scene's energy balance is left out (emitters.balanced_landing)
     for trap in traps[:TRAPPED_NOTES]:
         collected.notes.append(
             f"{names[trap.emitter]}: an emitter {100 * trap.gap:.2g} cm from {names[trap.surface]} ({trap.points} points of "

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field, replace
 import bpy
 import numpy as np
 
+from ..cubegi_engine import emitters
 from ..cubegi_engine.errors import BakeError
 from ..cubegi_engine.lights import light_keys
 from ..cubegi_engine.records import Route
@@ -256,8 +257,7 @@ def _refuse_new_cuts(arrays, baked):
 
 
 def _emitting_objects(arrays) -> set:
-    emits = np.any(np.asarray(arrays.emission) > 0, axis=1)
-    return {arrays.object_names[k] for k in np.unique(np.asarray(arrays.point_object)[emits])}
+    return {arrays.object_names[k] for k in np.unique(np.asarray(arrays.point_object)[emitters.emitting_points(arrays)])}
 
 
 def _moved_objects(context, kept):

@@ -27,7 +27,8 @@ from . import lights as lights_mod
 from .cubemap import capture_cubes, clip_planes
 from .geometry import run_offsets
 
-__all__ = ["balanced_landing", "emissive_triangles", "emitting_triangles", "emitter_direct", "trapped_light", "TrappedLight", "SAMPLES"]
+__all__ = ["balanced_landing", "emissive_triangles", "emitting_points", "emitting_triangles", "emitter_direct", "gap_closed", "trapped_light",
+           "TrappedLight", "SAMPLES"]
 
 # Shadow sample points per emissive object (each drawn from both faces). The white box's
 # 0.5 m panel (8 triangles), direct light against Cycles: 8 points at the triangles'
@@ -49,11 +50,12 @@ def emissive_triangles(scene):
     corners = np.asarray(scene.triangles, dtype=np.int64).reshape(-1, 3)[emitting_triangles(scene)]
     if scene.emitting is not None:  # an emitter's pieces give way to it (it may emit no more)
         modelled = np.asarray(scene.emitting, dtype=np.int64).reshape(-1, 3)
-        corners = np.concatenate([corners, modelled[_emitting_points(scene)[modelled].all(axis=1)]])
+        corners = np.concatenate([corners, modelled[emitting_points(scene)[modelled].all(axis=1)]])
     return corners, scene.emission[corners].mean(axis=1)
 
 
-def _emitting_points(scene) -> np.ndarray:
+def emitting_points(scene) -> np.ndarray:
+    """``(s,)`` bool: the points of ``scene`` that emit light."""
     return np.any(np.asarray(scene.emission) > 0, axis=1)
 
 
@@ -61,7 +63,7 @@ def emitting_triangles(scene) -> np.ndarray:
     """``(t,)`` bool: the triangles of ``scene.triangles`` whose three corners emit, but a
     sheet's twins (they emit what the sheet does, from the same place: counted once) and the
     pieces of an emitter the bake cut (``scene.emitter_pieces``: it counts as modelled)."""
-    out = np.all(_emitting_points(scene)[scene.triangles], axis=1) & ~scene.back_triangles()
+    out = np.all(emitting_points(scene)[scene.triangles], axis=1) & ~scene.back_triangles()
     return out & ~np.asarray(scene.emitter_pieces, dtype=bool) if scene.emitter_pieces is not None else out
 
 
@@ -136,9 +138,15 @@ def balanced_landing(scene, transport):
     only (McGuire's Cornell box, its ceiling sampled finely over the lamp: the walls 1.6x
     Cycles' indirect light, 1.05x without the balance; a hand-made room with a panel 1 cm
     under its ceiling 1.7x and 1.00x)."""
-    if trapped_light(scene, transport.near, at_least=GAP_VIEW):
+    if gap_closed(trapped_light(scene, transport.near)):
         return None
     return transport.landing_share()
+
+
+def gap_closed(traps) -> bool:
+    """Whether any of ``traps`` (:func:`trapped_light`'s) closes a surface point in over
+    GAP_VIEW of its view: where the bake leaves out the energy balance (:func:`balanced_landing`)."""
+    return any(trap.view >= GAP_VIEW for trap in traps)
 
 
 def _two_sided_ff(points, normals, tri):

@@ -160,7 +160,7 @@ def simplify(scene, budget) -> CaptureProxy | None:
         if target >= TARGET_FLOOR * plain * left / got:
             step = _wider(prep, cell, plain, target, kept_whole)
         else:
-            power = 2.0 if before is None else float(np.clip(np.log(before[1] / got) / np.log(before[0]), MIN_POWER, 2.0))
+            power = 2.0 if before is None else _fall_power(before[0], before[1], got)
             step = (got / max(left, 1)) ** (1.0 / power) * 1.05
         cell, before = cell * step, (step, got)
     return best
@@ -183,7 +183,7 @@ def _wider(prep, cell, plain, target, kept_whole):
             scale = float(np.sqrt(max(over) * min(under)))
         else:
             (s0, n0), (s1, n1) = (tries[-2] if len(tries) > 1 else (None, None)), tries[-1]
-            power = 2.0 if s0 is None or n0 <= n1 else float(np.clip(np.log(n0 / n1) / np.log(s1 / s0), MIN_POWER, 2.0))
+            power = 2.0 if s0 is None or n0 <= n1 else _fall_power(s1 / s0, n0, n1)
             scale = s1 * float(np.clip((n1 / target) ** (1.0 / power), 1.0 / WIDEST, WIDEST))
         checkpoint()
         tries.append((scale, max(len(_cluster(prep, cell * scale, contact=False).triangles) - kept_whole, 1)))
@@ -191,6 +191,12 @@ def _wider(prep, cell, plain, target, kept_whole):
             break
     near = [(abs(target - n), s) for s, n in tries if n <= target * (1.0 + SEARCH_TOLERANCE)]
     return min(near)[1] if near else min(tries, key=lambda t: t[1])[0]
+
+
+def _fall_power(step, before, now):
+    """The power of the cells' edge that the triangles fell by, ``before`` -> ``now``, when
+    the edge grew by ``step``: between MIN_POWER and 2 (a surface's)."""
+    return float(np.clip(np.log(before / now) / np.log(step), MIN_POWER, 2.0))
 
 
 def _simplify_sheets(scene, sheets, budget):

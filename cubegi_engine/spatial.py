@@ -180,6 +180,7 @@ class VoxelIndex:
         hit_uv = np.zeros((s, rays, 2))
         hit_front = np.zeros((s, rays), dtype=bool)
         step = max(1, TEST_CHUNK // rays)
+        start = points + slack[:, None] * normals  # each point's rays' origin
         for lo in range(0, len(pair_p), step):
             pp, tt = pair_p[lo : lo + step], pair_t[lo : lo + step]
             to = self.centre[tt] - points[pp]
@@ -189,8 +190,7 @@ class VoxelIndex:
             along = np.einsum("pkc,pc->pk", dirs[pp], to) / np.maximum(dist, 1e-300)[:, None]
             pi, ki = np.nonzero(along >= cos_cone[:, None] - 1e-9)
             p, t_ = pp[pi], tt[pi]
-            origin = points[p] + slack[p, None] * normals[p]
-            t, u, v, hit, front = intersect_pairs(origin, dirs[p, ki], self.planes[t_], reach[p], 2.0 * slack[p])
+            t, u, v, hit, front = intersect_pairs(start[p], dirs[p, ki], self.planes[t_], reach[p], 2.0 * slack[p])
             if self.sheets is not None:
                 # A sheet is met on the side a ray comes from: its back faces are its twin's
                 # fronts. A ray from a point on a sheet's plane (a wall's foot on a floor) is
@@ -362,7 +362,7 @@ def forget_indexes():
 def voxel_index(points, tri, voxel, sheets=None, keep=True):
     """A :class:`VoxelIndex` of ``tri (t, 3)`` over ``points``, made once per
     scene and voxel size (a bake asks for the same one several times: the near field's rays
-    under covered points twice, :func:`resting` three times); the arrays are held while it is
+    under covered points twice); the arrays are held while it is
     kept, so their addresses name them. ``keep=False``: one no later step asks for (the
     near field's own), not kept."""
     key = _arrays_key(points, tri) + (float(voxel), id(sheets))
@@ -428,7 +428,14 @@ def resting(points, normals, triangles, scale, which, sheets=None, at=None):
     return out
 
 
+# :func:`resting`'s index is kept (a bake asks it twice) for scenes of fewer triangles than
+# this; past it, made each time (see _resting_index).
+RESTING_KEPT_BELOW = 1_000_000
+
+
 def _resting_index(points, tri, scale):
     """The voxel index :func:`resting` asks, coarse (a 64th of the scene: few entries to sort,
-    and few points to ask)."""
-    return voxel_index(points, tri, scale / 64.0)
+    and few points to ask). Kept for a small scene (the Breakfast Room asks it twice: 0.2-0.4 s
+    each); not past RESTING_KEPT_BELOW triangles, where kept it held 0.2 GB past its use (the
+    Room subdivided to a million vertices asks it once, 0.9 s: its peak 3.07 -> 2.87 GB)."""
+    return voxel_index(points, tri, scale / 64.0, keep=len(tri) < RESTING_KEPT_BELOW)

@@ -427,3 +427,22 @@ def test_the_next_rounds_edge_is_searched_without_the_touching_cells(monkeypatch
     steps = [b[1] / a[1] for a, b in zip(rounds, rounds[1:])]
     assert len(rounds) >= 2 and len(searches) == len(rounds) - 1  # each round's count without the touching cells alone
     assert all(s > 1.0 for s in steps)
+
+
+def test_a_round_that_only_counts_keeps_its_clusters_at_their_means():
+    """The search's rounds (without the touching cells) only count triangles: their clusters
+    stay at their points' area-weighted means, where a full round places them on the planes
+    of their points (a cell where an object's wall meets its floor: on the edge)."""
+    from cubegi.cubegi_engine import proxy as proxy_mod
+
+    scene = _scene([(0, _plane((0.0, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20)),
+                    (0, _plane((0.0, 0.0, 0.0), (1.0, 0, 0), (0, 1.0, 0), 20))])  # one object: a wall on its floor's edge
+    prep = crossing.Prepared(np.asarray(scene.points, dtype=np.float64), np.asarray(scene.normals, dtype=np.float64),
+                             scene.triangles, scene.point_object, 1, scene.point_areas())
+    cell = np.array([0.3])
+    counted = proxy_mod._cluster(prep, cell, contact=False)
+    means = np.stack([np.bincount(counted.cluster, scene.points[:, a] * counted.share) for a in range(3)], axis=1)
+    assert np.allclose(counted.points, means)
+    placed = proxy_mod._cluster(prep, cell)
+    full_means = np.stack([np.bincount(placed.cluster, scene.points[:, a] * placed.share) for a in range(3)], axis=1)
+    assert not np.allclose(placed.points, full_means)  # a full round moves some onto their planes

@@ -142,7 +142,7 @@ def simplify(scene, budget) -> CaptureProxy | None:
     ratio = (budget - kept_whole) / max(int(tri_count[simplified].sum()), 1)
     cell = np.where(simplified, np.sqrt(2.0 * area / np.maximum(tri_count * ratio, 1.0)), 0.0)
     best, before = None, None
-    for _ in range(ROUNDS):
+    for round_ in range(ROUNDS):
         checkpoint()  # (a cancelled bake's simplification stops here)
         proxy = _cluster(prep, cell)
         # A round that takes off less than STALL of what it can (objects kept whole are in
@@ -153,6 +153,8 @@ def simplify(scene, budget) -> CaptureProxy | None:
         got = len(proxy.triangles) - kept_whole
         if len(proxy.triangles) <= budget * 1.1 or got <= 0:
             return proxy
+        if round_ == ROUNDS - 1:  # no next round to find an edge for
+            break
         # Wider cells. Where objects touch, cells are clustered finer, and their triangles
         # change little with the edge (the Breakfast Room's 14-20K over a fourfold edge):
         # where they leave the rest at least TARGET_FLOOR of its share of the budget, the

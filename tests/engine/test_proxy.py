@@ -446,3 +446,25 @@ def test_a_round_that_only_counts_keeps_its_clusters_at_their_means():
     placed = proxy_mod._cluster(prep, cell)
     full_means = np.stack([np.bincount(placed.cluster, scene.points[:, a] * placed.share) for a in range(3)], axis=1)
     assert not np.allclose(placed.points, full_means)  # a full round moves some onto their planes
+
+
+def test_the_last_round_asks_no_edge_for_a_round_that_never_comes(monkeypatch):
+    """Past its last round (ROUNDS) the simplification keeps the fewest it found, without the
+    counting rounds that would find a next round's edge (seconds at a million points)."""
+    from cubegi.cubegi_engine import proxy as proxy_mod
+
+    rounds, searches, cluster = [], [], proxy_mod._cluster
+
+    def counted(prep, cell, contact=True):
+        (rounds if contact else searches).append(cell.copy())
+        return cluster(prep, cell, contact)
+
+    monkeypatch.setattr(proxy_mod, "_cluster", counted)
+    monkeypatch.setattr(proxy_mod, "ROUNDS", 2)
+    front = _plane((0.0, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20)
+    back = _plane((-0.005, 0.0, 0.0), (0, 1.0, 0), (0, 0, 1.0), 20, flip=True)
+    floor = _plane((-1.0, 0.0, 0.0), (2.0, 0, 0), (0, 1.0, 0), 200)
+    scene = _scene([(0, front), (0, back), (1, floor)])
+    proxy = simplify(scene, 20)  # a budget two rounds do not reach
+    assert proxy is not None and len(proxy.triangles) > 1.1 * 20
+    assert len(rounds) == 2 and len(searches) == 1  # after the first round only

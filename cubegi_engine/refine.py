@@ -256,7 +256,8 @@ def _split(scene, tri, lay, out, sel, n):
 
 def _among(triangles, others) -> np.ndarray:
     """``(k,)`` bool: which of ``triangles (k, 3)`` have the corners of one of ``others (m, 3)``,
-    in any order (by a 64-bit hash of each sorted corner triple)."""
+    in any order (by a 64-bit hash of each sorted corner triple; the others' sorted and
+    searched: ``np.isin`` sorted both together, 1.76 against 0.33 s for 2.6M and 0.8M)."""
     if not len(triangles) or not len(others):
         return np.zeros(len(triangles), dtype=bool)
 
@@ -264,7 +265,8 @@ def _among(triangles, others) -> np.ndarray:
         t = np.sort(t, axis=1).astype(np.uint64)
         return mix64(mix64(mix64(t[:, 0]) ^ t[:, 1]) ^ t[:, 2])
 
-    return np.isin(key(triangles), key(others))
+    known, wanted = np.sort(key(others)), key(triangles)
+    return known[np.minimum(np.searchsorted(known, wanted), len(known) - 1)] == wanted
 
 
 # Light is sampled at most SAMPLE_CELLS probe cells apart on every surface (see the module
@@ -342,9 +344,14 @@ def refine_near_emitters(scene: SceneArrays, grid) -> tuple[SceneArrays, np.ndar
 
 def _longest_edges(points, tri) -> np.ndarray:
     """``(t,)`` the longest edge of each of the triangles ``tri (t, 3)`` over ``points``."""
-    p = np.asarray(points, dtype=np.float64)
-    a, b, c = p[tri[:, 0]], p[tri[:, 1]], p[tri[:, 2]]
-    return np.sqrt(np.max(np.stack([np.einsum("ij,ij->i", x - y, x - y) for x, y in ((a, b), (b, c), (c, a))]), axis=0))
+    columns = np.ascontiguousarray(np.asarray(points, dtype=np.float64).T)  # (contiguous columns: 1.5x faster)
+    corners = [[axis[tri[:, k]] for axis in columns] for k in range(3)]
+
+    def squared(a, b):
+        dx, dy, dz = (p - q for p, q in zip(corners[a], corners[b]))
+        return dx * dx + dy * dy + dz * dz
+
+    return np.sqrt(np.maximum(np.maximum(squared(0, 1), squared(1, 2)), squared(2, 0)))
 
 
 def _near_emitters(scene, grid, tri, longest, at_most):

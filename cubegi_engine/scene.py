@@ -191,28 +191,45 @@ class SceneArrays:
         count = int(owner.max()) + 1 if len(owner) else 0
         names = list(self.object_names) or [f"object {k}" for k in range(count)]
         tri_owner = owner[self.triangles[:, 0]] if len(self.triangles) else np.zeros(0, dtype=np.int64)
+        # Each object's points and triangles, in order: one stable sort each (a mask per
+        # object took 1.2 s for 53 objects at 1.2M points).
+        (points, normals), at, first = _by_owner(owner, count, self.points, self.normals)
+        (triangles,), tri_at, _ = _by_owner(tri_owner, count, self.triangles)
         out, layout = [], []
         for k in range(count):
             h, t = hashlib.blake2b(digest_size=16), hashlib.blake2b(digest_size=16)
-            sel = owner == k
-            h.update(np.ascontiguousarray(self.points[sel]).tobytes())
-            h.update(np.ascontiguousarray(self.normals[sel]).tobytes())
-            first = int(np.argmax(sel)) if sel.any() else 0  # triangles relative to the object's points
-            t.update(np.ascontiguousarray(self.triangles[tri_owner == k] - first).tobytes())
+            h.update(np.ascontiguousarray(points[at[k] : at[k + 1]]).tobytes())
+            h.update(np.ascontiguousarray(normals[at[k] : at[k + 1]]).tobytes())
+            t.update(np.ascontiguousarray(triangles[tri_at[k] : tri_at[k + 1]] - int(first[k])).tobytes())
             h.update(t.digest())
             out.append((names[k], h.hexdigest()))
-            layout.append((names[k], int(sel.sum()), t.hexdigest()))
+            layout.append((names[k], int(at[k + 1] - at[k]), t.hexdigest()))
         return GeometryFingerprint(tuple(out), tuple(layout))
+
+
+def _by_owner(owner, count, *arrays):
+    """``(arrays' rows grouped by owner, each group in its order; bounds (count + 1,) of each
+    owner's rows; the first row of each owner in the given order, 0 for none)``."""
+    if len(owner) and np.any(owner[1:] < owner[:-1]):
+        order = np.argsort(owner, kind="stable")
+        owner, arrays = owner[order], tuple(a[order] for a in arrays)
+    else:
+        order = np.arange(len(owner))
+    bounds = np.searchsorted(owner, np.arange(count + 1))
+    first = np.where(bounds[1:] > bounds[:-1], order[np.minimum(bounds[:-1], max(len(order) - 1, 0))] if len(order) else 0, 0)
+    return arrays, bounds, first
 
 
 def triangle_areas(points, triangles) -> np.ndarray:
     """``(t,)`` the area of each triangle ``(t, 3)`` of ``points (s, 3)`` (the cross product
-    written out: ``np.cross`` is five times slower on millions of rows)."""
-    p0, p1, p2 = (points[triangles[:, k]] for k in range(3))
-    e1, e2 = p1 - p0, p2 - p0
-    cx = e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1]
-    cy = e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2]
-    cz = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    written out over the coordinates' columns: ``np.cross`` is five times slower on millions
+    of rows, and the rows' strided columns twice)."""
+    x, y, z = np.ascontiguousarray(np.asarray(points, dtype=np.float64).T)
+    corners = [triangles[:, k] for k in range(3)]
+    x0, y0, z0 = x[corners[0]], y[corners[0]], z[corners[0]]
+    x1, y1, z1 = x[corners[1]] - x0, y[corners[1]] - y0, z[corners[1]] - z0
+    x2, y2, z2 = x[corners[2]] - x0, y[corners[2]] - y0, z[corners[2]] - z0
+    cx, cy, cz = y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2
     return 0.5 * np.sqrt(cx * cx + cy * cy + cz * cz)
 
 

@@ -1,6 +1,7 @@
 """The engine's types that outlive a bake, by hand: the geometry fingerprint, the probe
 field, the settings' checks and the report's JSON (pure numpy)."""
 
+import hashlib
 import json
 import math
 import time
@@ -47,6 +48,37 @@ def test_the_fingerprint_finds_what_changed():
         point_object=np.array([0, 0, 0, 0, 0, 1, 1, 1, 1]), object_names=["Floor", "Lid"],
     )
     assert grown.fingerprint().changed(a.fingerprint()) == {"Floor"}
+
+
+def test_the_fingerprint_takes_each_objects_own_points_in_any_order_of_the_arrays():
+    """Each object's digest covers its own points, normals and triangles, in their order,
+    wherever the arrays put them: objects interleaved hash as one mask per object does, and
+    the same geometry gives the same digests; an object with no points has a digest too."""
+    rng = np.random.default_rng(3)
+    owner = rng.integers(0, 4, 400)
+    owner[owner == 2] = 3  # object 2 has no points
+    points, normals = rng.random((400, 3)), rng.random((400, 3))
+    tris = rng.integers(0, 400, (900, 3)).astype(np.int32)
+    interleaved = SceneArrays(points, normals, np.full((400, 3), 0.5), np.zeros((400, 3)), tris,
+                              point_object=owner, object_names=["A", "B", "C", "D"])
+    made = interleaved.fingerprint()
+    for k, (name, digest) in enumerate(made.objects):
+        sel = owner == k
+        h, t = hashlib.blake2b(digest_size=16), hashlib.blake2b(digest_size=16)
+        h.update(points[sel].tobytes())
+        h.update(normals[sel].tobytes())
+        t.update((tris[owner[tris[:, 0]] == k] - (int(np.argmax(sel)) if sel.any() else 0)).tobytes())
+        h.update(t.digest())
+        assert (name, digest) == (interleaved.object_names[k], h.hexdigest())
+        assert made.layout[k] == (name, int(sel.sum()), t.hexdigest())
+    # The same arrays laid out object by object: the same digests where the triangles are
+    # the same relative to each object's first point (an object of its own points alone).
+    order = np.argsort(owner, kind="stable")
+    ordered = SceneArrays(points[order], normals[order], np.full((400, 3), 0.5), np.zeros((400, 3)),
+                          np.argsort(order)[tris], point_object=owner[order], object_names=["A", "B", "C", "D"])
+    assert ordered.fingerprint().layout[2] == made.layout[2]  # no points, no triangles: alike
+    assert [n for n, _, _ in ordered.fingerprint().layout] == ["A", "B", "C", "D"]
+    assert [c for _, c, _ in ordered.fingerprint().layout] == [c for _, c, _ in made.layout]
 
 
 def test_the_probe_field_gives_a_uniform_sky_its_radiance_for_any_normal():

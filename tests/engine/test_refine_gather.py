@@ -63,6 +63,16 @@ def test_refining_keeps_every_point_the_surface_and_the_sheets_twins():
     assert (np.einsum("ij,ij->i", e, out.normals[out.triangles[:, 0]]) > 0).all()
 
 
+def test_a_triangle_is_among_others_with_its_corners_in_any_order():
+    rng = np.random.default_rng(5)
+    triangles = rng.integers(0, 50, (3000, 3))
+    others = np.concatenate([np.roll(triangles[:400], 1, axis=1), triangles[400:800, ::-1], rng.integers(50, 90, (300, 3))])
+    found = refine._among(triangles, others)
+    wanted = {tuple(sorted(t)) for t in others.tolist()}
+    assert found.tolist() == [tuple(sorted(t)) in wanted for t in triangles.tolist()]
+    assert found[:800].all() and not refine._among(triangles, others[:0]).any()
+
+
 def test_refining_leaves_a_scene_of_short_triangles_as_it_is():
     scene = _scene([(*_quad(0.0, size=0.5), (0.5, 0.5, 0.5))])
     out, moved = refine.refine(scene, 1.0)

@@ -36,6 +36,12 @@ SOFT_TRIANGLES, MIN_SOFT_SAMPLES = 100_000, 8
 # direct light 26.3 s -> 3.7 s (1.3x the bake of one lamp) and its error 3.2% -> 3.5%.
 FULL_SOFT_ANGLE = 0.25
 SHADOW_EYES = 128
+# Sun shadow map frustum: a box around the scene's bounding sphere (radius grown by 1% so
+# that its surface is inside), seen from two radii away along the sun's direction; near
+# and far leave a margin of a thousandth of the radius and two radii beyond the scene.
+SUN_BOX_MARGIN = 1.01
+SUN_EYE_DISTANCE = 2.0
+SUN_NEAR, SUN_FAR = 1e-3, 4.0
 
 
 def soft(light, points) -> bool:

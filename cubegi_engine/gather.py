@@ -26,10 +26,11 @@ is then what their own view holds, not the probes' estimate from up to a cell aw
 
 import time
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 
-from . import cubemap, geometry, sh
+from . import cubemap, geometry, lights, sh
 from .hemisphere import TURN_HASH, hemisphere_rays
 from .nearfield import NearField
 from .penumbra import SUN_DISK_RAYS, disk_directions
@@ -38,7 +39,7 @@ from .spatial import resting
 from .working import made_once
 
 __all__ = ["large_points", "Corners", "Gathered", "gather", "gathered_for", "kept_nbytes", "light_visibility", "near_caster", "scene_caster",
-           "same_side", "scene_inward", "caster_made_by", "GATHER_SHARE", "GATHER_RAYS"]
+           "scene_occluders", "same_side", "scene_inward", "caster_made_by", "GATHER_SHARE", "GATHER_RAYS"]
 
 # A point whose area is at least GATHER_SHARE of the scene's (front) surface, and at least
 # GATHER_OUTLIER times a point's mean, is gathered by rays: at most 1 / GATHER_SHARE points,
@@ -266,6 +267,16 @@ def scene_inward(scene) -> np.ndarray:
     field's rays through the host's caster)."""
     return made_once(scene, "_inward", lambda: geometry.inward(np.asarray(scene.triangles), np.asarray(scene.points)),
                      key=(id(scene.points), id(scene.triangles)))
+
+
+def scene_occluders(scene, renderer=None) -> lights.Occluders:
+    """Every triangle of ``scene`` as shadow maps' occluders, with the ``renderer``'s ray
+    caster over them where it has one (asked where a map cannot decide; made when first
+    asked). The occluders hold the caster's maker, not the renderer (a kept shadow must not
+    keep the GPU's copy of the scene)."""
+    make = getattr(renderer, "rays", None)
+    rays = None if make is None else partial(caster_made_by, scene, make)
+    return lights.Occluders(scene.triangles, scene.points, scene.scale, scene.sides(), rays, partial(scene_inward, scene))
 
 
 def caster_made_by(scene, make) -> RayCaster:

@@ -254,7 +254,7 @@ class Occluders:
     sides: tuple | None = None
     # A callable giving the host's ray caster over the same surfaces (made when first needed), or
     # None: a receiver the map cannot decide is asked by one ray (see _occluded). It is a static
-    # function (direct.scene_occluders: the host's ``rays``), so a kept shadow keeps no renderer.
+    # function (gather.scene_occluders: the host's ``rays``), so a kept shadow keeps no renderer.
     rays: object = None
     # A callable giving geometry.inward of these surfaces, made once per scene (not per light).
     inward: object = None

@@ -203,3 +203,9 @@ class AnimationResult:
     def to_dict(self) -> dict:
         """The report's form (JSON)."""
         return {"frames": [f.to_dict() for f in self.frames], "seconds": self.seconds, "cache": self.cache}
+
+
+def direct_step(step, message) -> "Progress":
+    """``step(message)``, a working Progress; one of the direct stage's where no ``step`` is
+    given."""
+    return step(message) if step is not None else Progress(Stage.DIRECT, 1, 1, message, working=True)

@@ -458,8 +458,9 @@ def solved_light(result, scene, settings, renderer, shadows=None):
     shadows (kept in ``shadows``, a dict by ``Light.shadow_key``, for dynamic objects, where
     given; never the bake's own), emitters and the sky by the bake's own functions.
     ``renderer()``: the GPU renderer (made on first use by the caller)."""
-    from .direct import light_direct, unit_sky_direct
+    from .direct import light_direct
     from .emitters import emitter_direct
+    from .sky import unit_sky_direct
 
     eyes = dict(result.direct_parts.eyes)
 

@@ -131,7 +131,7 @@ class BakeSettings:
                                "within their cells, before the capture; a probe with no way out is left out. Off: every "
                                "probe stays at its cell centre", flag="--keep-probes-in-place")
     # The sky's direct light per vertex, along SKY_PER_VERTEX_DIRECTIONS lines of sight of
-    # its own (:func:`cubegi_engine.direct.sky_direct`), instead of through the probes.
+    # its own (:func:`cubegi_engine.sky.sky_direct`), instead of through the probes.
     sky_per_vertex: bool = option(False, "Sky per Vertex", "Shadow the sky at every vertex along 256 lines of sight of "
                                   "its own, instead of through the probes: the sky's contact shadows and open edges exact "
                                   "to a few per cent, at several times a small bake's time (it grows with vertices x "

@@ -295,7 +295,7 @@ def test_the_sky_at_points_no_probe_lights_by_rays_and_by_maps(empty_scene, cube
     0.92 of the sky on average here), never narrow them."""
     from benchmarks import scenes as bench_scenes
     from cubegi.cubegi_addon import gpu_capture, session
-    from cubegi.cubegi_engine import direct
+    from cubegi.cubegi_engine import sky
 
     bench_scenes.courtyard()
     assert bpy.ops.cubegi.bake() == {"FINISHED"}
@@ -306,7 +306,7 @@ def test_the_sky_at_points_no_probe_lights_by_rays_and_by_maps(empty_scene, cube
     renderer = gpu_capture.GpuRenderer(arrays.points, arrays.triangles)
     light = {}
     for way, most in (("rays", 10**9), ("maps", 0)):
-        light[way] = direct.sky_direct(arrays, renderer, alone, rays_at_most=most)[:, 0]
+        light[way] = sky.sky_direct(arrays, renderer, alone, rays_at_most=most)[:, 0]
     down = arrays.normals[alone, 2] < -0.9  # the ground's underside: the open sky below
     assert down.sum() > 10 and np.all(light["rays"][down] > 0.99)
     assert light["rays"].mean() > 0.97 and light["maps"].mean() > 0.85

@@ -62,13 +62,13 @@ def test_a_ray_from_where_two_surfaces_meet_is_stopped_by_the_other_one_only_whe
 
 def test_every_light_s_occluders_of_one_scene_share_its_inward_vectors():
     """Where rays start is made once per scene, not once per light's occluders."""
-    from cubegi.cubegi_engine import direct
+    from cubegi.cubegi_engine import gather
     from cubegi.cubegi_engine.scene import SceneArrays
 
     points, triangles = _patch((0, 0, 0), (1, 0, 0), (0, 1, 0), 2)
     normals = np.tile([0.0, 0.0, 1.0], (len(points), 1))
     scene = SceneArrays(points, normals, np.full_like(points, 0.5), np.zeros_like(points), triangles)
-    first, second = direct.scene_occluders(scene), direct.scene_occluders(scene)
+    first, second = gather.scene_occluders(scene), gather.scene_occluders(scene)
     assert first is not second and first.inward() is second.inward()
     np.testing.assert_allclose(first.inward(), geometry.inward(triangles, points))
 
@@ -86,7 +86,7 @@ def test_a_triangle_with_no_extent_pulls_no_corner_anywhere():
 
 
 def _sky_matrix(found, receivers, directions):
-    """:func:`direct._sky_rays`' answers as ``(r, k)``: 1 open, 0 blocked, nan not facing."""
+    """:func:`sky._sky_rays`' answers as ``(r, k)``: 1 open, 0 blocked, nan not facing."""
     out = np.full((receivers, directions), np.nan)
     for k, rows, vis in found:
         out[rows, k] = vis
@@ -98,7 +98,7 @@ def test_the_sky_by_rays_asks_a_receivers_other_directions_only_where_its_first_
     receivers take that answer for their other directions, with a quarter of the rays; one
     beside the box sees it along some first rays and not others, and asks every direction,
     as when every direction is asked at once."""
-    from cubegi.cubegi_engine import direct, sh
+    from cubegi.cubegi_engine import sh, sky
 
     faces = [((0, 0, 0), (0, 1, 0), (1, 0, 0)), ((0, 0, 1), (1, 0, 0), (0, 1, 0)), ((0, 0, 0), (1, 0, 0), (0, 0, 1)),
              ((0, 1, 0), (0, 0, 1), (1, 0, 0)), ((0, 0, 0), (0, 0, 1), (0, 1, 0)), ((1, 0, 0), (0, 1, 0), (0, 0, 1))]
@@ -117,12 +117,12 @@ def test_the_sky_by_rays_asks_a_receivers_other_directions_only_where_its_first_
     receivers = Receivers(np.array([[0.5, 0.5, 0.05], [9.0, 9.0, 0.0], [1.02, 0.5, 0.0]]), np.tile([0.0, 0.0, 1.0], (3, 1)),
                           np.full(3, -1))
     dirs = sh.fibonacci_sphere(32)
-    found = _sky_matrix(direct._sky_rays(receivers, occluders, caster, dirs, 0.01), 3, 32)
+    found = _sky_matrix(sky._sky_rays(receivers, occluders, caster, dirs, 0.01), 3, 32)
     rays_first = sum(asked)
-    first = np.arange(32) % direct.SKY_FIRST_EVERY == 0
+    first = np.arange(32) % sky.SKY_FIRST_EVERY == 0
     asked.clear()
-    monkeypatch.setattr(direct, "SKY_FIRST_EVERY", 1)
-    every = _sky_matrix(direct._sky_rays(receivers, occluders, caster, dirs, 0.01), 3, 32)
+    monkeypatch.setattr(sky, "SKY_FIRST_EVERY", 1)
+    every = _sky_matrix(sky._sky_rays(receivers, occluders, caster, dirs, 0.01), 3, 32)
     facing = ~np.isnan(every)
     assert np.array_equal(np.isnan(found), ~facing)
     assert np.all(every[0][facing[0]] == 0.0) and np.all(every[1][facing[1]] == 1.0)

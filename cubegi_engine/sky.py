@@ -81,10 +81,11 @@ SKY_MAPS_AT_ONCE = 2
 # 2-30 us (long ones through a large room the most) and a map several ms to a tenth of a second:
 # the Breakfast Room's sky per vertex (7.3M rays) took 205 s by rays, 65 s by maps.
 SKY_RAYS_AT_MOST = 500_000
-# By rays, every SKY_FIRST_EVERY-th direction is asked first; a receiver whose first rays, at
-# least SKY_FIRST_AT_LEAST of them, all meet a surface or all reach the sky takes that answer
-# for its other directions (the Breakfast Room's outside faces: 79% see no sky along any of
-# their rays, 10% see it along all).
+# Every SKY_FIRST_EVERY-th direction is asked first (by rays or maps, each set of directions
+# as SKY_RAYS_AT_MOST decides); a receiver whose first answers, at least SKY_FIRST_AT_LEAST
+# of them, all meet a surface or all reach the sky takes that answer for its other
+# directions (the Breakfast Room's outside faces: 79% see no sky along any of their rays,
+# 10% see it along all; by rays 318K -> about 100K of them, 1.17 -> 0.35 s).
 SKY_FIRST_EVERY, SKY_FIRST_AT_LEAST = 4, 3
 
 
@@ -100,58 +101,34 @@ def sky_direct(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY_MAP_S
 
 
 def sky_direct_steps(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY_MAP_SIZE, step=None, rays_at_most=0):
-    """:func:`sky_direct` as a generator handing control back after each direction."""
+    """:func:`sky_direct` as a generator handing control back after each direction.
+
+    Every SKY_FIRST_EVERY-th direction is asked first; a receiver whose first answers (at
+    least SKY_FIRST_AT_LEAST of them) all agree takes that answer for its other directions,
+    and only the others ask them (see SKY_FIRST_EVERY)."""
     dirs = sh.fibonacci_sphere(directions)  # towards the sky
     pattern = sky_pattern(scene, dirs)  # (k, 3)
-    lo, hi = scene.bounds()
-    centre, radius = 0.5 * (lo + hi), 0.5 * scene.scale * SUN_BOX_MARGIN
-    eyes = centre + dirs * radius * SUN_EYE_DISTANCE
-    vps = np.stack([cubemap.orthographic(radius, SUN_NEAR * radius, SUN_FAR * radius)
-                    @ cubemap.look_matrix(e, -d, cubemap.any_perpendicular(d)) for e, d in zip(eyes, dirs)])
-    pts, nrm = scene.points[which], scene.normals[which]
+    nrm = scene.normals[which]
     seen = np.zeros((len(which), 3))
     facing = np.zeros((len(which), 3))
-    occluders = scene_occluders(scene)
+    asked, opened = np.zeros(len(which), dtype=np.int64), np.zeros(len(which), dtype=np.int64)
 
-    def tests(first, tid, dist, back):
-        """The shadow tests of a batch of maps: ``[(k, receivers, their visibility)]``."""
-        out = []
-        for j in range(len(tid)):
-            k = first + j
-            on = np.flatnonzero(nrm @ dirs[k] > 0)
-            if len(on):
-                view = lights_mod.OrthoView(vps[k], -dirs[k], eyes[k], radius)
-                depth = lights_mod.DepthMap(tid[j:j + 1], dist[j:j + 1], back[j:j + 1])
-                receivers = lights_mod.Receivers(pts[on], nrm[on], which[on])
-                out.append((k, on, lights_mod.ortho_visibility(receivers, occluders, view, depth)))
-        return out
-
-    def add(done):
+    def add(done, first=False):
         for k, on, vis in done:
             w = (nrm[on] @ dirs[k])[:, None] * pattern[k][None, :]
             seen[on] += w * vis[:, None]
             facing[on] += w
+            if first:
+                asked[on] += 1
+                opened[on] += vis > 0.5
 
-    rays = None if getattr(renderer, "rays", None) is None else int(np.count_nonzero(nrm @ dirs.T > 0))
-    if rays is not None and rays <= rays_at_most:  # few points: a ray each way, not a map
-        receivers = lights_mod.Receivers(pts, nrm, which)
-        working = direct_step(step, f"direct light: the sky, {rays:,} rays")
-        yield working  # a step of its own, however fast the rays
-        add((yield from in_background(_sky_rays, working, receivers, occluders, scene_caster(scene, renderer), dirs,
-                                      2.0 * radius / size)))
-        dirs = dirs[:0]  # no maps
-    # Each batch's maps are drawn (the GPU's work, on this thread) while the batches before
-    # are tested in threads, up to WORKERS at once; the sums are taken in order.
-    jobs = deque()
-    for first in range(0, len(dirs), SKY_MAPS_AT_ONCE):  # (a few hundred MB of maps at once, not more)
-        tid, _, dist, back = renderer.render(vps[first : first + SKY_MAPS_AT_ONCE], eyes[first : first + SKY_MAPS_AT_ONCE],
-                                             -dirs[first : first + SKY_MAPS_AT_ONCE], size, with_bary=False)
-        while len(jobs) >= WORKERS:
-            add((yield from wait(jobs.popleft(), direct_step(step, f"direct light: the sky, {first} of {len(dirs)} directions"))))
-        jobs.append(start(tests, first, tid, dist, back))
-        yield direct_step(step, f"direct light: the sky, {first + len(tid)} of {len(dirs)} directions drawn")
-    while jobs:
-        add((yield from wait(jobs.popleft(), direct_step(step, f"direct light: the sky, {len(dirs)} of {len(dirs)} directions"))))
+    tests = _SkyTests(scene, renderer, which, dirs, size, rays_at_most, step)
+    first = np.arange(len(dirs)) % SKY_FIRST_EVERY == 0
+    add((yield from tests.run(np.flatnonzero(first), np.arange(len(which)))), first=True)
+    decided = (asked >= SKY_FIRST_AT_LEAST) & ((opened == 0) | (opened == asked))
+    agreed = (opened > 0).astype(np.float64)
+    add([(k, on, agreed[on]) for k in np.flatnonzero(~first) for on in [np.flatnonzero(decided & (nrm @ dirs[k] > 0))] if len(on)])
+    add((yield from tests.run(np.flatnonzero(~first), np.flatnonzero(~decided))))
     open_sky = np.ones((len(which), 3))
     if getattr(scene, "sky_map", None) is not None:  # the pattern's SH, as diffuse light per normal
         n = 16
@@ -161,36 +138,78 @@ def sky_direct_steps(scene, renderer, which, directions=SKY_DIRECTIONS, size=SKY
     return open_sky * np.where(facing > 0, seen / np.maximum(facing, 1e-300), 0.0)
 
 
-def _sky_rays(receivers, occluders, caster, dirs, footprint):
-    """:func:`sky_direct_steps`' shadow tests by rays: ``[(k, receivers, their visibility)]``
-    for each direction ``dirs[k]``, one ray from each receiver facing it (started off its
-    surface as a map's doubtful receiver's ray is: ``footprint``, the map's texel).
+class _SkyTests:
+    """:func:`sky_direct_steps`' shadow tests of the points ``which`` along ``dirs``: by a
+    ray each way where the receivers' lines of sight asked at once are at most
+    ``rays_at_most`` and the renderer has a ray caster, else by an orthographic depth map
+    of edge ``size`` per direction, drawn with the sun's machinery."""
 
-    Every SKY_FIRST_EVERY-th direction goes first; a receiver whose first rays (at least
-    SKY_FIRST_AT_LEAST of them) all agree takes their answer for the others (see
-    SKY_FIRST_EVERY)."""
+    def __init__(self, scene, renderer, which, dirs, size, rays_at_most, step):
+        self.scene, self.renderer, self.which, self.dirs, self.size = scene, renderer, which, dirs, size
+        self.rays_at_most, self.step = rays_at_most, step
+        lo, hi = scene.bounds()
+        self.centre, self.radius = 0.5 * (lo + hi), 0.5 * scene.scale * SUN_BOX_MARGIN
+        self.occluders = scene_occluders(scene)
+
+    def run(self, ks, rows):
+        """``[(k, receivers (indices into which), their visibility)]`` for the directions
+        ``ks`` and the receivers ``rows`` (a generator, handing control back)."""
+        if not len(rows) or not len(ks):
+            return []
+        at, dirs = self.which[rows], self.dirs[ks]
+        receivers = lights_mod.Receivers(self.scene.points[at], self.scene.normals[at], at)
+        nrm = receivers.normals
+        rays = int(np.count_nonzero(nrm @ dirs.T > 0))
+        if getattr(self.renderer, "rays", None) is not None and rays <= self.rays_at_most:  # a ray each way, not a map
+            working = direct_step(self.step, f"direct light: the sky, {rays:,} rays")
+            yield working  # a step of its own, however fast the rays
+            done = yield from in_background(_sky_rays, working, receivers, self.occluders, scene_caster(self.scene, self.renderer),
+                                            dirs, 2.0 * self.radius / self.size)
+        else:
+            done = yield from self._by_maps(receivers, dirs)
+        return [(int(ks[j]), rows[on], vis) for j, on, vis in done]
+
+    def _by_maps(self, receivers, dirs):
+        eyes = self.centre + dirs * self.radius * SUN_EYE_DISTANCE
+        vps = np.stack([cubemap.orthographic(self.radius, SUN_NEAR * self.radius, SUN_FAR * self.radius)
+                        @ cubemap.look_matrix(e, -d, cubemap.any_perpendicular(d)) for e, d in zip(eyes, dirs)])
+
+        def tests(first, tid, dist, back):
+            """The shadow tests of a batch of maps: ``[(k, receivers, their visibility)]``."""
+            out = []
+            for j in range(len(tid)):
+                k = first + j
+                on = np.flatnonzero(receivers.normals @ dirs[k] > 0)
+                if len(on):
+                    view = lights_mod.OrthoView(vps[k], -dirs[k], eyes[k], self.radius)
+                    depth = lights_mod.DepthMap(tid[j:j + 1], dist[j:j + 1], back[j:j + 1])
+                    out.append((k, on, lights_mod.ortho_visibility(receivers[on], self.occluders, view, depth)))
+            return out
+
+        # Each batch's maps are drawn (the GPU's work, on this thread) while the batches before
+        # are tested in threads, up to WORKERS at once; the results are taken in order.
+        jobs, done, step = deque(), [], self.step
+        for first in range(0, len(dirs), SKY_MAPS_AT_ONCE):  # (a few hundred MB of maps at once, not more)
+            batch = slice(first, first + SKY_MAPS_AT_ONCE)
+            tid, _, dist, back = self.renderer.render(vps[batch], eyes[batch], -dirs[batch], self.size, with_bary=False)
+            while len(jobs) >= WORKERS:
+                done += yield from wait(jobs.popleft(), direct_step(step, f"direct light: the sky, {first} of {len(dirs)} directions"))
+            jobs.append(start(tests, first, tid, dist, back))
+            yield direct_step(step, f"direct light: the sky, {first + len(tid)} of {len(dirs)} directions drawn")
+        while jobs:
+            done += yield from wait(jobs.popleft(), direct_step(step, f"direct light: the sky, {len(dirs)} of {len(dirs)} directions"))
+        return done
+
+
+def _sky_rays(receivers, occluders, caster, dirs, footprint):
+    """The sky's shadow tests by rays: ``[(k, receivers, their visibility)]`` for each
+    direction ``dirs[k]``, one ray from each receiver facing it (started off its surface as
+    a map's doubtful receiver's ray is: ``footprint``, the map's texel)."""
     facing = receivers.normals @ dirs.T > 0  # (r, k)
-    first = (np.arange(len(dirs)) % SKY_FIRST_EVERY == 0)[None, :] & facing
-    open_ = np.zeros(facing.shape, dtype=bool)
-    open_[first] = _sky_open(receivers, occluders, caster, dirs, footprint, first)
-    asked = first.sum(axis=1)
-    seen = (open_ & first).sum(axis=1)
-    decided = (asked >= SKY_FIRST_AT_LEAST) & ((seen == 0) | (seen == asked))
-    rest = facing & ~first & ~decided[:, None]
-    open_[rest] = _sky_open(receivers, occluders, caster, dirs, footprint, rest)
-    open_ |= facing & ~first & (decided & (seen > 0))[:, None]
     row, k = np.nonzero(facing)
+    origins = lights_mod.ray_starts(receivers[row], occluders, np.full(len(row), footprint), np.arange(len(row)))
+    open_ = ~caster.blocked(origins, dirs[k], None)
     order = np.argsort(k, kind="stable")  # each direction's rays together (not one mask per direction)
     bounds = np.searchsorted(k[order], np.arange(len(dirs) + 1))
-    return [(j, row[order[a:b]], open_[row[order[a:b]], j].astype(np.float64))
+    return [(j, row[order[a:b]], open_[order[a:b]].astype(np.float64))
             for j, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])) if b > a]
-
-
-def _sky_open(receivers, occluders, caster, dirs, footprint, ask):
-    """``(m,)`` bool in ``np.nonzero(ask)`` order: whether the ray from each asked receiver
-    along each asked direction (``ask (r, k)``) reaches the sky."""
-    row, k = np.nonzero(ask)
-    if not len(row):
-        return np.zeros(0, dtype=bool)
-    origins = lights_mod.ray_starts(receivers[row], occluders, np.full(len(row), footprint), np.arange(len(row)))
-    return ~caster.blocked(origins, dirs[k], None)

@@ -85,26 +85,23 @@ def test_a_triangle_with_no_extent_pulls_no_corner_anywhere():
     assert np.all(into[len(alone):] == 0.0)
 
 
-def _sky_matrix(found, receivers, directions):
-    """:func:`sky._sky_rays`' answers as ``(r, k)``: 1 open, 0 blocked, nan not facing."""
-    out = np.full((receivers, directions), np.nan)
-    for k, rows, vis in found:
-        out[rows, k] = vis
-    return out
-
-
-def test_the_sky_by_rays_asks_a_receivers_other_directions_only_where_its_first_ones_disagree(monkeypatch):
+def test_the_sky_asks_a_receivers_other_directions_only_where_its_first_ones_disagree(monkeypatch):
     """Inside a closed box every first ray meets it, in the open every one leaves: those
     receivers take that answer for their other directions, with a quarter of the rays; one
-    beside the box sees it along some first rays and not others, and asks every direction,
-    as when every direction is asked at once."""
-    from cubegi.cubegi_engine import sh, sky
+    beside the box sees it along some first rays and not others, and asks every direction.
+    Each gets the light it gets when every direction is asked at once."""
+    from cubegi.cubegi_engine import sky
+    from cubegi.cubegi_engine.scene import SceneArrays
 
     faces = [((0, 0, 0), (0, 1, 0), (1, 0, 0)), ((0, 0, 1), (1, 0, 0), (0, 1, 0)), ((0, 0, 0), (1, 0, 0), (0, 0, 1)),
              ((0, 1, 0), (0, 0, 1), (1, 0, 0)), ((0, 0, 0), (0, 0, 1), (0, 1, 0)), ((1, 0, 0), (0, 1, 0), (0, 0, 1))]
     parts = [_patch(o, u, v, 2) for o, u, v in faces]
-    points = np.concatenate([p for p, _ in parts])
+    box = np.concatenate([p for p, _ in parts])
+    points = np.concatenate([box, [[0.5, 0.5, 0.05], [9.0, 9.0, 0.0], [1.02, 0.5, 0.0]]])
     triangles = np.concatenate([t + 9 * k for k, (_, t) in enumerate(parts)])
+    normals = np.tile([0.0, 0.0, 1.0], (len(points), 1))
+    scene = SceneArrays(points, normals, np.full_like(points, 0.5), np.zeros_like(points), triangles)
+    which = np.arange(len(box), len(points))
     asked = []
 
     class Counted(NumpyRays):
@@ -112,20 +109,17 @@ def test_the_sky_by_rays_asks_a_receivers_other_directions_only_where_its_first_
             asked.append(len(origins))
             return super().blocked(origins, dirs, reach)
 
-    caster = Counted(points, triangles)
-    occluders = Occluders(triangles, points, 1.0, None, lambda: caster)
-    receivers = Receivers(np.array([[0.5, 0.5, 0.05], [9.0, 9.0, 0.0], [1.02, 0.5, 0.0]]), np.tile([0.0, 0.0, 1.0], (3, 1)),
-                          np.full(3, -1))
-    dirs = sh.fibonacci_sphere(32)
-    found = _sky_matrix(sky._sky_rays(receivers, occluders, caster, dirs, 0.01), 3, 32)
-    rays_first = sum(asked)
-    first = np.arange(32) % sky.SKY_FIRST_EVERY == 0
-    asked.clear()
-    monkeypatch.setattr(sky, "SKY_FIRST_EVERY", 1)
-    every = _sky_matrix(sky._sky_rays(receivers, occluders, caster, dirs, 0.01), 3, 32)
-    facing = ~np.isnan(every)
-    assert np.array_equal(np.isnan(found), ~facing)
-    assert np.all(every[0][facing[0]] == 0.0) and np.all(every[1][facing[1]] == 1.0)
-    assert 0.0 < np.nanmean(every[2]) < 1.0  # beside the box: some of its sky is the box
-    assert np.array_equal(found[facing], every[facing])
-    assert rays_first == facing.sum() - (facing[:2] & ~first).sum() < sum(asked)
+    class Renderer:  # rays alone: a map drawn would fail the test
+        rays = Counted
+
+    light, first_every = {}, sky.SKY_FIRST_EVERY
+    for every in (first_every, 1):
+        monkeypatch.setattr(sky, "SKY_FIRST_EVERY", every)
+        asked.clear()
+        light[every] = sky.sky_direct(scene, Renderer(), which, rays_at_most=10**9)[:, 0]
+        light[every, "rays"] = sum(asked)
+    assert light[1][0] == 0.0 and light[1][1] == 1.0 and 0.2 < light[1][2] < 0.9  # shut in, open, beside the box
+    np.testing.assert_array_equal(light[first_every], light[1])
+    facing = int(np.count_nonzero(sky.sh.fibonacci_sphere(sky.SKY_DIRECTIONS)[:, 2] > 0))
+    assert light[1, "rays"] == 3 * facing
+    assert light[first_every, "rays"] < 2 * facing  # the box's first rays and all of the third's

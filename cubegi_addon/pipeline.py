@@ -385,7 +385,7 @@ def _left_out_of_capture(capture, grid, placement=None):
     elif near is not None and near.crowded:
         where = _object_names(capture, near.crowded_objects)
         out.append(LeftOut(LeftOutKind.NEAR_FIELD, (
-            f"{near.crowded:,} vertices in dense, folded geometry (hundreds of triangles within {near.reach:.3g}"
+            f"{near.crowded:,} vertices in dense geometry (hundreds of triangles within {near.reach:.3g}"
             f"{': ' + _first_names(where) if where else ''}); the probes light their surroundings"), near.crowded, where))
     if capture.small_objects:
         small = _object_names(capture, capture.small_objects)

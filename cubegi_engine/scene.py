@@ -216,7 +216,9 @@ def _by_owner(owner, count, *arrays):
     else:
         order = np.arange(len(owner))
     bounds = np.searchsorted(owner, np.arange(count + 1))
-    first = np.where(bounds[1:] > bounds[:-1], order[np.minimum(bounds[:-1], max(len(order) - 1, 0))] if len(order) else 0, 0)
+    first = np.zeros(count, dtype=np.int64)
+    some = bounds[1:] > bounds[:-1]
+    first[some] = order[bounds[:-1][some]]  # (a stable sort puts each owner's first row first)
     return arrays, bounds, first
 
 

@@ -32,12 +32,15 @@ from ..cubegi_engine.working import in_background, run
 from . import compat
 from .bvh_rays import BvhRays
 from .draw_layout import barycentric, barycentric_rows, boxes_in_frusta, prepare
+from .gpu_rays import GpuRays
 
 # Largest atlas edge in texels; 2048^2 RGBA32F is 64 MiB.
 ATLAS_EDGE = 2048
 FAR_AWAY = 3.0e38
 
 _gpu_ready = False
+# Rays through the GPU module's compute shaders (gpu_rays), else through Blender's BVH tree.
+GPU_RAYS = True
 
 
 @contextlib.contextmanager
@@ -270,9 +273,10 @@ class GpuRenderer:
     @staticmethod
     def rays(points, triangles):
         """A ray caster over ``triangles (k, 3)`` of ``points`` (the engine's
-        :class:`~cubegi_engine.rays.RayCaster`): Blender's BVH tree. Static: what holds it
-        holds no renderer."""
-        return BvhRays(points, triangles)
+        :class:`~cubegi_engine.rays.RayCaster`): the GPU module's compute shader
+        (:class:`~.gpu_rays.GpuRays`, Blender's BVH tree where that cannot run), or Blender's
+        BVH tree alone where GPU_RAYS is off. Static: what holds it holds no renderer."""
+        return GpuRays(points, triangles) if GPU_RAYS else BvhRays(points, triangles)
 
     def with_geometry(self, points, triangles, drawn=None, sheet=None):
         """A renderer of other triangles (the probes' simplified copy of the scene), drawing

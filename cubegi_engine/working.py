@@ -15,10 +15,12 @@ steps started when it is closed (a cancel) or fails: each ends at its next piece
 import ctypes
 import os
 import threading
+import time
 from concurrent.futures import ThreadPoolExecutor
 
 __all__ = ["WORKING_SECONDS", "CAPTURE_DRAWS_PER_STEP", "WORKERS", "run", "in_background", "in_batches", "start", "wait",
-           "give_back_memory", "in_parallel", "made_once", "once", "result", "Driven", "Cancelled", "checkpoint"]
+           "give_back_memory", "in_parallel", "made_once", "once", "result", "Driven", "Cancelled", "checkpoint", "on_main",
+           "NotServed"]
 
 # Seconds between the steps a long piece of work hands back.
 WORKING_SECONDS = 0.1
@@ -117,6 +119,9 @@ class Job:
                 self.out["value"] = fn(*args, **kwargs)
             except BaseException as exc:  # handed to the generator's caller
                 self.out["error"] = exc
+            finally:
+                with _calls:  # (a main thread serving calls while it waits for this one)
+                    _calls.notify_all()
 
         self.thread = threading.Thread(target=work, name="cubegi-work", daemon=True)
         self.thread.start()
@@ -132,7 +137,7 @@ def wait(job, working):
     """A generator yielding ``working`` (a Progress) every WORKING_SECONDS until ``job``
     ends, returning its result (or raising its exception)."""
     while True:
-        job.thread.join(WORKING_SECONDS)
+        _serve_while(job.thread, WORKING_SECONDS)
         if not job.thread.is_alive():
             break
         yield working
@@ -140,6 +145,74 @@ def wait(job, working):
     if "error" in job.out:
         raise job.out["error"]
     return job.out["value"]
+
+
+class NotServed(Exception):
+    """:func:`on_main` from a thread while the main thread waits for no work of a bake's (it
+    would not answer): the caller does the work its own way."""
+
+
+class _Call:
+    def __init__(self, fn, args):
+        self.fn, self.args, self.done, self.out = fn, args, threading.Event(), {}
+
+    def serve(self):
+        try:
+            self.out["value"] = self.fn(*self.args)
+        except BaseException as exc:  # handed to the thread that asked
+            self.out["error"] = exc
+        self.done.set()
+
+
+# Calls handed to the main thread (on_main), waiting for it to take them (in wait()).
+_calls = threading.Condition()
+_waiting_calls: list = []
+# How long on_main waits for the main thread to take a call before doing without it: long
+# enough for a modal operator's next timer step, short enough where it never comes.
+TAKE_CALL_SECONDS = 2.0
+
+
+def on_main(fn, *args):
+    """``fn(*args)`` on the main thread, whose alone the GPU context is: at once where this is
+    the main thread, else handed to it, which runs it while it waits for a bake's work
+    (:func:`wait`), and this thread waits for the answer. Raises :class:`NotServed` where
+    the main thread takes no call within TAKE_CALL_SECONDS (it waits for nothing of a
+    bake's: a thread of one's own, or a main thread itself waiting on this one)."""
+    if threading.current_thread() is threading.main_thread():
+        return fn(*args)
+    call = _Call(fn, args)
+    with _calls:
+        _waiting_calls.append(call)
+        _calls.notify_all()
+        taken = _calls.wait_for(lambda: call not in _waiting_calls, TAKE_CALL_SECONDS)
+        if not taken:
+            _waiting_calls.remove(call)
+            raise NotServed(getattr(fn, "__name__", "a call"))
+    call.done.wait()
+    if "error" in call.out:
+        raise call.out["error"]
+    return call.out["value"]
+
+
+def _serve_while(thread, seconds):
+    """Wait up to ``seconds`` for ``thread`` to end; on the main thread, run the calls other
+    threads hand it (:func:`on_main`) meanwhile."""
+    if threading.current_thread() is not threading.main_thread():
+        thread.join(seconds)
+        return
+    deadline = time.monotonic() + seconds
+    while thread.is_alive():
+        with _calls:
+            left = deadline - time.monotonic()
+            if not _waiting_calls and left > 0:
+                _calls.wait(left)
+            call = _waiting_calls.pop(0) if _waiting_calls else None
+            if call is not None:
+                _calls.notify_all()  # (taken)
+        if call is not None:
+            call.serve()
+        elif time.monotonic() >= deadline:
+            return
 
 
 def result(job):

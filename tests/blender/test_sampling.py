@@ -55,8 +55,20 @@ def test_a_room_of_large_quads_round_fine_furniture_bakes_as_cycles(empty_scene,
     assert len(arrays.points) > sum(len(ob.data.vertices) for ob in obs)  # the large quads were cut for the light
 
 
-def test_the_bvh_caster_meets_what_testing_every_triangle_meets(empty_scene, cubegi):
+def _casters(cubegi):
     from cubegi.cubegi_addon.bvh_rays import BvhRays
+    from cubegi.cubegi_addon.gpu_rays import GpuRays
+
+    cubegi.cubegi_addon.gpu_capture.ensure_gpu()  # (as a bake has, before it casts)
+    return {"bvh": BvhRays, "gpu": GpuRays}
+
+
+@pytest.mark.smoke
+@pytest.mark.parametrize("kind", ["bvh", "gpu"])
+def test_the_host_casters_meet_what_testing_every_triangle_meets(empty_scene, cubegi, kind):
+    """Blender's BVH tree and the GPU module's compute shader (a tree of boxes walked on the
+    GPU, llvmpipe here) meet what numpy's test of every triangle meets; the shader's rays are
+    cast by the shader itself (no fallback to the tree), on every supported Blender."""
     from cubegi.cubegi_engine.rays import NumpyRays
 
     _quad_room()
@@ -67,26 +79,29 @@ def test_the_bvh_caster_meets_what_testing_every_triangle_meets(empty_scene, cub
     dirs = rng.normal(size=(500, 3))
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     reach = rng.uniform(0.2, 6.0, size=500)
-    ours, plain = BvhRays(arrays.points, tri).cast(origins, dirs, reach), NumpyRays(arrays.points, tri).cast(origins, dirs, reach)
+    caster = _casters(cubegi)[kind](arrays.points, tri)
+    ours, plain = caster.cast(origins, dirs, reach), NumpyRays(arrays.points, tri).cast(origins, dirs, reach)
     assert np.array_equal(ours.hit, plain.hit) and ours.hit.sum() > 100 and (~ours.hit).sum() > 50
-    assert ours.t[ours.hit] == pytest.approx(plain.t[plain.hit], abs=1e-6)
+    assert ours.t[ours.hit] == pytest.approx(plain.t[plain.hit], abs=1e-5)  # (float32 cuts, a room of metres)
+    assert np.array_equal(caster.blocked(origins, dirs, reach), plain.hit)
+    assert np.array_equal(caster.blocked(origins, dirs), NumpyRays(arrays.points, tri).blocked(origins, dirs))
+    assert getattr(caster, "_fallback", None) is None  # (the shader's own answers)
     # Where two triangles are met at one distance (the block standing on the floor) either may
     # be reported; elsewhere the same triangle, from the same side.
     same = ours.triangle == plain.triangle
     assert same.mean() > 0.97 and np.array_equal(ours.front[same], plain.front[same])
     x_ours = np.einsum("nk,nkc->nc", ours.bary[ours.hit], arrays.points[tri[ours.triangle[ours.hit]]])
-    assert x_ours == pytest.approx(origins[ours.hit] + ours.t[ours.hit, None] * dirs[ours.hit], abs=1e-6)
+    assert x_ours == pytest.approx(origins[ours.hit] + ours.t[ours.hit, None] * dirs[ours.hit], abs=1e-5)
 
 
-def test_a_bvh_ray_of_no_direction_meets_nothing_and_leaves_the_others_as_they_were(empty_scene, cubegi):
+@pytest.mark.parametrize("kind", ["bvh", "gpu"])
+def test_a_ray_of_no_direction_meets_nothing_and_leaves_the_others_as_they_were(empty_scene, cubegi, kind):
     """A point without a normal (a face with a corner at NaN) casts rays of no direction, or
-    of NaN (``hemisphere.hemisphere_rays``): Blender's tree meets nothing along them, and every
-    other ray of the same call meets what it meets alone."""
-    from cubegi.cubegi_addon.bvh_rays import BvhRays
-
+    of NaN (``hemisphere.hemisphere_rays``): the host's casters meet nothing along them, and
+    every other ray of the same call meets what it meets alone."""
     _quad_room()
     arrays = cubegi.cubegi_addon.scene_data.collect(bpy.context).arrays
-    rays = BvhRays(arrays.points, arrays.triangles[~arrays.back_triangles()])
+    rays = _casters(cubegi)[kind](arrays.points, arrays.triangles[~arrays.back_triangles()])
     rng = np.random.default_rng(5)
     origins = rng.uniform((0.1, 0.1, 0.1), (3.9, 3.9, 2.4), size=(200, 3))
     dirs = rng.normal(size=(200, 3))

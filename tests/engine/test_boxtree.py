@@ -1,0 +1,130 @@
+"""The tree of boxes the GPU's ray caster walks (cubegi_engine.boxtree), and the main thread's
+service that runs a thread's GPU calls (working.on_main), without Blender."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from cubegi_engine import boxtree, working
+from cubegi_engine.rays import NumpyRays
+
+
+def _soup(rng, count, offset=0.0):
+    """``count`` random triangles of a few centimetres to a metre in a 4 x 4 x 2 m box."""
+    centres = rng.uniform((0, 0, 0), (4, 4, 2), size=(count, 1, 3))
+    size = rng.uniform(0.02, 1.0, size=(count, 1, 1))
+    points = (centres + size * rng.normal(size=(count, 3, 3))).reshape(-1, 3) + offset
+    return points, np.arange(3 * count).reshape(-1, 3)
+
+
+def _rays(rng, count, offset=0.0):
+    origins = rng.uniform((0, 0, 0), (4, 4, 2), size=(count, 3)) + offset
+    dirs = rng.normal(size=(count, 3))
+    return origins, dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+
+
+def test_every_box_holds_what_lies_under_it_and_every_triangle_is_in_one_leaf():
+    rng = np.random.default_rng(1)
+    points, triangles = _soup(rng, 700)
+    tree = boxtree.build(points, triangles)
+    m = len(tree.skip)
+    leaf = tree.count > 0
+    assert np.sort(tree.order).tolist() == list(range(700))
+    # The leaves' runs cover every slot once, in order, none longer than LEAF.
+    assert np.array_equal(tree.first[leaf], np.concatenate([[0], np.cumsum(tree.count[leaf])[:-1]]))
+    assert tree.count[leaf].sum() == 700 and tree.count.max() <= boxtree.LEAF
+    corners = tree.corners[:, 0:1] + np.concatenate([np.zeros((700, 1, 3), np.float32), tree.corners[:, 1:]], axis=1)
+    for node in range(m):  # (700 triangles: every node)
+        lo, hi = tree.boxes[node]
+        if leaf[node]:
+            held = corners[tree.first[node]:tree.first[node] + tree.count[node]].reshape(-1, 3)
+            assert tree.skip[node] == node + 1
+        else:
+            left, right = node + 1, tree.skip[node + 1]
+            assert tree.skip[right] == tree.skip[node]  # the right child's subtree ends where the node's does
+            held = tree.boxes[[left, right]].reshape(-1, 3)
+        assert (held >= lo).all() and (held <= hi).all(), node
+    # The triangles, less the centre, are the caller's, in the caller's order.
+    again = corners.astype(np.float64) + tree.centre
+    assert again[np.argsort(tree.order)] == pytest.approx(points[triangles], abs=1e-5)
+
+
+@pytest.mark.parametrize("offset", [0.0, 1000.0])
+def test_the_walk_meets_what_testing_every_triangle_meets(offset):
+    """The walk (the shader's, in numpy) against every triangle tested: the same nearest hit
+    within float32's precision, also a kilometre from the origin (the tree is kept less its
+    centre); a shadow ray's first hit found answers as the nearest."""
+    rng = np.random.default_rng(2)
+    points, triangles = _soup(rng, 400, offset)
+    tree = boxtree.build(points, triangles)
+    origins, dirs = _rays(rng, 400, offset)
+    reach = rng.uniform(0.2, 5.0, size=400)
+    plain = NumpyRays(points, triangles).cast(origins, dirs, reach)
+    slot, t = boxtree.walk(tree, origins, dirs, reach)
+    which = np.where(slot >= 0, tree.order[np.maximum(slot, 0)], -1)
+    assert plain.hit.sum() > 100 and (~plain.hit).sum() > 50
+    assert np.array_equal(slot >= 0, plain.hit)
+    assert t[plain.hit] == pytest.approx(plain.t[plain.hit], abs=1e-4)  # float32 at 1 km: about 1e-4 m
+    assert (which == plain.triangle).mean() > 0.98  # (two triangles at one distance: either)
+    shadow, _ = boxtree.walk(tree, origins, dirs, reach, any_hit=True)
+    assert np.array_equal(shadow >= 0, plain.hit)
+
+
+def test_triangles_at_one_point_still_split_into_leaves():
+    """Triangles whose centres share a Morton code (a fan round one point) split at the
+    middle of their run: no leaf holds more than LEAF; and a scene of no triangles is a tree
+    of no nodes, which nothing meets."""
+    angles = np.linspace(0, 2 * np.pi, 41)
+    rim = np.stack([np.cos(angles), np.sin(angles), np.zeros(41)], axis=1)
+    points = np.concatenate([[[0.0, 0.0, 0.0]], rim, -rim])
+    fan = np.array([[0, 1 + k, 2 + k] for k in range(40)] + [[0, 43 + k, 42 + k] for k in range(40)])
+    tree = boxtree.build(points, fan)
+    assert tree.count.max() <= boxtree.LEAF and tree.count.sum() == 80
+    slot, _ = boxtree.walk(tree, [[0.3, 0.1, 1.0]], [[0.0, 0.0, -1.0]])
+    assert slot[0] >= 0
+    empty = boxtree.build(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
+    assert len(empty.skip) == 0 and boxtree.walk(empty, [[0, 0, 0]], [[0, 0, 1]])[0][0] == -1
+
+
+def test_a_threads_call_runs_on_the_main_thread_while_it_waits_for_the_work():
+    """``on_main`` from a bake's thread: the main thread runs the call while it waits
+    (``wait``), the thread gets its answer or its error."""
+    ran_on = []
+
+    def gpu_call(x):
+        ran_on.append(threading.current_thread() is threading.main_thread())
+        if x < 0:
+            raise ValueError("refused")
+        return 2 * x
+
+    def work():
+        out = [working.on_main(gpu_call, k) for k in range(5)]
+        with pytest.raises(ValueError, match="refused"):
+            working.on_main(gpu_call, -1)
+        return out
+
+    assert working.run(working.in_background(work, None)) == [0, 2, 4, 6, 8]
+    assert ran_on == [True] * 6
+    assert working.on_main(gpu_call, 3) == 6 and ran_on[-1]  # (the main thread's own: at once)
+
+
+def test_a_call_the_main_thread_does_not_take_is_refused_in_time(monkeypatch):
+    """A thread the main thread does not wait for (its own) gets NotServed after
+    TAKE_CALL_SECONDS, and the call is not left behind to run later."""
+    monkeypatch.setattr(working, "TAKE_CALL_SECONDS", 0.2)
+    out = {}
+
+    def alone():
+        t = time.perf_counter()
+        try:
+            working.on_main(lambda: out.setdefault("ran", True))
+        except working.NotServed:
+            out["refused"] = time.perf_counter() - t
+
+    thread = threading.Thread(target=alone)
+    thread.start()
+    thread.join()
+    assert 0.15 < out["refused"] < 2.0 and "ran" not in out
+    assert working.run(working.in_background(lambda: 1, None)) == 1 and "ran" not in out  # (no call waits for the next wait)

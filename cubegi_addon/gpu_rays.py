@@ -84,7 +84,7 @@ void main() {
         vec3 q = cross(s, e1);
         float v = dot(d, q) / det;
         float t = dot(e2, q) / det;
-        if (u >= 0.0 && v >= 0.0 && u + v <= 1.0 && t > 0.0 && t <= best_t) {
+        if (u >= -EDGE && v >= -EDGE && u + v <= 1.0 + EDGE && t > 0.0 && t <= best_t) {
           best = k;
           best_t = t;
         }
@@ -111,6 +111,7 @@ def _shader():
         for name in ("ray_count", "node_count", "corner_base", "any_hit"):
             info.push_constant("INT", name)
         info.define("ROW", str(ROW))
+        info.define("EDGE", f"{boxtree.EDGE_SLACK:.1e}")
         info.compute_source(_SHADER)
         return gpu.shader.create_from_info(info)
     except Exception:  # no compute shaders, or a compiler that refuses it: Blender's tree does the work

@@ -18,24 +18,29 @@ triangles' leaves paired into a balanced tree took 271 and 62, and a tree split 
 area (binned, 20 s to build in numpy) 52 and 10.
 
 Everything is in float32 less the centre of the scene's box (a scene far from the origin
-keeps the precision of one at it), each box widened by BOX_SLACK of the scene's size and
-rounded outwards, so that a ray the shader's float32 cut finds inside a triangle is never
-kept out by its box.
+keeps the precision of one at it). A cut counts within EDGE_SLACK outside a triangle's
+edges (no ray slips between two triangles along their shared edge), and each box is
+widened by BOX_SLACK of the scene's size and rounded outwards, so that a ray the shader's
+cut finds in a triangle is never kept out by its box.
 """
 
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["BoxTree", "build", "walk", "LEAF", "LARGEST", "FAR"]
+__all__ = ["BoxTree", "build", "walk", "LEAF", "LARGEST", "FAR", "EDGE_SLACK"]
 
 # Triangles a leaf holds at most. Of 2, 4 and 8, 4 took the Breakfast Room's sun rays fewest
 # tests (box tests plus triangle tests: 2 took 148, 4 142 and 8 143).
 LEAF = 4
 # Morton bits per axis (30 in all, in an int64; 21 a axis changed the walks by under 3%).
 MORTON_BITS = 10
-# Boxes are widened by this share of the scene's size (float32 rounding of corners and cuts).
-BOX_SLACK = 1e-6
+# A cut counts within EDGE_SLACK (of barycentric weight) outside a triangle's edges: in
+# float32 a ray along the edge two triangles share can miss both (a floor vertex's shadow ray
+# along a cut plate's edge came out lit). Boxes are widened by BOX_SLACK of the scene's size,
+# more than that (and float32 rounding of corners and cuts).
+EDGE_SLACK = 1e-5
+BOX_SLACK = 2e-5
 # The shader reads node and triangle indices as float32, exact up to 2^24: a larger scene's
 # tree is refused (its caster uses another).
 LARGEST = 1 << 24
@@ -203,6 +208,6 @@ def _cut(corner, o, d):
     q = np.cross(s, e1)
     v = np.dot(d, q) / det
     t = np.dot(e2, q) / det
-    if u >= 0 and v >= 0 and u + v <= 1 and t > 0:
+    if u >= -EDGE_SLACK and v >= -EDGE_SLACK and u + v <= 1 + EDGE_SLACK and t > 0:
         return np.float32(t)
     return None

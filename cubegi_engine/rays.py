@@ -1,9 +1,10 @@
 """Rays cast against a scene's triangles, each to its nearest hit: the protocol the bake asks
 of its host, and a plain numpy caster.
 
-Pure numpy; must not import bpy. The add-on passes Blender's BVH tree
-(``cubegi_addon.gpu_capture.GpuRenderer.rays``: ``mathutils.bvhtree``, a few microseconds a
-ray); :class:`NumpyRays` tests every triangle against every ray (the engine's tests, and
+Pure numpy; must not import bpy. The add-on passes its own
+(``cubegi_addon.gpu_capture.GpuRenderer.rays``: a compute shader walking a
+:mod:`~cubegi_engine.boxtree`, or Blender's BVH tree); :class:`NumpyRays` tests every
+triangle against every ray (the engine's tests, and
 hosts without a caster of their own, on small scenes).
 """
 

@@ -110,7 +110,7 @@ class Job:
     the starting thread works for (see :class:`Driven`)."""
 
     def __init__(self, fn, args, kwargs):
-        self.out = {}
+        self.out, self.finished = {}, threading.Event()
         stop = getattr(_work, "stop", None)
 
         def work():
@@ -120,8 +120,8 @@ class Job:
             except BaseException as exc:  # handed to the generator's caller
                 self.out["error"] = exc
             finally:
-                with _calls:  # (a main thread serving calls while it waits for this one)
-                    _calls.notify_all()
+                self.finished.set()
+                _notify()  # (a main thread serving calls while it waits for this one)
 
         self.thread = threading.Thread(target=work, name="cubegi-work", daemon=True)
         self.thread.start()
@@ -137,8 +137,8 @@ def wait(job, working):
     """A generator yielding ``working`` (a Progress) every WORKING_SECONDS until ``job``
     ends, returning its result (or raising its exception)."""
     while True:
-        _serve_while(job.thread, WORKING_SECONDS)
-        if not job.thread.is_alive():
+        _serve_while(job, WORKING_SECONDS)
+        if job.finished.is_set():
             break
         yield working
     give_back_memory()
@@ -194,18 +194,24 @@ def on_main(fn, *args):
     return call.out["value"]
 
 
-def _serve_while(thread, seconds):
-    """Wait up to ``seconds`` for ``thread`` to end; on the main thread, run the calls other
+def _serve_while(job, seconds):
+    """Wait up to ``seconds`` for ``job`` to end; on the main thread, run the calls other
     threads hand it (:func:`on_main`) meanwhile."""
     if threading.current_thread() is not threading.main_thread():
-        thread.join(seconds)
+        job.finished.wait(seconds)
         return
+    _serve_until(job.finished.is_set, seconds)
+
+
+def _serve_until(done, seconds):
+    """Run the calls handed to the main thread until ``done()`` (checked whenever a call or
+    the end of some work wakes it) or ``seconds`` pass."""
     deadline = time.monotonic() + seconds
-    while thread.is_alive():
+    while not done():
         with _calls:
             left = deadline - time.monotonic()
-            if not _waiting_calls and left > 0:
-                _calls.wait(left)
+            if not _waiting_calls and left > 0 and not done():  # (the end's notice comes under this lock)
+                _calls.wait(min(left, WORKING_SECONDS))
             call = _waiting_calls.pop(0) if _waiting_calls else None
             if call is not None:
                 _calls.notify_all()  # (taken)
@@ -215,9 +221,14 @@ def _serve_while(thread, seconds):
             return
 
 
+def _notify(_future=None):
+    with _calls:
+        _calls.notify_all()
+
+
 def result(job):
-    """:func:`wait` for ``job`` where there is no step to yield (in a thread of the work's own)."""
-    job.thread.join()
+    """:func:`wait` for ``job`` where there is no step to yield (in a thread of the work's own;
+    on the main thread, serving the calls handed to it meanwhile)."""
     return run(wait(job, None))
 
 
@@ -277,7 +288,12 @@ def in_parallel(fn, items):
         if _pool is None:
             _pool = ThreadPoolExecutor(max_workers=WORKERS, thread_name_prefix="cubegi-piece")
     stop = getattr(_work, "stop", None)
-    return list(_pool.map(_worker, [fn] * len(items), items, [stop] * len(items)))
+    futures = [_pool.submit(_worker, fn, item, stop) for item in items]
+    if threading.current_thread() is threading.main_thread():  # its pieces may hand it GPU calls
+        for future in futures:
+            future.add_done_callback(_notify)
+        _serve_until(lambda: all(future.done() for future in futures), float("inf"))
+    return [future.result() for future in futures]
 
 
 _made_lock = threading.RLock()

@@ -128,3 +128,42 @@ def test_a_call_the_main_thread_does_not_take_is_refused_in_time(monkeypatch):
     thread.join()
     assert 0.15 < out["refused"] < 2.0 and "ran" not in out
     assert working.run(working.in_background(lambda: 1, None)) == 1 and "ran" not in out  # (no call waits for the next wait)
+
+
+def test_pieces_run_from_the_main_thread_have_their_calls_served(monkeypatch):
+    """``in_parallel`` on the main thread (an update run there) serves its pieces' calls
+    while it waits for them, and ``result`` does while it waits for a job: none is refused."""
+    monkeypatch.setattr(working, "WORKERS", 2)
+    monkeypatch.setattr(working, "TAKE_CALL_SECONDS", 0.5)
+
+    def piece(k):
+        return working.on_main(lambda: (k, threading.current_thread() is threading.main_thread()))
+
+    assert working.in_parallel(piece, range(6)) == [(k, True) for k in range(6)]
+    assert working.result(working.start(piece, 7)) == (7, True)
+
+
+def test_no_ray_slips_between_two_triangles_along_their_shared_edge(monkeypatch):
+    """A plate cut into a grid of triangles 10 cm over a floor (the scene's refinement cut
+    it so), shadow rays from the floor towards a lamp, each crossing the plate on the line
+    ``y = 0`` the triangles share: every one meets the plate (in float32 a ray along a
+    shared edge missed both triangles, and a floor vertex under the plate came out lit)."""
+    cell = 1.0 / 32.0
+    xs, ys = 0.3125 + cell * np.arange(6), cell * np.arange(-2, 3)
+    grid = np.array([(x, y, 0.1) for y in ys for x in xs])
+    corner = np.arange(len(grid)).reshape(len(ys), len(xs))[:-1, :-1].ravel()
+    w = len(xs)
+    triangles = np.concatenate([np.stack([corner, corner + 1, corner + w + 1], axis=1),
+                                np.stack([corner, corner + w + 1, corner + w], axis=1)])
+    tree = boxtree.build(grid, triangles)
+    lamp = np.array([0.0, 0.0, 2.0])
+    x = np.linspace(0.35, 0.44, 400)
+    origins = np.stack([x, np.full(400, -4.9547236439622114e-13), np.full(400, 1.6431676820374843e-05)], axis=1)
+    to_lamp = lamp - origins
+    reach = np.linalg.norm(to_lamp, axis=1)
+    dirs = to_lamp / reach[:, None]
+    slot, _ = boxtree.walk(tree, origins, dirs, reach, any_hit=True)
+    assert (slot >= 0).all()
+    monkeypatch.setattr(boxtree, "EDGE_SLACK", 0.0)
+    slot, _ = boxtree.walk(tree, origins, dirs, reach, any_hit=True)
+    assert not (slot >= 0).all()  # (what the slack is for: without it some slip through)

@@ -29,7 +29,7 @@ import gpu
 import numpy as np
 
 from ..cubegi_engine import boxtree, working
-from ..cubegi_engine.rays import Hits, hits_from_distances
+from ..cubegi_engine.rays import Hits, corner_triangles, hits_from_distances, near_hits_again
 from . import compat
 from .bvh_rays import BvhRays
 
@@ -52,7 +52,7 @@ void main() {
   vec3 o = o4.xyz;
   vec3 d = imageLoad(rays_in, ivec2((2 * i + 1) % ROW, (2 * i + 1) / ROW)).xyz;
   vec3 inv = 1.0 / d;
-  int best = -1;
+  int best = -1;  /* the caller's index of the nearest triangle met (ties: the lowest) */
   float best_t = o4.w;
   int node = 0;
   while (node < node_count) {
@@ -73,7 +73,8 @@ void main() {
       int first = int(low.w);
       for (int k = first; k < first + count; k++) {
         int c = corner_base + 3 * k;
-        vec3 a = tree_at(c).xyz;
+        vec4 a4 = tree_at(c);  /* w: the caller's index of the triangle */
+        vec3 a = a4.xyz;
         vec3 e1 = tree_at(c + 1).xyz;
         vec3 e2 = tree_at(c + 2).xyz;
         vec3 p = cross(d, e2);
@@ -84,8 +85,9 @@ void main() {
         vec3 q = cross(s, e1);
         float v = dot(d, q) / det;
         float t = dot(e2, q) / det;
-        if (u >= -EDGE && v >= -EDGE && u + v <= 1.0 + EDGE && t > 0.0 && t <= best_t) {
-          best = k;
+        int index = int(a4.w);
+        if (u >= -edge && v >= -edge && u + v <= 1.0 + edge && t > 0.0 && (t < best_t || (t == best_t && (best < 0 || index < best)))) {
+          best = index;
           best_t = t;
         }
       }
@@ -110,8 +112,8 @@ def _shader():
         info.image(2, "RG32F", "FLOAT_2D", "hits_out", qualifiers={"WRITE"})
         for name in ("ray_count", "node_count", "corner_base", "any_hit"):
             info.push_constant("INT", name)
+        info.push_constant("FLOAT", "edge")
         info.define("ROW", str(ROW))
-        info.define("EDGE", f"{boxtree.EDGE_SLACK:.1e}")
         info.compute_source(_SHADER)
         return gpu.shader.create_from_info(info)
     except Exception:  # no compute shaders, or a compiler that refuses it: Blender's tree does the work
@@ -170,6 +172,7 @@ class GpuRays:
         self._key = next(_keys)
         weakref.finalize(self, _forget, self._key)
         self._fallback = None
+        self._corners = None  # the triangles at each point (near_hits_again), made when first asked
         self._lock = threading.Lock()
 
     @property
@@ -180,17 +183,20 @@ class GpuRays:
     def cast(self, origins, dirs, reach=None) -> Hits:
         origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
         dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
-        slot, t = self._walk(origins, dirs, reach, any_hit=False)
-        if slot is None:
+        which, t = self._walk(origins, dirs, reach, any_hit=False)
+        if which is None:
             return self._by_tree().cast(origins, dirs, reach)
-        which = np.where(slot >= 0, self.tree.order[np.maximum(slot, 0)], -1)
+        with self._lock:
+            if self._corners is None:
+                self._corners = corner_triangles(self.triangles, len(self.points))
+        which, t = near_hits_again(self.points, self.triangles, self._corners, origins, dirs, reach, which, t)
         return hits_from_distances(self.points, self.triangles, origins, dirs, t, which)
 
     def blocked(self, origins, dirs, reach=None) -> np.ndarray:
         """``(n,)`` bool: whether each ray meets a triangle within its reach (a shadow ray:
         the first hit found ends its walk)."""
-        slot, _ = self._walk(origins, dirs, reach, any_hit=True)
-        return slot >= 0 if slot is not None else self._by_tree().blocked(origins, dirs, reach)
+        which, _ = self._walk(origins, dirs, reach, any_hit=True)
+        return which >= 0 if which is not None else self._by_tree().blocked(origins, dirs, reach)
 
     def _by_tree(self):
         """Blender's BVH tree over the same triangles (where the shader cannot be used)."""
@@ -200,7 +206,7 @@ class GpuRays:
         return self._fallback
 
     def _walk(self, origins, dirs, reach, any_hit):
-        """``(slot (n,), t (n,))`` as :func:`~cubegi_engine.boxtree.walk`, by the shader a
+        """``(which (n,), t (n,))`` as :func:`~cubegi_engine.boxtree.walk`, by the shader a
         dispatch at a time; ``(None, None)`` where the shader cannot be used."""
         origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
         dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
@@ -214,7 +220,7 @@ class GpuRays:
         rays[:, 1, 3] = 0.0
         # A ray of no direction, or from or along NaN, meets nothing (as in Blender's tree).
         rays[~(np.isfinite(origins).all(axis=1) & np.isfinite(dirs).all(axis=1) & np.any(dirs != 0.0, axis=1)), 0, 3] = -1.0
-        slot, t = np.empty(n, dtype=np.int64), np.empty(n)
+        which, t = np.empty(n, dtype=np.int64), np.empty(n)
         for at in range(0, n, RAYS_PER_DISPATCH):
             working.checkpoint()  # (a cancelled bake's rays stop here)
             part = slice(at, at + RAYS_PER_DISPATCH)
@@ -226,12 +232,12 @@ class GpuRays:
                 with self._lock:
                     self._fallback = self._fallback or BvhRays(self.points, self.triangles)
                 return None, None
-            slot[part], t[part] = found
-        return slot, t
+            which[part], t[part] = found
+        return which, t
 
     def _dispatch(self, rays, any_hit):
         """One batch of ``rays (n, 2, 4)`` (origin and reach, direction) through the shader,
-        on the main thread: ``(slot (n,), t (n,))``, or None where it cannot run."""
+        on the main thread: ``(which (n,), t (n,))``, or None where it cannot run."""
         shader = _shader()
         if shader is None:
             return None
@@ -248,7 +254,9 @@ class GpuRays:
             nodes[:, :, :3] = tree.boxes
             nodes[:, 0, 3] = np.where(tree.count > 0, tree.first, tree.skip)
             nodes[:, 1, 3] = tree.count
-            texels[2 * m:, :3] = tree.corners.reshape(-1, 3)
+            corners = texels[2 * m:].reshape(-1, 3, 4)
+            corners[:, :, :3] = tree.corners
+            corners[:, 0, 3] = tree.order
             image = _resident[self._key] = _image(texels)
         n = len(rays)
         rays_in = _image(rays.reshape(-1, 4))
@@ -259,10 +267,11 @@ class GpuRays:
         shader.uniform_int("node_count", m)
         shader.uniform_int("corner_base", 2 * m)
         shader.uniform_int("any_hit", int(any_hit))
+        shader.uniform_float("edge", boxtree.EDGE_SLACK)
         shader.image("tree", image)
         shader.image("rays_in", rays_in)
         shader.image("hits_out", hits_out)
         gpu.compute.dispatch(shader, -(-n // GROUP), 1, 1)
         out = compat.gpu_buffer_array(hits_out.read(), (rows * ROW, 2))[:n]
-        slot = out[:, 0].astype(np.int64) - 1
-        return slot, np.where(slot >= 0, out[:, 1].astype(np.float64), np.inf)
+        which = out[:, 0].astype(np.int64) - 1
+        return which, np.where(which >= 0, out[:, 1].astype(np.float64), np.inf)

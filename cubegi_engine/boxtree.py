@@ -151,20 +151,20 @@ def build(points, triangles) -> BoxTree:
 
 
 def walk(tree: BoxTree, origins, dirs, reach=None, any_hit=False):
-    """``(slot (n,), t (n,))``: each ray's nearest hit among ``tree``'s triangles (its slot, -1
-    for none; the caller's index is ``tree.order[slot]``) as the compute shader walks the
-    tree, in float32, one ray at a time (tests: the shader's reference; slow). ``origins``
+    """``(which (n,), t (n,))``: each ray's nearest hit among ``tree``'s triangles (the caller's
+    index of the triangle, -1 for none; of two at one distance the lower) as the compute
+    shader walks the tree, in float32, one ray at a time (tests: the shader's reference; slow). ``origins``
     and ``dirs`` are in the caller's frame; ``reach (n,)`` or None; ``any_hit``: stop at the
     first hit found (a shadow ray)."""
     origins = (np.asarray(origins, dtype=np.float64).reshape(-1, 3) - tree.centre).astype(np.float32)
     dirs = np.asarray(dirs, dtype=np.float32).reshape(-1, 3)
     n = len(origins)
     limit = np.full(n, FAR, dtype=np.float32) if reach is None else np.broadcast_to(np.asarray(reach, dtype=np.float32), (n,))
-    slots, ts = np.full(n, -1, dtype=np.int64), np.full(n, np.inf)
+    which, ts = np.full(n, -1, dtype=np.int64), np.full(n, np.inf)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         for i in range(n):
-            slots[i], ts[i] = _walk_one(tree, origins[i], dirs[i], limit[i], any_hit)
-    return slots, ts
+            which[i], ts[i] = _walk_one(tree, origins[i], dirs[i], limit[i], any_hit)
+    return which, ts
 
 
 # A ray with no reach reaches this far (float32).
@@ -188,8 +188,9 @@ def _walk_one(tree, o, d, limit, any_hit):
         if enter <= leave:
             for k in range(tree.first[node], tree.first[node] + count):
                 t = _cut(tree.corners[k], o, d)
-                if t is not None and t <= best_t:
-                    best, best_t = k, t
+                index = int(tree.order[k])
+                if t is not None and (t < best_t or (t == best_t and (best < 0 or index < best))):
+                    best, best_t = index, t
             if any_hit and best >= 0:
                 break
         node = node + 1 if count else tree.skip[node]

@@ -13,9 +13,9 @@ from typing import Protocol
 
 import numpy as np
 
-from .geometry import planes_of, ray_cut
+from .geometry import planes_of, ray_cut, run_offsets
 
-__all__ = ["Hits", "RayCaster", "NumpyRays", "caster_for", "hits_from_distances"]
+__all__ = ["Hits", "RayCaster", "NumpyRays", "caster_for", "hits_from_distances", "near_hits_again", "corner_triangles"]
 
 
 @dataclass(frozen=True)
@@ -67,6 +67,50 @@ def hits_from_distances(points, triangles, origins, dirs, t, triangle) -> Hits:
         bary[hit] = np.stack([1.0 - b - c, b, c], axis=1)
         front[hit] = np.einsum("ij,ij->i", np.asarray(dirs, dtype=np.float64)[hit], planes[:, 1]) < 0
     return Hits(np.where(hit, t, np.inf), np.where(hit, triangle, -1), bary, front)
+
+
+# A hit nearer than this share of the scene's size is tested again in float64 against the
+# triangles at the hit triangle's corners (:func:`near_hits_again`).
+NEAR_AGAIN = 1e-3
+
+
+def near_hits_again(points, triangles, corner_triangles, origins, dirs, reach, which, t):
+    """``(which, t)`` of a float32 caster's nearest hits, those nearer than NEAR_AGAIN of the
+    scene's size tested again in float64 against the triangles that share a corner with the
+    one met, the nearest taken (of two at one distance the lower index), as testing every
+    triangle takes it. A ray from a crease meets its two surfaces within float32's error of
+    one another a tenth of a millimetre off: the Breakfast Room's near field took the other
+    of them for 18 of 65K rays, and its indirect light moved by 0.8%.
+
+    ``corner_triangles``: ``(offsets (s + 1,), members)``, the triangles using each point."""
+    scale = float(np.ptp(points, axis=0).max()) if len(points) else 0.0
+    near = np.flatnonzero((which >= 0) & (t < NEAR_AGAIN * scale))
+    if not len(near):
+        return which, t
+    offsets, members = corner_triangles
+    corners = triangles[which[near]].ravel()
+    count = offsets[corners + 1] - offsets[corners]
+    ray = np.repeat(np.repeat(near, 3), count)
+    tri = members[np.repeat(offsets[corners], count) + run_offsets(count)]
+    p = points[triangles[tri]]
+    cut, b, c, ok, _ = ray_cut(origins[ray], dirs[ray], planes_of(p[:, 0], p[:, 1], p[:, 2]), grazing=0.0)
+    limit = np.inf if reach is None else np.broadcast_to(np.asarray(reach, dtype=np.float64), (len(which),))[ray]
+    with np.errstate(invalid="ignore"):
+        inside = ok & (b >= 0) & (c >= 0) & (b + c <= 1) & (cut > 0) & (cut <= limit)
+    ray, tri, cut = ray[inside], tri[inside], cut[inside]
+    first = np.lexsort((tri, cut, ray))
+    keep = first[np.append(True, ray[first][1:] != ray[first][:-1])]
+    which, t = which.copy(), t.copy()
+    which[ray[keep]], t[ray[keep]] = tri[keep], cut[keep]
+    return which, t
+
+
+def corner_triangles(triangles, count):
+    """``(offsets (count + 1,), members)``: the triangles using each of ``count`` points."""
+    corners = np.asarray(triangles, dtype=np.int64).ravel()
+    order = np.argsort(corners, kind="stable")
+    offsets = np.concatenate([[0], np.cumsum(np.bincount(corners, minlength=count))])
+    return offsets, order // 3
 
 
 # (ray, triangle) tests at a time in NumpyRays.

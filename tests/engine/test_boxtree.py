@@ -62,14 +62,26 @@ def test_the_walk_meets_what_testing_every_triangle_meets(offset):
     origins, dirs = _rays(rng, 400, offset)
     reach = rng.uniform(0.2, 5.0, size=400)
     plain = NumpyRays(points, triangles).cast(origins, dirs, reach)
-    slot, t = boxtree.walk(tree, origins, dirs, reach)
-    which = np.where(slot >= 0, tree.order[np.maximum(slot, 0)], -1)
+    which, t = boxtree.walk(tree, origins, dirs, reach)
     assert plain.hit.sum() > 100 and (~plain.hit).sum() > 50
-    assert np.array_equal(slot >= 0, plain.hit)
+    assert np.array_equal(which >= 0, plain.hit)
     assert t[plain.hit] == pytest.approx(plain.t[plain.hit], abs=1e-4)  # float32 at 1 km: about 1e-4 m
     assert (which == plain.triangle).mean() > 0.98  # (two triangles at one distance: either)
     shadow, _ = boxtree.walk(tree, origins, dirs, reach, any_hit=True)
     assert np.array_equal(shadow >= 0, plain.hit)
+
+
+def test_of_triangles_at_one_distance_the_walk_reports_the_lowest_index():
+    """Coincident triangles (a mesh's faces doubled, as imported scenes have them) are met at
+    one distance: the walk reports the caller's lowest index, as testing every triangle does,
+    wherever the tree put them."""
+    rng = np.random.default_rng(6)
+    points, triangles = _soup(rng, 200)
+    doubled = np.concatenate([triangles[::-1], triangles])  # each twin twice, the higher index first in the array
+    origins, dirs = _rays(rng, 300)
+    which, _ = boxtree.walk(boxtree.build(points, doubled), origins, dirs, 3.0)
+    plain = NumpyRays(points, doubled).cast(origins, dirs, 3.0)
+    assert (which >= 0).sum() > 50 and np.array_equal(which, plain.triangle)
 
 
 def test_triangles_at_one_point_still_split_into_leaves():
@@ -82,8 +94,8 @@ def test_triangles_at_one_point_still_split_into_leaves():
     fan = np.array([[0, 1 + k, 2 + k] for k in range(40)] + [[0, 43 + k, 42 + k] for k in range(40)])
     tree = boxtree.build(points, fan)
     assert tree.count.max() <= boxtree.LEAF and tree.count.sum() == 80
-    slot, _ = boxtree.walk(tree, [[0.3, 0.1, 1.0]], [[0.0, 0.0, -1.0]])
-    assert slot[0] >= 0
+    met, _ = boxtree.walk(tree, [[0.3, 0.1, 1.0]], [[0.0, 0.0, -1.0]])
+    assert met[0] >= 0
     empty = boxtree.build(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
     assert len(empty.skip) == 0 and boxtree.walk(empty, [[0, 0, 0]], [[0, 0, 1]])[0][0] == -1
 
@@ -162,8 +174,35 @@ def test_no_ray_slips_between_two_triangles_along_their_shared_edge(monkeypatch)
     to_lamp = lamp - origins
     reach = np.linalg.norm(to_lamp, axis=1)
     dirs = to_lamp / reach[:, None]
-    slot, _ = boxtree.walk(tree, origins, dirs, reach, any_hit=True)
-    assert (slot >= 0).all()
+    met, _ = boxtree.walk(tree, origins, dirs, reach, any_hit=True)
+    assert (met >= 0).all()
     monkeypatch.setattr(boxtree, "EDGE_SLACK", 0.0)
-    slot, _ = boxtree.walk(tree, origins, dirs, reach, any_hit=True)
-    assert not (slot >= 0).all()  # (what the slack is for: without it some slip through)
+    met, _ = boxtree.walk(tree, origins, dirs, reach, any_hit=True)
+    assert not (met >= 0).all()  # (what the slack is for: without it some slip through)
+
+
+def test_a_near_hit_is_taken_again_in_float64_among_the_triangles_at_its_corners():
+    """A float32 caster's near hit at a crease (a floor meeting a wall, rays from a hair off
+    the floor into the corner) may name the wrong one of the two surfaces: taken again in
+    float64 against the triangles at the hit triangle's corners, it names what testing every
+    triangle names; a far hit is left as the caster gave it."""
+    from cubegi_engine.rays import corner_triangles, near_hits_again
+
+    points = np.array([[0, 0, 0], [2, 0, 0], [2, 2, 0], [0, 2, 0], [0, 0, 2], [0, 2, 2], [4, 0, 0]], dtype=np.float64)
+    triangles = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 5], [0, 5, 4], [1, 6, 2]])
+    rng = np.random.default_rng(7)
+    origins = np.column_stack([rng.uniform(1e-4, 1e-3, 200), rng.uniform(0.1, 1.9, 200), rng.uniform(1e-6, 1e-4, 200)])
+    dirs = rng.normal(size=(200, 3)) * [1, 1, 1] - [1.0, 0.0, 1.0]
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    plain = NumpyRays(points, triangles).cast(origins, dirs)
+    origins, dirs, plain = origins[plain.hit], dirs[plain.hit], NumpyRays(points, triangles).cast(origins[plain.hit], dirs[plain.hit])
+    assert np.isin(plain.triangle, [0, 1]).sum() > 20 and np.isin(plain.triangle, [2, 3]).sum() > 20
+    swapped = np.array([1, 0, 3, 2, 4])[plain.triangle]  # the other triangle of the same face
+    wall_or_floor = np.where(np.isin(plain.triangle, [0, 1]), 2, 0)  # the other surface
+    guess = np.where(np.arange(len(origins)) % 2 == 0, swapped, wall_or_floor)
+    which, t = near_hits_again(points, triangles, corner_triangles(triangles, len(points)), origins, dirs, None, guess,
+                               plain.t.astype(np.float32).astype(np.float64))
+    assert np.array_equal(which, plain.triangle) and t == pytest.approx(plain.t, rel=1e-9)
+    far = plain.t * 1e4  # (beyond NEAR_AGAIN of the scene's size: not asked again)
+    which, _ = near_hits_again(points, triangles, corner_triangles(triangles, len(points)), origins, dirs, None, guess, far)
+    assert np.array_equal(which, guess)

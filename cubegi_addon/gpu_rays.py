@@ -11,8 +11,9 @@ Blender's BVH tree (:class:`~.bvh_rays.BvhRays`) casts one ray per Python call a
 the GIL for a whole batch; here a batch is one dispatch, on the GPU, or on llvmpipe's
 threads where there is none. The GPU context is the main thread's: a bake's threads hand
 their batches to it (:func:`~cubegi_engine.working.on_main`), which runs them while it
-waits for their work. Where it takes none (a thread of one's own), or where the GPU module
-cannot run the shader, the rays go through Blender's BVH tree instead.
+waits for their work. Where it takes none within its time (a thread of one's own), that
+call's rays go through Blender's BVH tree; where the GPU module cannot run the shader, every
+call's do.
 
 The uploaded images stay with the GPU, keyed by caster, and are freed on the main thread
 (at its next batch after the caster is gone, or at exit): a GPU texture freed in another
@@ -171,7 +172,8 @@ class GpuRays:
         self.tree = boxtree.build(self.points, self.triangles)
         self._key = next(_keys)
         weakref.finalize(self, _forget, self._key)
-        self._fallback = None
+        self._fallback = None  # Blender's tree over the same triangles, made where it first answers
+        self._unusable = False  # the shader cannot run, or the tree is over the GPU's largest image
         self._corners = None  # the triangles at each point (near_hits_again), made when first asked
         self._lock = threading.Lock()
 
@@ -211,8 +213,8 @@ class GpuRays:
         origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
         dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
         n = len(origins)
-        if self._fallback is not None or not len(self.triangles):
-            return (None, None) if self._fallback is not None else (np.full(n, -1), np.full(n, np.inf))
+        if self._unusable or not len(self.triangles):
+            return (None, None) if self._unusable else (np.full(n, -1), np.full(n, np.inf))
         rays = np.empty((n, 2, 4), dtype=np.float32)
         rays[:, 0, :3] = origins - self.tree.centre
         rays[:, 0, 3] = boxtree.FAR if reach is None else np.broadcast_to(np.asarray(reach, dtype=np.float64), (n,))
@@ -226,11 +228,10 @@ class GpuRays:
             part = slice(at, at + RAYS_PER_DISPATCH)
             try:
                 found = working.on_main(self._dispatch, rays[part], any_hit)
-            except working.NotServed:
-                found = None
+            except working.NotServed:  # (this call's rays alone: the next asks the main thread again)
+                return None, None
             if found is None:
-                with self._lock:
-                    self._fallback = self._fallback or BvhRays(self.points, self.triangles)
+                self._unusable = True
                 return None, None
             which[part], t[part] = found
         return which, t

@@ -70,8 +70,9 @@ def hits_from_distances(points, triangles, origins, dirs, t, triangle) -> Hits:
 
 
 # A hit nearer than this share of the scene's size is tested again in float64 against the
-# triangles at the hit triangle's corners (:func:`near_hits_again`).
-NEAR_AGAIN = 1e-3
+# triangles at the hit triangle's corners (:func:`near_hits_again`), and one of them taken
+# in its place if it is at most NEAR_SLACK of the scene's size farther (float32's error).
+NEAR_AGAIN, NEAR_SLACK = 1e-3, 1e-5
 
 
 def near_hits_again(points, triangles, corner_triangles, origins, dirs, reach, which, t):
@@ -100,6 +101,9 @@ def near_hits_again(points, triangles, corner_triangles, origins, dirs, reach, w
     ray, tri, cut = ray[inside], tri[inside], cut[inside]
     first = np.lexsort((tri, cut, ray))
     keep = first[np.append(True, ray[first][1:] != ray[first][:-1])]
+    # Only a cut no farther than the caster's (within float32's error): one beyond it may lie
+    # past a triangle that shares no corner, which the caster's walk no longer tested.
+    keep = keep[cut[keep] <= t[ray[keep]] + NEAR_SLACK * scale]
     which, t = which.copy(), t.copy()
     which[ray[keep]], t[ray[keep]] = tri[keep], cut[keep]
     return which, t

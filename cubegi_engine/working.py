@@ -159,8 +159,8 @@ class _Call:
     def serve(self):
         try:
             self.out["value"] = self.fn(*self.args)
-        except BaseException as exc:  # handed to the thread that asked
-            self.out["error"] = exc
+        except BaseException as exc:  # handed to the thread that asked, without this thread's frames
+            self.out["error"] = exc.with_traceback(None)  # (their GPU objects are freed here, on the main thread)
         self.done.set()
 
 

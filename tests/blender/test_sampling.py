@@ -118,6 +118,35 @@ def test_a_ray_of_no_direction_meets_nothing_and_leaves_the_others_as_they_were(
     assert np.array_equal(mixed.hit[~bad], alone.hit[~bad]) and alone.hit[~bad].sum() > 50
     assert np.array_equal(mixed.t[~bad], alone.t[~bad]) and np.array_equal(mixed.triangle[~bad], alone.triangle[~bad])
     assert np.array_equal(rays.blocked(origins, broken, reach), mixed.hit)
+    assert getattr(rays, "_fallback", None) is None  # (the shader's own answers, where it is the shader)
+
+
+def test_a_call_the_main_thread_does_not_take_goes_through_blenders_tree_alone(empty_scene, cubegi, monkeypatch):
+    """Rays cast from a thread the main thread does not wait for (its own) are answered by
+    Blender's tree, for that call alone: the next call from a bake's thread is the shader's."""
+    import threading
+
+    from cubegi.cubegi_engine import working
+
+    _quad_room()
+    arrays = cubegi.cubegi_addon.scene_data.collect(bpy.context).arrays
+    rays = _casters(cubegi)["gpu"](arrays.points, arrays.triangles[~arrays.back_triangles()])
+    rng = np.random.default_rng(8)
+    origins = rng.uniform((0.1, 0.1, 0.1), (3.9, 3.9, 2.4), size=(300, 3))
+    dirs = rng.normal(size=(300, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    by_shader = rays.blocked(origins, dirs)
+    assert rays._fallback is None
+    monkeypatch.setattr(working, "TAKE_CALL_SECONDS", 0.2)
+    out = {}
+    alone = threading.Thread(target=lambda: out.setdefault("blocked", rays.blocked(origins, dirs)))
+    alone.start()
+    alone.join()
+    assert rays._fallback is not None and np.array_equal(out["blocked"], by_shader)
+    tree_calls = []
+    monkeypatch.setattr(rays, "_by_tree", lambda: tree_calls.append(1))
+    again = working.run(working.in_background(rays.blocked, None, origins, dirs))
+    assert np.array_equal(again, by_shader) and not tree_calls
 
 
 def test_a_sheet_drawn_once_reports_its_twin_from_behind_as_drawing_both_did(empty_scene, cubegi, monkeypatch):

@@ -203,6 +203,12 @@ def test_a_near_hit_is_taken_again_in_float64_among_the_triangles_at_its_corners
     which, t = near_hits_again(points, triangles, corner_triangles(triangles, len(points)), origins, dirs, None, guess,
                                plain.t.astype(np.float32).astype(np.float64))
     assert np.array_equal(which, plain.triangle) and t == pytest.approx(plain.t, rel=1e-9)
+    # A caster's hit that float64 finds nearer than any triangle at its corners is kept: a cut
+    # farther than it may lie past a triangle the caster's walk no longer tested.
+    deep = plain.t > 6e-4
+    which, _ = near_hits_again(points, triangles, corner_triangles(triangles, len(points)), origins, dirs, None, guess,
+                               np.where(deep, plain.t - 5e-4, plain.t))
+    assert deep.sum() > 10 and np.array_equal(which[deep], guess[deep]) and np.array_equal(which[~deep], plain.triangle[~deep])
     far = plain.t * 1e4  # (beyond NEAR_AGAIN of the scene's size: not asked again)
     which, _ = near_hits_again(points, triangles, corner_triangles(triangles, len(points)), origins, dirs, None, guess, far)
     assert np.array_equal(which, guess)

@@ -30,7 +30,8 @@ import gpu
 import numpy as np
 
 from ..cubegi_engine import boxtree, working
-from ..cubegi_engine.rays import Hits, corner_triangles, hits_from_distances, near_hits_again
+from ..cubegi_engine.geometry import corner_triangles
+from ..cubegi_engine.rays import Hits, hits_from_distances, near_hits_again
 from . import compat
 from .bvh_rays import BvhRays
 
@@ -121,12 +122,15 @@ def _shader():
         return None
 
 
-def _image(rows_of_texels):
-    """An RGBA32F texture of ``(k, 4)`` float32 texels, ROW to a row (the last row padded)."""
-    texels = np.asarray(rows_of_texels, dtype=np.float32).reshape(-1, 4)
-    rows = max(1, -(-len(texels) // ROW))
-    full = np.zeros((rows * ROW, 4), dtype=np.float32)
-    full[: len(texels)] = texels
+def _padded(count):
+    """``(k, 4)`` float32 zeros, ``k`` the least whole number of rows of ROW texels that hold
+    ``count`` (at least one row)."""
+    return np.zeros((max(1, -(-count // ROW)) * ROW, 4), dtype=np.float32)
+
+
+def _image(full):
+    """An RGBA32F texture of ``full`` (``_padded``'s texels), ROW to a row."""
+    rows = len(full) // ROW
     return gpu.types.GPUTexture((ROW, rows), format="RGBA32F", data=gpu.types.Buffer("FLOAT", full.size, full.ravel()))
 
 
@@ -191,7 +195,7 @@ class GpuRays:
         with self._lock:
             if self._corners is None:
                 self._corners = corner_triangles(self.triangles, len(self.points))
-        which, t = near_hits_again(self.points, self.triangles, self._corners, origins, dirs, reach, which, t)
+        which, t = near_hits_again(self.points, self.triangles, self._corners, self.tree.scale, origins, dirs, reach, which, t)
         return hits_from_distances(self.points, self.triangles, origins, dirs, t, which)
 
     def blocked(self, origins, dirs, reach=None) -> np.ndarray:
@@ -250,17 +254,19 @@ class GpuRays:
             count = 2 * m + 3 * len(tree.corners)
             if -(-count // ROW) > gpu.capabilities.max_texture_size_get() or max(m, len(tree.corners)) >= boxtree.LARGEST:
                 return None  # larger than the GPU's largest image: Blender's tree takes it
-            texels = np.zeros((count, 4), dtype=np.float32)
+            texels = _padded(count)
             nodes = texels[: 2 * m].reshape(m, 2, 4)
             nodes[:, :, :3] = tree.boxes
             nodes[:, 0, 3] = np.where(tree.count > 0, tree.first, tree.skip)
             nodes[:, 1, 3] = tree.count
-            corners = texels[2 * m:].reshape(-1, 3, 4)
+            corners = texels[2 * m:count].reshape(-1, 3, 4)
             corners[:, :, :3] = tree.corners
             corners[:, 0, 3] = tree.order
             image = _resident[self._key] = _image(texels)
         n = len(rays)
-        rays_in = _image(rays.reshape(-1, 4))
+        texels = _padded(2 * n)
+        texels[: 2 * n] = rays.reshape(-1, 4)
+        rays_in = _image(texels)
         rows = max(1, -(-n // ROW))
         hits_out = gpu.types.GPUTexture((ROW, rows), format="RG32F")
         shader.bind()

@@ -55,7 +55,8 @@ class BoxTree:
     triangle slots (``count`` 0 for an inner node, whose children are the next node and that
     node's skip). ``corners (t, 3, 3)`` float32: each slot's triangle as its first corner and
     its two edges from it (the shader's Moller-Trumbore test); ``order (t,)``: the caller's
-    triangle index of each slot; ``centre (3,)`` float64: what every coordinate is less."""
+    triangle index of each slot; ``centre (3,)`` float64: what every coordinate is less;
+    ``scale``: the largest side of the triangles' box."""
 
     boxes: np.ndarray
     skip: np.ndarray
@@ -64,6 +65,7 @@ class BoxTree:
     corners: np.ndarray
     order: np.ndarray
     centre: np.ndarray
+    scale: float = 0.0
 
     @property
     def nbytes(self) -> int:
@@ -147,7 +149,7 @@ def build(points, triangles) -> BoxTree:
     low32 = np.where(low32 > low, np.nextafter(low32, np.float32(-np.inf)), low32)
     high32 = np.where(high32 < high, np.nextafter(high32, np.float32(np.inf)), high32)
     return BoxTree(np.stack([low32, high32], axis=1), skip, np.where(leaf, start, 0), np.where(leaf, end - start, 0), corners,
-                   order, centre)
+                   order, centre, float(np.max(hi - lo)))
 
 
 def walk(tree: BoxTree, origins, dirs, reach=None, any_hit=False):

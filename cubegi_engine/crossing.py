@@ -6,7 +6,7 @@ Pure numpy; must not import bpy.
 
 import numpy as np
 
-from .geometry import corner_box, near_any_triangle, run_offsets
+from .geometry import corner_box, corner_triangles, near_any_triangle, run_offsets, triangles_at
 from .working import checkpoint, once
 
 __all__ = ["Prepared", "contact", "PARALLEL", "AROUND", "SIDE_PLANES"]
@@ -84,14 +84,8 @@ class Prepared:
 
     @once
     def corner_triangles(self):
-        """``(start (s,), count (s,))``: each point's triangles in :attr:`triangles_by_corner`."""
-        count = np.bincount(self.tris.ravel(), minlength=len(self.points))
-        return np.cumsum(count) - count, count
-
-    @once
-    def triangles_by_corner(self):
-        """``(3t,)``: the triangles, listed under each of their corners, point by point."""
-        return np.argsort(self.tris.ravel(), kind="stable") // 3
+        """Each point's triangles (:func:`~.geometry.corner_triangles`)."""
+        return corner_triangles(self.tris, len(self.points))
 
 
 # Another object's surface within this of parallel to a cell's (|cos|) lies along it (a rug on
@@ -226,7 +220,6 @@ def _finer_candidates(prep, obj, near, theirs, crossed, shape, big, h):
     ok = np.all((around >= 0) & (around < shape), axis=2)
     around = np.unique(np.ravel_multi_index(around[ok].T, shape))
     near = near[np.isin(theirs, around)]
-    start, count = prep.corner_triangles
-    tris = prep.triangles_by_corner[np.repeat(start[near], count[near]) + run_offsets(count[near])]
+    tris, _ = triangles_at(prep.corner_triangles, near)
     tris = tris[(prep.tri_owner[tris] != obj) & (prep.tri_extent[tris] > 0.5 * h)]
     return near, np.union1d(big, tris)

@@ -7,7 +7,8 @@ import numpy as np
 from . import working
 
 __all__ = ["sorted_unique", "run_offsets", "triangle_planes", "planes_of", "cross", "ray_cut", "cut_planes", "cut_triangles", "near_any_triangle",
-           "edge_neighbours", "chunks", "POINT_CHUNK", "GRAZING", "twin_triangles", "mix64", "position_hash", "corner_box"]
+           "edge_neighbours", "chunks", "POINT_CHUNK", "GRAZING", "twin_triangles", "mix64", "position_hash", "corner_box",
+           "corner_triangles", "triangles_at"]
 
 # Per-point tests that make several (s, 9, 3) float64 arrays run this many points at a time:
 # a million points then need tens of megabytes, not gigabytes, and stay in cache.
@@ -62,6 +63,22 @@ def run_offsets(count):
     ``np.repeat(start, count)``, the indices of every run ``start[i] ..``)."""
     count = np.asarray(count, dtype=np.int64)
     return np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
+
+
+def corner_triangles(triangles, count):
+    """``(start (s,), per (s,), members (3t,))``: each of ``count`` points' triangles, listed
+    under their corners point by point (point ``i``'s are ``members[start[i]:][:per[i]]``)."""
+    corners = np.asarray(triangles, dtype=np.int64).ravel()
+    per = np.bincount(corners, minlength=count)
+    return np.cumsum(per) - per, per, np.argsort(corners, kind="stable") // 3
+
+
+def triangles_at(runs, at):
+    """``(triangles, per)``: the triangles at each of points ``at`` (``runs``:
+    :func:`corner_triangles`), one point's after another, and how many each has."""
+    start, per, members = runs
+    per = per[at]
+    return members[np.repeat(start[at], per) + run_offsets(per)], per
 
 
 def corner_box(corners):

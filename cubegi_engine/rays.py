@@ -13,9 +13,9 @@ from typing import Protocol
 
 import numpy as np
 
-from .geometry import planes_of, ray_cut, run_offsets
+from .geometry import planes_of, ray_cut, triangles_at
 
-__all__ = ["Hits", "RayCaster", "NumpyRays", "caster_for", "hits_from_distances", "near_hits_again", "corner_triangles"]
+__all__ = ["Hits", "RayCaster", "NumpyRays", "caster_for", "hits_from_distances", "near_hits_again"]
 
 
 @dataclass(frozen=True)
@@ -75,7 +75,7 @@ def hits_from_distances(points, triangles, origins, dirs, t, triangle) -> Hits:
 NEAR_AGAIN, NEAR_SLACK = 1e-3, 1e-5
 
 
-def near_hits_again(points, triangles, corner_triangles, origins, dirs, reach, which, t):
+def near_hits_again(points, triangles, corners, scale, origins, dirs, reach, which, t):
     """``(which, t)`` of a float32 caster's nearest hits, those nearer than NEAR_AGAIN of the
     scene's size tested again in float64 against the triangles that share a corner with the
     one met, the nearest taken (of two at one distance the lower index), as testing every
@@ -83,16 +83,13 @@ def near_hits_again(points, triangles, corner_triangles, origins, dirs, reach, w
     one another a tenth of a millimetre off: the Breakfast Room's near field took the other
     of them for 18 of 65K rays, and its indirect light moved by 0.8%.
 
-    ``corner_triangles``: ``(offsets (s + 1,), members)``, the triangles using each point."""
-    scale = float(np.ptp(points, axis=0).max()) if len(points) else 0.0
+    ``corners``: the triangles at each point (:func:`~.geometry.corner_triangles`);
+    ``scale``: the scene's size."""
     near = np.flatnonzero((which >= 0) & (t < NEAR_AGAIN * scale))
     if not len(near):
         return which, t
-    offsets, members = corner_triangles
-    corners = triangles[which[near]].ravel()
-    count = offsets[corners + 1] - offsets[corners]
-    ray = np.repeat(np.repeat(near, 3), count)
-    tri = members[np.repeat(offsets[corners], count) + run_offsets(count)]
+    tri, per = triangles_at(corners, triangles[which[near]].ravel())
+    ray = np.repeat(np.repeat(near, 3), per)
     p = points[triangles[tri]]
     cut, b, c, ok, _ = ray_cut(origins[ray], dirs[ray], planes_of(p[:, 0], p[:, 1], p[:, 2]), grazing=0.0)
     limit = np.inf if reach is None else np.broadcast_to(np.asarray(reach, dtype=np.float64), (len(which),))[ray]
@@ -107,14 +104,6 @@ def near_hits_again(points, triangles, corner_triangles, origins, dirs, reach, w
     which, t = which.copy(), t.copy()
     which[ray[keep]], t[ray[keep]] = tri[keep], cut[keep]
     return which, t
-
-
-def corner_triangles(triangles, count):
-    """``(offsets (count + 1,), members)``: the triangles using each of ``count`` points."""
-    corners = np.asarray(triangles, dtype=np.int64).ravel()
-    order = np.argsort(corners, kind="stable")
-    offsets = np.concatenate([[0], np.cumsum(np.bincount(corners, minlength=count))])
-    return offsets, order // 3
 
 
 # (ray, triangle) tests at a time in NumpyRays.

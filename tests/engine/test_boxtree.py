@@ -186,7 +186,8 @@ def test_a_near_hit_is_taken_again_in_float64_among_the_triangles_at_its_corners
     the floor into the corner) may name the wrong one of the two surfaces: taken again in
     float64 against the triangles at the hit triangle's corners, it names what testing every
     triangle names; a far hit is left as the caster gave it."""
-    from cubegi_engine.rays import corner_triangles, near_hits_again
+    from cubegi_engine.geometry import corner_triangles
+    from cubegi_engine.rays import near_hits_again
 
     points = np.array([[0, 0, 0], [2, 0, 0], [2, 2, 0], [0, 2, 0], [0, 0, 2], [0, 2, 2], [4, 0, 0]], dtype=np.float64)
     triangles = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 5], [0, 5, 4], [1, 6, 2]])
@@ -200,15 +201,15 @@ def test_a_near_hit_is_taken_again_in_float64_among_the_triangles_at_its_corners
     swapped = np.array([1, 0, 3, 2, 4])[plain.triangle]  # the other triangle of the same face
     wall_or_floor = np.where(np.isin(plain.triangle, [0, 1]), 2, 0)  # the other surface
     guess = np.where(np.arange(len(origins)) % 2 == 0, swapped, wall_or_floor)
-    which, t = near_hits_again(points, triangles, corner_triangles(triangles, len(points)), origins, dirs, None, guess,
+    which, t = near_hits_again(points, triangles, corner_triangles(triangles, len(points)), 4.0, origins, dirs, None, guess,
                                plain.t.astype(np.float32).astype(np.float64))
     assert np.array_equal(which, plain.triangle) and t == pytest.approx(plain.t, rel=1e-9)
     # A caster's hit that float64 finds nearer than any triangle at its corners is kept: a cut
     # farther than it may lie past a triangle the caster's walk no longer tested.
     deep = plain.t > 6e-4
-    which, _ = near_hits_again(points, triangles, corner_triangles(triangles, len(points)), origins, dirs, None, guess,
+    which, _ = near_hits_again(points, triangles, corner_triangles(triangles, len(points)), 4.0, origins, dirs, None, guess,
                                np.where(deep, plain.t - 5e-4, plain.t))
     assert deep.sum() > 10 and np.array_equal(which[deep], guess[deep]) and np.array_equal(which[~deep], plain.triangle[~deep])
     far = plain.t * 1e4  # (beyond NEAR_AGAIN of the scene's size: not asked again)
-    which, _ = near_hits_again(points, triangles, corner_triangles(triangles, len(points)), origins, dirs, None, guess, far)
+    which, _ = near_hits_again(points, triangles, corner_triangles(triangles, len(points)), 4.0, origins, dirs, None, guess, far)
     assert np.array_equal(which, guess)

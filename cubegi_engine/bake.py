@@ -20,7 +20,7 @@ from typing import Protocol
 
 import numpy as np
 
-from .capture import ProbeCapture
+from .capture import ProbeCapture, start_near_field
 from .direct import DirectLight, direct_light_steps, sun_steps
 from .emitters import balanced_landing
 from .errors import BakeError
@@ -215,12 +215,12 @@ def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field, s
         timings["capture"], timings["tables"] = capture.capture_seconds, capture.tables_seconds
     else:
         check_memory(grid.count, settings.cube_size, len(scene.points))  # (before any work)
-        suns = yield from sun_steps(scene, renderer, settings, shadows, working(Stage.CAPTURE, 0))  # while the scene is simplified
-        capture = yield from _new_capture(scene, grid, renderer, settings, working, timings, total, simplifying)
+        capture, suns = yield from _new_capture(scene, grid, renderer, settings, working, timings, total, simplifying, shadows)
         timings["capture"], timings["tables"] = capture.capture_seconds, capture.tables_seconds
     assert capture is not None  # reused, patched or new
     transport = capture.transport
-    timings["near_field"] = transport.near.seconds if transport.near is not None and not reused else 0.0  # part of "tables"
+    # (Part of "tables": what they waited for the near field past what ran beside them.)
+    timings["near_field"] = transport.near_waited if transport.near is not None and not reused else 0.0
     if scene.gathered is not None and scene.gathered.any():
         gathered = yield from in_background(gathered_for, working(Stage.CAPTURE, 0)("rays from the vertices that stand for much "
                                                                                    "surface"), scene, renderer)
@@ -257,13 +257,27 @@ def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field, s
 SMALL_OBJECT_TEXELS = 1.0
 
 
-def _new_capture(scene, grid, renderer, settings, working, timings, total, simplifying=None):
-    """A new capture of ``scene`` on ``grid`` (a generator of Progress, returning the
-    ProbeCapture): the scene simplified to the capture's triangle budget (``simplifying``:
-    that work already started, see :func:`~.working.start`), objects under a texel from
-    every probe left out of the drawing, the probes drawn and the tables built. The
-    simplify timing is what the bake waited for it."""
-    check_memory(grid.count, settings.cube_size, len(scene.points))
+def _new_capture(scene, grid, renderer, settings, working, timings, total, simplifying, shadows):
+    """A new capture of ``scene`` on ``grid`` and the suns' direct light (a generator of
+    Progress, returning ``(ProbeCapture, suns)``, see :func:`~.direct.sun_steps`, which keeps
+    their ``shadows``): the near field's rays started (they need only the geometry and the
+    probes' cells: traced while the rest runs), the suns' light worked out while the scene is
+    simplified (:func:`_drawn`), the tables built. A failed one leaves no thread behind."""
+    tracing = start_near_field(scene, grid, renderer, settings)
+    try:
+        suns = yield from sun_steps(scene, renderer, settings, shadows, working(Stage.CAPTURE, 0))
+        return (yield from _drawn(scene, grid, renderer, settings, working, timings, total, simplifying, tracing)), suns
+    except BaseException:
+        if tracing is not None:
+            tracing.thread.join()
+        raise
+
+
+def _drawn(scene, grid, renderer, settings, working, timings, total, simplifying, tracing):
+    """The probes of a new capture drawn and its tables built (see :func:`_new_capture`): the
+    scene simplified to the capture's triangle budget (``simplifying``: that work already
+    started, see :func:`~.working.start`), objects under a texel from every probe left out
+    of the drawing. The simplify timing is what the bake waited for it."""
     t = time.perf_counter()
     simplifying = simplifying or start_simplifying(scene, settings)
     proxy = yield from wait(simplifying, working(Stage.CAPTURE, 0)("simplifying the scene for the probes"))
@@ -283,7 +297,7 @@ def _new_capture(scene, grid, renderer, settings, working, timings, total, simpl
     timings["simplify"] = time.perf_counter() - t
     drawn = f" ({len(proxy.triangles):,} of {len(scene.triangles):,} triangles)" if proxy is not None else ""
     yield Progress(Stage.CAPTURE, 0, total, f"capturing {grid.count} probes at {settings.cube_size}x{settings.cube_size}{drawn}")
-    capture = yield from ProbeCapture.take_steps(scene, grid, drawer, settings, proxy, step=working(Stage.CAPTURE, 0))
+    capture = yield from ProbeCapture.take_steps(scene, grid, drawer, settings, proxy, step=working(Stage.CAPTURE, 0), tracing=tracing)
     capture.small_objects = tuple(int(k) for k in np.flatnonzero(small))
     return capture
 

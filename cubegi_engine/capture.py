@@ -14,6 +14,7 @@ from . import cubemap, sh
 from .cubemap import CubeCapture, capture_cubes, clip_planes
 from .gather import near_caster
 from .grid import Grid
+from .nearfield import started
 from .records import Progress, Stage
 from .scene import GeometryFingerprint, same_sky_map
 from .transport import Transport
@@ -49,10 +50,11 @@ class ProbeCapture:
         return run(cls.take_steps(scene, grid, renderer, settings, proxy))
 
     @classmethod
-    def take_steps(cls, scene, grid, renderer, settings, proxy=None, step=None):
+    def take_steps(cls, scene, grid, renderer, settings, proxy=None, step=None, tracing=None):
         """:meth:`take` as a generator of working steps (:mod:`cubegi_engine.working`): the
         probes drawn in batches, the tables built in a thread. ``step(message)``: the working
-        Progress to yield. Returns the ProbeCapture."""
+        Progress to yield; ``tracing``: the near field's rays, started before the drawing
+        (:func:`start_near_field`), or None. Returns the ProbeCapture."""
         step = step or (lambda message: Progress(Stage.CAPTURE, 0, 1, message, working=True))
         cube_size, visibility = int(settings.cube_size), bool(settings.visibility)
         positions = grid.positions()
@@ -69,7 +71,7 @@ class ProbeCapture:
         t = time.perf_counter()
         def tables():
             scene.fingerprint()  # made here, in the thread, and kept on the snapshot for below
-            return _tables(scene, grid, cubes, visibility, proxy, settings, renderer)
+            return _tables(scene, grid, cubes, visibility, proxy, settings, renderer, tracing)
 
         transport = yield from in_background(tables, step("building the tables (what each probe sees, and each point's near field)"))
         return cls(grid, cube_size, visibility, scene.fingerprint(), cubes, transport, t_capture,
@@ -172,11 +174,20 @@ class ProbeCapture:
         return int(sum(a.nbytes for a in arrays))
 
 
-def _tables(scene, grid, cubes, visibility, proxy, settings, renderer) -> Transport:
+def _tables(scene, grid, cubes, visibility, proxy, settings, renderer, tracing=None) -> Transport:
     """The tables of ``cubes`` (drawn of ``scene``, or of ``proxy``) on ``grid``, the near
-    field's crowded points cast through the ``renderer``'s ray caster."""
+    field's crowded points cast through the ``renderer``'s ray caster (``tracing``: its rays
+    already started, see :func:`start_near_field`)."""
     return Transport(scene, grid, cubes, visibility=visibility, proxy=proxy, near_field=settings.near_field,
-                     caster=near_caster(scene, renderer))
+                     caster=near_caster(scene, renderer), tracing=tracing)
+
+
+def start_near_field(scene, grid, renderer, settings):
+    """The near field's rays of ``scene`` on ``grid`` started in a thread, or None where
+    ``settings`` ask for no near field: they need only the geometry and the probes' cells,
+    so a new capture traces them while the scene is simplified and the probes are drawn
+    (:meth:`ProbeCapture.take_steps`' ``tracing``)."""
+    return started(scene, grid, near_caster(scene, renderer)) if settings.near_field else None
 
 
 def _same_sky(transport, scene) -> bool:

@@ -42,12 +42,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import convergence
+from . import convergence, working
 from .nearhits import gap_darkening, hidden_points, uncover
 from .nearrays import CASTER_RAYS, cast_points, clusters, shared_rows
 from .spatial import voxel_index
 
-__all__ = ["NearField", "Traced", "build", "trace", "finish", "NEAR_REACH", "NEAR_RAYS", "MAX_CANDIDATES", "MAX_PAIRS"]
+__all__ = ["NearField", "Traced", "build", "trace", "started", "finish", "NEAR_REACH", "NEAR_RAYS", "MAX_CANDIDATES", "MAX_PAIRS"]
 
 # Reach of the rays, as a share of the point's cell edge (measured on the benchmark's Cornell
 # box when it was chosen: 16.2% indirect error without, 10.1% at 0.25, 9.9% at 0.5 and 1.0,
@@ -372,6 +372,17 @@ def trace(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     longest = float(np.max(reach, where=np.isfinite(reach), initial=0.0))  # (a point's at NaN is none)
     return Traced(index, points, normals, tri, sheets, rays, reach, longest, len(pair_p), crowded, crowded_objects, members, member_of,
                   by_caster, cast, traced, hits, rch, turn, openness, time.perf_counter() - t0)
+
+
+def started(scene, grid, caster):
+    """:func:`trace` of ``scene``'s near field on ``grid`` (its points' reach: NEAR_REACH of
+    their cells), started in a thread (:func:`~.working.start`): its rays need only the
+    geometry, so they are traced while the probes are drawn and their visibility is tested;
+    what their hits take is decided after (:func:`finish`), from the points the probes leave
+    covered. ``caster``: see :func:`build`."""
+    sheets = scene.sheets()  # made here, once, before that thread asks for it
+    return working.start(trace, scene.points, scene.normals, NEAR_REACH * grid.point_cell_edge(scene.points),
+                         scene.triangles, owner=scene.point_object, sheets=sheets, keep_index=False, caster=caster)
 
 
 def _small_objects(points, owner, reach, asked):

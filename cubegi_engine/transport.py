@@ -21,12 +21,13 @@ Light is carried as the diffuse value of a white Lambertian surface, ``E / pi``;
 radiance of a surface of albedo rho receiving diffuse light l is ``rho * l`` (+ emission).
 """
 
+import time
+
 import numpy as np
 
 from . import cubemap, nearfield, sh, spatial, working
 from .gather import same_side
 from .grid import points_by_cell
-from .nearfield import NEAR_REACH
 from .visibility import Cover, PointProbes, Probes, probes_in_front, seen_corners_only, seen_from_behind, visibility_weights
 
 # A covered point in the open (see Transport._light_under) casts rays this many cells long,
@@ -57,14 +58,17 @@ class Transport:
     After construction every bounce is a few gathers and matrix products (float32).
     """
 
-    def __init__(self, scene, grid, capture, visibility=True, proxy=None, near_field=True, caster=None):
+    def __init__(self, scene, grid, capture, visibility=True, proxy=None, near_field=True, caster=None, tracing=None):
         """``proxy``: the :class:`~cubegi_engine.proxy.CaptureProxy` the capture drew (its
         triangles are what the texels see), or None for the scene's own triangles.
         ``near_field``: gather each point's short-range surroundings by rays
         (:mod:`cubegi_engine.nearfield`); ``caster``: the host's ray caster for the near field's
-        crowded points (:func:`~cubegi_engine.gather.near_caster`), or None."""
+        crowded points (:func:`~cubegi_engine.gather.near_caster`), or None. ``tracing``: the
+        near field's rays already started for ``scene`` and ``grid`` (:func:`~.nearfield.started`),
+        or None: started here."""
         self.proxy = proxy
-        tracing = _trace_near_field(scene, grid, caster) if near_field else None  # while the visibility is tested
+        if near_field and tracing is None:
+            tracing = nearfield.started(scene, grid, caster)  # while the visibility is tested
         try:
             self._build(scene, grid, capture, visibility, proxy, tracing)
         except BaseException:
@@ -131,12 +135,15 @@ class Transport:
         self._resting, spare = self._lying(scene, spare)  # which of them lie on another surface (see resting)
         # The near field (a final gather of each point's short-range surroundings), or None.
         self.near = None
+        self.near_waited = 0.0  # what the tables spent on the near field past what ran beside them (seconds)
         self.gathered = None  # the points gathered by rays over their whole view (take_gathered)
         self.own_near = None  # the near field of its own (what a report says of it), without them
         if tracing is not None:
             lit_if_open = None if spare is None else np.isin(np.arange(len(scene.points)), spare[0])
+            t = time.perf_counter()
             self.near = nearfield.finish(working.result(tracing), hidden=self.covered, lit_if_open=lit_if_open,
                                          emitting=np.any(scene.emission > 0, axis=1), lying=self._resting)
+            self.near_waited = time.perf_counter() - t
         # Each point's 8 probes' weights and its normal's diffuse basis, kept apart (their 72
         # products are a point's light per coefficient: 4 times the memory, 0.7 GB at 2.5M points).
         self._weight = np.empty((len(index), 8), dtype=np.float32)
@@ -458,17 +465,6 @@ class Transport:
                 mixed = np.matmul(self._weight[sl, None, :], g)[:, 0].reshape(-1, 9, 3)
                 out[sl] = np.matmul(self._basis[sl, None, :], mixed)[:, 0]
         return np.maximum(out, 0.0) if clamp else out
-
-
-def _trace_near_field(scene, grid, caster):
-    """:func:`~.nearfield.trace` of ``scene``'s near field on ``grid``, started in a thread
-    (:func:`~.working.start`): its rays need only the geometry, so they are traced while the
-    probes' visibility is tested (both numpy work, on the machine's cores); what their hits
-    take is decided after (:func:`~.nearfield.finish`), from the points the probes leave
-    covered. ``caster``: see :func:`~.nearfield.build`."""
-    sheets = scene.sheets()  # made here, once, before that thread asks for it
-    return working.start(nearfield.trace, scene.points, scene.normals, NEAR_REACH * grid.point_cell_edge(scene.points),
-                         scene.triangles, owner=scene.point_object, sheets=sheets, keep_index=False, caster=caster)
 
 
 def _no_weight(weight, basis):

@@ -20,7 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 __all__ = ["WORKING_SECONDS", "CAPTURE_DRAWS_PER_STEP", "WORKERS", "run", "in_background", "in_batches", "start", "wait",
            "give_back_memory", "in_parallel", "made_once", "once", "result", "Driven", "Cancelled", "checkpoint", "on_main",
-           "NotServed"]
+           "NotServed", "serve_waiting"]
 
 # Seconds between the steps a long piece of work hands back.
 WORKING_SECONDS = 0.1
@@ -221,6 +221,13 @@ def _serve_until(done, seconds):
             return
 
 
+def serve_waiting():
+    """On the main thread, run the calls handed to it (:func:`on_main`) that wait now;
+    elsewhere nothing."""
+    if threading.current_thread() is threading.main_thread():
+        _serve_until(lambda: not _waiting_calls, 0.0)
+
+
 def _notify(_future=None):
     with _calls:
         _calls.notify_all()
@@ -354,6 +361,7 @@ def in_batches(count, size, run_batch, working):
     results, size = [], max(1, int(size))
     for a in range(0, count, size):
         results.append(run_batch(a, min(count, a + size)))
+        serve_waiting()  # (a thread's rays handed to the main thread wait no longer than a batch)
         if a + size < count:
             yield working(a + size)
     return results

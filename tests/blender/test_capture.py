@@ -109,7 +109,7 @@ def test_the_tables_trace_the_near_field_beside_the_visibility_test_and_fail_who
     near, far = cubemap.clip_planes(arrays.scale)
     cap = cubemap.capture_cubes(renderer, g.positions(), 16, near, far)
     tables = transport.Transport(arrays, g, cap)
-    after = nearfield.build(arrays.points, arrays.normals, transport.NEAR_REACH * g.point_cell_edge(arrays.points), arrays.triangles,
+    after = nearfield.build(arrays.points, arrays.normals, nearfield.NEAR_REACH * g.point_cell_edge(arrays.points), arrays.triangles,
                             hidden=tables.covered, owner=arrays.point_object, sheets=arrays.sheets(), keep_index=False,
                             emitting=np.any(arrays.emission > 0, axis=1))
     assert tables.near.count > 100 and tables.covered.any()  # the floor under the block
@@ -135,6 +135,42 @@ def test_the_tables_trace_the_near_field_beside_the_visibility_test_and_fail_who
     monkeypatch.setattr(nearfield, "trace", lambda *args, **kwargs: 1 / 0)
     with pytest.raises(ZeroDivisionError):
         transport.Transport(arrays, g, cap)
+
+
+def test_a_new_capture_traces_the_near_field_before_drawing_and_a_failed_one_waits_for_it(empty_scene, cubegi, monkeypatch):
+    """A new capture's near field is traced from before the probes are drawn (the bake starts
+    it after placing them): its tables equal those that trace it themselves. A bake whose
+    drawing fails hands on the error only once those rays are done (no thread runs on)."""
+    nearfield, working, bake = cubegi.cubegi_engine.nearfield, cubegi.cubegi_engine.working, cubegi.cubegi_engine.bake
+    v, f = scenes.box_mesh((-2.0, -2.0, 0.0), (2.0, 2.0, 2.5), (8, 8, 5), inward=True)
+    scenes.mesh_object("Room", v, f)
+    bv, bf = scenes.box_mesh((-0.5, -0.3, 0.02), (0.4, 0.6, 0.9), (2, 2, 2), inward=False)
+    scenes.mesh_object("Block", bv, bf)
+    arrays, renderer = _collect_and_renderer(cubegi)
+    g = ProbeGrid((-2, -2, 0), (2, 2, 2.5), (3, 3, 2))
+    settings = cubegi.cubegi_engine.settings.BakeSettings(cube_size=16)
+    early = working.run(capture.ProbeCapture.take_steps(arrays, g, renderer, settings,
+                                                        tracing=capture.start_near_field(arrays, g, renderer, settings)))
+    own = capture.ProbeCapture.take(arrays, g, renderer, settings)
+    assert early.transport.near.count > 100
+    for name in ("rows", "open_basis", "hit_row", "hit_corner", "hit_weight", "share", "hidden"):
+        assert np.array_equal(getattr(early.transport.near, name), getattr(own.transport.near, name)), name
+
+    real_trace, traced = nearfield.trace, []
+
+    def slow_trace(*args, **kwargs):
+        time.sleep(0.5)
+        traced.append(real_trace(*args, **kwargs))
+        return traced[-1]
+
+    def failing_draw(*args, **kwargs):
+        raise RuntimeError("the drawing failed")
+
+    monkeypatch.setattr(nearfield, "trace", slow_trace)
+    monkeypatch.setattr(capture, "capture_cubes", failing_draw)
+    with pytest.raises(RuntimeError, match="drawing failed"):
+        working.run(bake.bake_steps(arrays, g, renderer, settings))
+    assert len(traced) == 1  # started before the drawing, and waited for
 
 
 def test_culling_draws_what_drawing_everything_draws(empty_scene, cubegi):

@@ -155,6 +155,28 @@ def test_pieces_run_from_the_main_thread_have_their_calls_served(monkeypatch):
     assert working.result(working.start(piece, 7)) == (7, True)
 
 
+def test_the_main_thread_serves_calls_between_its_batches_of_drawing(monkeypatch):
+    """A thread's calls handed to the main thread while it draws batches of its own (the
+    probes, while the near field's rays are traced) are run between the batches, before the
+    main thread waits for anything: none waits for the end of the drawing or is refused."""
+    monkeypatch.setattr(working, "TAKE_CALL_SECONDS", 0.5)
+    asked, served = threading.Event(), []
+
+    def work():
+        asked.set()
+        return working.on_main(lambda: served.append(threading.current_thread() is threading.main_thread()) or len(served))
+
+    job = working.start(work)
+    asked.wait()
+
+    def batch(a, b):
+        time.sleep(0.1)  # (the call is handed over meanwhile)
+        return len(served)
+
+    assert working.run(working.in_batches(20, 1, batch, lambda done: None))[-1] == 1  # served before the drawing ended
+    assert served == [True] and working.result(job) == 1
+
+
 def test_no_ray_slips_between_two_triangles_along_their_shared_edge(monkeypatch):
     """A plate cut into a grid of triangles 10 cm over a floor (the scene's refinement cut
     it so), shadow rays from the floor towards a lamp, each crossing the plate on the line

@@ -260,12 +260,13 @@ SMALL_OBJECT_TEXELS = 1.0
 def _new_capture(scene, grid, renderer, settings, working, timings, total, simplifying, shadows):
     """A new capture of ``scene`` on ``grid`` and the suns' direct light (a generator of
     Progress, returning ``(ProbeCapture, suns)``, see :func:`~.direct.sun_steps`, which keeps
-    their ``shadows``): the near field's rays started (they need only the geometry and the
-    probes' cells: traced while the rest runs), the suns' light worked out while the scene is
-    simplified (:func:`_drawn`), the tables built. A failed one leaves no thread behind."""
+    their ``shadows``): the suns' light worked out while the scene is simplified, then the
+    near field's rays started (they need only the geometry and the probes' cells: traced
+    while the probes are drawn, :func:`_drawn`), the tables built. A failed one leaves no
+    thread behind. (Traced beside the suns' rays, at 1.24M vertices, both took longer.)"""
+    suns = yield from sun_steps(scene, renderer, settings, shadows, working(Stage.CAPTURE, 0))
     tracing = start_near_field(scene, grid, renderer, settings)
     try:
-        suns = yield from sun_steps(scene, renderer, settings, shadows, working(Stage.CAPTURE, 0))
         return (yield from _drawn(scene, grid, renderer, settings, working, timings, total, simplifying, tracing)), suns
     except BaseException:
         if tracing is not None:

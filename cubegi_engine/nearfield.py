@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import convergence, working
-from .nearhits import gap_darkening, hidden_points, uncover
+from .nearhits import gap_ratios, hidden_points, uncover
 from .nearrays import CASTER_RAYS, cast_points, clusters, shared_rows
 from .spatial import voxel_index
 
@@ -77,7 +77,7 @@ NEAR_SUM_TOLERANCE = 1e-4
 # (26.66%): the same or within 0.01%.
 SMALL_OBJECT = 1.0
 # A hit on a triangle with a corner closed in and one in the open casts OPENNESS_RAYS rays of
-# its own to weigh its corners' light (:func:`~.nearhits.gap_darkening`; 0: off).
+# its own to weigh its corners' light (:func:`~.nearhits.gap_ratios`; 0: off).
 OPENNESS_RAYS = 16
 
 
@@ -333,6 +333,7 @@ class Traced:
     rch: np.ndarray
     turn: np.ndarray
     openness: np.ndarray
+    gap: tuple | None  # (hits, ratio (h, 3)): the hits in a gap and their corners' scales (gap_ratios), or None
     seconds: float
 
 
@@ -369,9 +370,13 @@ def trace(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     openness = np.ones(s)
     openness[cast] = hits.openness
     openness[members] = openness[by_caster[member_of]]
+    # How much light a hit in a gap gets through it needs only the geometry: asked here (the
+    # caster's hits lie in dense geometry, where the voxel index's tests would take minutes).
+    gap = gap_ratios(index, hits.corners, openness, hits.at, hits.triangle, hits.front & (hits.point < traced), rch[hits.point],
+                     turn[hits.point], OPENNESS_RAYS) if OPENNESS_RAYS else None
     longest = float(np.max(reach, where=np.isfinite(reach), initial=0.0))  # (a point's at NaN is none)
     return Traced(index, points, normals, tri, sheets, rays, reach, longest, len(pair_p), crowded, crowded_objects, members, member_of,
-                  by_caster, cast, traced, hits, rch, turn, openness, time.perf_counter() - t0)
+                  by_caster, cast, traced, hits, rch, turn, openness, gap, time.perf_counter() - t0)
 
 
 def started(scene, grid, caster):
@@ -428,9 +433,10 @@ def finish(traced, *, hidden=None, lit_if_open=None, hidden_as_given=False, emit
                                              tri, emitting, lying)
         hidden[members] = False  # lit by their own rays: a surface's light
         weight = uncover(index, weight, corners, hidden, hits.triangle, traced.rch[point], by_voxels)
-    if OPENNESS_RAYS:
-        weight = gap_darkening(index, weight, corners, traced.openness, hits.at, hits.triangle, hits.front & by_voxels,
-                               traced.rch[point], traced.turn[point], OPENNESS_RAYS)
+    if traced.gap is not None:  # a hit in a gap takes what the gap lets in (worked out with the rays)
+        ask, ratio = traced.gap
+        weight = weight.copy()
+        weight[ask] *= ratio
     weight *= (hits.front * hits.weight)[:, None]  # a back face occludes and sends nothing
     open_basis, share, hit_row = hits.open_basis, hits.share, hit_row.astype(np.int64).ravel()
     alias = None

@@ -1,6 +1,6 @@
 """What the near field's hits take: which covered points are hidden from them
 (:func:`hidden_points`), the weight of a hit triangle's hidden corners moved to its others
-(:func:`uncover`), and a hit in a gap darkened to what the gap lets in (:func:`gap_darkening`).
+(:func:`uncover`), and a hit in a gap darkened to what the gap lets in (:func:`gap_ratios`).
 See :mod:`cubegi_engine.nearfield`.
 
 Pure numpy; must not import bpy.
@@ -12,7 +12,7 @@ from .hemisphere import hemisphere_rays
 from .nearrays import FADE
 from .spatial import COORD_SLACK, SLACK, resting
 
-__all__ = ["hidden_points", "uncover", "gap_darkening", "HIDDEN_SHARE"]
+__all__ = ["hidden_points", "uncover", "gap_ratios", "HIDDEN_SHARE"]
 
 # A covered point counts as hidden from the near field's hits (its light stands for no
 # surface) where at least this share of its view is closed in within reach, or where it
@@ -20,7 +20,7 @@ __all__ = ["hidden_points", "uncover", "gap_darkening", "HIDDEN_SHARE"]
 HIDDEN_SHARE = 0.5
 # A hit on a triangle with a corner closed in (openness below OPENNESS_CLOSED: a floor point
 # under a block) and one in the open (above OPENNESS_OPEN) casts rays of its own to weigh its
-# corners' light (see gap_darkening; how many: nearfield.OPENNESS_RAYS); OPENNESS_FLOOR keeps
+# corners' light (see gap_ratios; how many: nearfield.OPENNESS_RAYS); OPENNESS_FLOOR keeps
 # the ratio of two closed points near 1.
 OPENNESS_CLOSED, OPENNESS_OPEN, OPENNESS_FLOOR = 0.3, 0.6, 0.05
 # Hits on one triangle within the same cube of this share of their reach share one such
@@ -113,9 +113,10 @@ def _covered_along_normal(index, at, up, reach):
     return np.isfinite(t[:, 0])
 
 
-def gap_darkening(index, weight, corners, openness, at, tri, front, reach, turn, rays):
-    """Barycentric ``weight (h, 3)`` of hits at ``at (h, 3)`` on triangles ``tri``, each
-    corner's share scaled by how open the hit point is against how open the corner is
+def gap_ratios(index, corners, openness, at, tri, front, reach, turn, rays):
+    """``(ask (a,), ratio (a, 3))``: the barycentric weights of hits at ``at (h, 3)`` on
+    triangles ``tri`` that lie in a gap (their rows ``ask``), each corner's share scaled by
+    ``ratio``: how open the hit point is against how open the corner is
     (``openness (s,)``: the share of a point's view with nothing within its reach), at most
     1. A triangle whose corners' light was gathered in the open but whose hit point lies in a
     gap (a floor under a block standing 2 cm above it: the corners a floor cell away outside
@@ -126,15 +127,16 @@ def gap_darkening(index, weight, corners, openness, at, tri, front, reach, turn,
     together on one triangle share them: OPENNESS_CELL)."""
     open_c = openness[corners]  # (h, 3)
     ask = np.flatnonzero(front & (open_c.min(axis=1) < OPENNESS_CLOSED) & (open_c.max(axis=1) > OPENNESS_OPEN))
+    none = (ask[:0], np.ones((0, 3)))
     if not len(ask):
-        return weight
+        return none
     # In a gap: something over the hit point along its normal, within reach (a floor beside a
     # wall is open overhead: its corners' light stands).
     up, r = index.unit[tri[ask]], reach[ask]
     slack = SLACK * r + COORD_SLACK * np.abs(at[ask]).max(axis=1)
     gap = _covered_along_normal(index, at[ask], up, r)
     if not gap.any():
-        return weight
+        return none
     keep = np.flatnonzero(gap)
     ask, up, r, slack = ask[keep], up[keep], r[keep], slack[keep]
     cell = np.floor(at[ask] / (OPENNESS_CELL * r[:, None])).astype(np.int64)
@@ -144,7 +146,4 @@ def gap_darkening(index, weight, corners, openness, at, tri, front, reach, turn,
     dirs = hemisphere_rays(up1, rays, turn[one])
     best, _, _, _ = index.trace(at[one], up1, dirs, r1, slack[first], pair_p, pair_t)
     open_hit = (1.0 - np.clip((r1[:, None] - best) / (FADE * r1[:, None]), 0.0, 1.0).mean(axis=1))[shared.ravel()]
-    out = weight.copy()
-    ratio = np.minimum(1.0, (open_hit[:, None] + OPENNESS_FLOOR) / (open_c[ask] + OPENNESS_FLOOR))
-    out[ask] *= ratio
-    return out
+    return ask, np.minimum(1.0, (open_hit[:, None] + OPENNESS_FLOOR) / (open_c[ask] + OPENNESS_FLOOR))

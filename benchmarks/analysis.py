@@ -214,7 +214,8 @@ def _stages(records):
         total = t.get("total") or sum(t.get(k, 0.0) for k in STAGES)
         cells = [f"{t[k]:.2f} ({100 * t[k] / total:.0f}%)" if k in t and total > 0 else "" for k in STAGES]
         lines.append(f"| {scene} | {total:.2f} | " + " | ".join(cells) + " |")
-    return lines + ["", "The near field's time is part of the tables'.", ""]
+    return lines + ["", "The near field's time is part of the tables': what they waited for its rays (traced beside the "
+                        "drawing of the probes) and spent deciding what its hits take.", ""]
 
 
 def _surfaces(records, shown=12):

@@ -11,7 +11,8 @@ Blender's BVH tree (:class:`~.bvh_rays.BvhRays`) casts one ray per Python call a
 the GIL for a whole batch; here a batch is one dispatch, on the GPU, or on llvmpipe's
 threads where there is none. The GPU context is the main thread's: a bake's threads hand
 their batches to it (:func:`~cubegi_engine.working.on_main`), which runs them while it
-waits for their work. Where it takes none within its time (a thread of one's own), that
+waits for their work or between batches of its own (the probes' drawing). Where it takes
+none within its time (a thread of one's own), that
 call's rays go through Blender's BVH tree; where the GPU module cannot run the shader, every
 call's do.
 

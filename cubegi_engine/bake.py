@@ -34,7 +34,7 @@ from .records import Progress, Stage
 from .settings import BakeSettings
 from .solve import LightSolution, area_weighted_mean, solve_steps
 from .spatial import forget_indexes
-from .working import in_background, run, start, wait  # noqa: F401 (bake.run: the one driver)
+from .working import abandon, in_background, run, start, wait  # noqa: F401 (bake.run: the one driver)
 
 __all__ = ["Renderer", "BakeResult", "bake_steps", "start_simplifying", "run", "check_memory", "memory_estimate", "area_weighted_mean"]
 
@@ -262,15 +262,16 @@ def _new_capture(scene, grid, renderer, settings, working, timings, total, simpl
     Progress, returning ``(ProbeCapture, suns)``, see :func:`~.direct.sun_steps`, which keeps
     their ``shadows``): the suns' light worked out while the scene is simplified, then the
     near field's rays started (they need only the geometry and the probes' cells: traced
-    while the probes are drawn, :func:`_drawn`), the tables built. A failed one leaves no
-    thread behind. (Traced beside the suns' rays, at 1.24M vertices, both took longer.)"""
+    while the probes are drawn, :func:`_drawn`), the tables built. A failed one stops those
+    rays and waits for them. (Traced beside the suns' rays, at 1.24M vertices, both took
+    longer.)"""
     suns = yield from sun_steps(scene, renderer, settings, shadows, working(Stage.CAPTURE, 0))
     tracing = start_near_field(scene, grid, renderer, settings)
     try:
         return (yield from _drawn(scene, grid, renderer, settings, working, timings, total, simplifying, tracing)), suns
     except BaseException:
         if tracing is not None:
-            tracing.thread.join()
+            abandon(tracing)
         raise
 
 

@@ -333,7 +333,7 @@ class Traced:
     rch: np.ndarray
     turn: np.ndarray
     openness: np.ndarray
-    gap: tuple | None  # (hits, ratio (h, 3)): the hits in a gap and their corners' scales (gap_ratios), or None
+    gap: tuple | None  # (ask (a,), ratio (a, 3)): the hits in a gap and their corners' scales (gap_ratios), or None
     seconds: float
 
 

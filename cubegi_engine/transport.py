@@ -73,7 +73,7 @@ class Transport:
             self._build(scene, grid, capture, visibility, proxy, tracing)
         except BaseException:
             if tracing is not None:  # nothing of the failed tables outlives them
-                tracing.thread.join()
+                working.abandon(tracing)
             raise
 
     def _build(self, scene, grid, capture, visibility, proxy, tracing):

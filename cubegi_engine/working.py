@@ -13,6 +13,7 @@ steps started when it is closed (a cancel) or fails: each ends at its next piece
 """
 
 import ctypes
+import math
 import os
 import threading
 import time
@@ -20,7 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 __all__ = ["WORKING_SECONDS", "CAPTURE_DRAWS_PER_STEP", "WORKERS", "run", "in_background", "in_batches", "start", "wait",
            "give_back_memory", "in_parallel", "made_once", "once", "result", "Driven", "Cancelled", "checkpoint", "on_main",
-           "NotServed", "serve_waiting"]
+           "NotServed", "serve_waiting", "abandon"]
 
 # Seconds between the steps a long piece of work hands back.
 WORKING_SECONDS = 0.1
@@ -111,7 +112,8 @@ class Job:
 
     def __init__(self, fn, args, kwargs):
         self.out, self.finished = {}, threading.Event()
-        stop = getattr(_work, "stop", None)
+        # Its own stop (see abandon), under what the starting thread works for.
+        self.stop = stop = _Stop(getattr(_work, "stop", None))
 
         def work():
             _work.stop = stop
@@ -133,6 +135,16 @@ def start(fn, *args, **kwargs):
     return Job(fn, args, kwargs)
 
 
+def abandon(job):
+    """Stop ``job`` (its next piece of work raises :class:`Cancelled`) and wait for its thread
+    to end: a failed step's work that nothing will take (nothing of it outlives the step). On
+    the main thread, the calls it hands over meanwhile are served (it would wait for them)."""
+    job.stop.set()
+    if threading.current_thread() is threading.main_thread():
+        _serve_until(job.finished.is_set, math.inf)
+    job.thread.join()  # (after its last call: at once)
+
+
 def wait(job, working):
     """A generator yielding ``working`` (a Progress) every WORKING_SECONDS until ``job``
     ends, returning its result (or raising its exception)."""
@@ -148,8 +160,8 @@ def wait(job, working):
 
 
 class NotServed(Exception):
-    """:func:`on_main` from a thread while the main thread waits for no work of a bake's (it
-    would not answer): the caller does the work its own way."""
+    """:func:`on_main` from a thread while the main thread serves no calls (it waits for no
+    work of a bake's, nor draws batches of its own): the caller does the work its own way."""
 
 
 class _Call:
@@ -175,9 +187,11 @@ TAKE_CALL_SECONDS = 2.0
 def on_main(fn, *args):
     """``fn(*args)`` on the main thread, whose alone the GPU context is: at once where this is
     the main thread, else handed to it, which runs it while it waits for a bake's work
-    (:func:`wait`), and this thread waits for the answer. Raises :class:`NotServed` where
-    the main thread takes no call within TAKE_CALL_SECONDS (it waits for nothing of a
-    bake's: a thread of one's own, or a main thread itself waiting on this one)."""
+    (:func:`wait`, :func:`result`, :func:`in_parallel`) or between its own batches of work
+    (:func:`in_batches`), and this thread waits for the answer (stopping where the work it
+    is for stops: :func:`checkpoint`). Raises :class:`NotServed` where the main thread takes
+    no call within TAKE_CALL_SECONDS (it waits for nothing of a bake's: a thread of one's
+    own, or a main thread itself waiting on this one)."""
     if threading.current_thread() is threading.main_thread():
         return fn(*args)
     call = _Call(fn, args)
@@ -188,7 +202,8 @@ def on_main(fn, *args):
         if not taken:
             _waiting_calls.remove(call)
             raise NotServed(getattr(fn, "__name__", "a call"))
-    call.done.wait()
+    while not call.done.wait(WORKING_SECONDS):  # (taken: a main thread stopped since never ends it)
+        checkpoint()
     if "error" in call.out:
         raise call.out["error"]
     return call.out["value"]
@@ -217,15 +232,15 @@ def _serve_until(done, seconds):
                 _calls.notify_all()  # (taken)
         if call is not None:
             call.serve()
-        elif time.monotonic() >= deadline:
+        if time.monotonic() >= deadline:
             return
 
 
 def serve_waiting():
-    """On the main thread, run the calls handed to it (:func:`on_main`) that wait now;
-    elsewhere nothing."""
+    """On the main thread, run the calls handed to it (:func:`on_main`) that wait now, for
+    WORKING_SECONDS at most; elsewhere nothing."""
     if threading.current_thread() is threading.main_thread():
-        _serve_until(lambda: not _waiting_calls, 0.0)
+        _serve_until(lambda: not _waiting_calls, WORKING_SECONDS)
 
 
 def _notify(_future=None):
@@ -357,7 +372,8 @@ def in_batches(count, size, run_batch, working):
     """``run_batch(a, b)`` over ``0..count`` in batches of ``size`` (fixed, not timed: how the
     work is cut can change its numbers, as a GPU's atlas layout does, and a bake must give the
     same numbers every time), yielding ``working(done)`` (a Progress) between them; returns
-    the batches' results in order."""
+    the batches' results in order. On the main thread, the calls other threads hand it
+    (:func:`on_main`) are run between the batches."""
     results, size = [], max(1, int(size))
     for a in range(0, count, size):
         results.append(run_batch(a, min(count, a + size)))

@@ -116,12 +116,15 @@ def test_the_tables_trace_the_near_field_beside_the_visibility_test_and_fail_who
     for name in ("rows", "open_basis", "hit_row", "hit_corner", "hit_weight", "share", "hidden"):
         assert np.array_equal(getattr(tables.near, name), getattr(after, name)), name
 
-    real_trace, traced = nearfield.trace, []
+    real_trace, ended = nearfield.trace, []
 
     def slow_trace(*args, **kwargs):
-        time.sleep(0.3)
-        traced.append(real_trace(*args, **kwargs))
-        return traced[-1]
+        try:
+            time.sleep(0.3)
+            return real_trace(*args, **kwargs)
+        except BaseException as exc:
+            ended.append(exc)
+            raise
 
     def failing_test(*args, **kwargs):
         raise RuntimeError("the visibility test failed")
@@ -130,7 +133,8 @@ def test_the_tables_trace_the_near_field_beside_the_visibility_test_and_fail_who
     monkeypatch.setattr(transport.Transport, "_seen_weights", failing_test)
     with pytest.raises(RuntimeError, match="visibility test failed"):
         transport.Transport(arrays, g, cap)
-    assert len(traced) == 1  # its rays were waited for
+    # Its rays were stopped, and waited for: they had ended when the error came.
+    assert len(ended) == 1 and isinstance(ended[0], cubegi.cubegi_engine.working.Cancelled)
     monkeypatch.undo()
     monkeypatch.setattr(nearfield, "trace", lambda *args, **kwargs: 1 / 0)
     with pytest.raises(ZeroDivisionError):
@@ -139,8 +143,9 @@ def test_the_tables_trace_the_near_field_beside_the_visibility_test_and_fail_who
 
 def test_a_new_capture_traces_the_near_field_before_drawing_and_a_failed_one_waits_for_it(empty_scene, cubegi, monkeypatch):
     """A new capture's near field is traced from before the probes are drawn (the bake starts
-    it after placing them): its tables equal those that trace it themselves. A bake whose
-    drawing fails hands on the error only once those rays are done (no thread runs on)."""
+    it after the suns' light): its tables take those rays (none traced again) and equal those
+    that trace them themselves. A bake whose drawing fails stops those rays and hands on the
+    error once their thread has ended."""
     nearfield, working, bake = cubegi.cubegi_engine.nearfield, cubegi.cubegi_engine.working, cubegi.cubegi_engine.bake
     v, f = scenes.box_mesh((-2.0, -2.0, 0.0), (2.0, 2.0, 2.5), (8, 8, 5), inward=True)
     scenes.mesh_object("Room", v, f)
@@ -149,28 +154,36 @@ def test_a_new_capture_traces_the_near_field_before_drawing_and_a_failed_one_wai
     arrays, renderer = _collect_and_renderer(cubegi)
     g = ProbeGrid((-2, -2, 0), (2, 2, 2.5), (3, 3, 2))
     settings = cubegi.cubegi_engine.settings.BakeSettings(cube_size=16)
+    real_trace, calls = nearfield.trace, []
+    monkeypatch.setattr(nearfield, "trace", lambda *a, **k: calls.append(1) or real_trace(*a, **k))
     early = working.run(capture.ProbeCapture.take_steps(arrays, g, renderer, settings,
                                                         tracing=capture.start_near_field(arrays, g, renderer, settings)))
+    assert len(calls) == 1  # the tables took the rays handed to them
     own = capture.ProbeCapture.take(arrays, g, renderer, settings)
+    assert len(calls) == 2
+    monkeypatch.undo()
     assert early.transport.near.count > 100
     for name in ("rows", "open_basis", "hit_row", "hit_corner", "hit_weight", "share", "hidden"):
         assert np.array_equal(getattr(early.transport.near, name), getattr(own.transport.near, name)), name
 
-    real_trace, traced = nearfield.trace, []
+    jobs = []
 
     def slow_trace(*args, **kwargs):
         time.sleep(0.5)
-        traced.append(real_trace(*args, **kwargs))
-        return traced[-1]
+        return real_trace(*args, **kwargs)
 
     def failing_draw(*args, **kwargs):
         raise RuntimeError("the drawing failed")
 
+    real_start = capture.start_near_field
     monkeypatch.setattr(nearfield, "trace", slow_trace)
+    monkeypatch.setattr(bake, "start_near_field", lambda *a: jobs.append(real_start(*a)) or jobs[-1])
     monkeypatch.setattr(capture, "capture_cubes", failing_draw)
     with pytest.raises(RuntimeError, match="drawing failed"):
         working.run(bake.bake_steps(arrays, g, renderer, settings))
-    assert len(traced) == 1  # started before the drawing, and waited for
+    # Started before the drawing, stopped, and waited for.
+    (job,) = jobs
+    assert not job.thread.is_alive() and isinstance(job.out.get("error"), working.Cancelled)
 
 
 def test_culling_draws_what_drawing_everything_draws(empty_scene, cubegi):

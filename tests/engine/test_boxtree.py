@@ -177,6 +177,39 @@ def test_the_main_thread_serves_calls_between_its_batches_of_drawing(monkeypatch
     assert served == [True] and working.result(job) == 1
 
 
+def test_abandoned_work_stops_at_its_next_piece_and_its_calls_are_served_meanwhile():
+    """``abandon`` (a failed step's own work, which nothing will take): the job stops at its
+    next checkpoint, the main thread serving its calls while it waits for that (it would
+    wait for them); and a thread whose call the main thread took but has not ended leaves
+    once the work it is for stops (a main thread stopped inside it would never end it)."""
+    served = []
+
+    def work():
+        for _ in range(1000):
+            working.checkpoint()
+            served.append(working.on_main(lambda: threading.current_thread() is threading.main_thread()))
+            time.sleep(0.01)
+
+    job = working.start(work)
+    while not served:
+        working.serve_waiting()
+    t = time.perf_counter()
+    working.abandon(job)
+    assert time.perf_counter() - t < 1.0 and job.finished.is_set() and not job.thread.is_alive()
+    assert isinstance(job.out.get("error"), working.Cancelled) and all(served) and len(served) < 1000
+
+    box, out = [], {}
+
+    def blocking():  # (the main thread inside the call when the work stops)
+        box[0].stop.set()
+        out["left_first"] = box[0].finished.wait(2.0)
+
+    box.append(working.start(working.on_main, blocking))
+    with pytest.raises(working.Cancelled):
+        working.result(box[0])
+    assert out["left_first"]
+
+
 def test_no_ray_slips_between_two_triangles_along_their_shared_edge(monkeypatch):
     """A plate cut into a grid of triangles 10 cm over a floor (the scene's refinement cut
     it so), shadow rays from the floor towards a lamp, each crossing the plate on the line

@@ -95,17 +95,24 @@ def test_draw_every_bounce_matches_capture_once(empty_scene, cubegi):
     assert np.abs(linear - drawn).mean() < 5e-4 * scale
 
 
-def test_the_tables_trace_the_near_field_beside_the_visibility_test_and_fail_whole(empty_scene, cubegi, monkeypatch):
-    """The tables trace the near field's rays in a thread while they test which probes see each
-    point: the near field is the one built after that test; an error in either reaches the
-    caller, and a failed test waits for the rays (nothing of the failed tables runs on)."""
-    nearfield = cubegi.cubegi_engine.nearfield
+def _room_and_block(cubegi):
+    """A room with a block standing 2 cm over its floor, collected, its renderer, and a grid
+    of 3 x 3 x 2 probes."""
     v, f = scenes.box_mesh((-2.0, -2.0, 0.0), (2.0, 2.0, 2.5), (8, 8, 5), inward=True)
     scenes.mesh_object("Room", v, f)
     bv, bf = scenes.box_mesh((-0.5, -0.3, 0.02), (0.4, 0.6, 0.9), (2, 2, 2), inward=False)
     scenes.mesh_object("Block", bv, bf)
     arrays, renderer = _collect_and_renderer(cubegi)
-    g = ProbeGrid((-2, -2, 0), (2, 2, 2.5), (3, 3, 2))
+    return arrays, renderer, ProbeGrid((-2, -2, 0), (2, 2, 2.5), (3, 3, 2))
+
+
+def test_the_tables_trace_the_near_field_beside_the_visibility_test_and_fail_whole(empty_scene, cubegi, monkeypatch):
+    """The tables trace the near field's rays in a thread while they test which probes see each
+    point: the near field is the one built after that test; an error in either reaches the
+    caller, and a failed test stops the rays and waits for them (nothing of the failed tables
+    runs on)."""
+    nearfield = cubegi.cubegi_engine.nearfield
+    arrays, renderer, g = _room_and_block(cubegi)
     near, far = cubemap.clip_planes(arrays.scale)
     cap = cubemap.capture_cubes(renderer, g.positions(), 16, near, far)
     tables = transport.Transport(arrays, g, cap)
@@ -147,12 +154,7 @@ def test_a_new_capture_traces_the_near_field_before_drawing_and_a_failed_one_wai
     that trace them themselves. A bake whose drawing fails stops those rays and hands on the
     error once their thread has ended."""
     nearfield, working, bake = cubegi.cubegi_engine.nearfield, cubegi.cubegi_engine.working, cubegi.cubegi_engine.bake
-    v, f = scenes.box_mesh((-2.0, -2.0, 0.0), (2.0, 2.0, 2.5), (8, 8, 5), inward=True)
-    scenes.mesh_object("Room", v, f)
-    bv, bf = scenes.box_mesh((-0.5, -0.3, 0.02), (0.4, 0.6, 0.9), (2, 2, 2), inward=False)
-    scenes.mesh_object("Block", bv, bf)
-    arrays, renderer = _collect_and_renderer(cubegi)
-    g = ProbeGrid((-2, -2, 0), (2, 2, 2.5), (3, 3, 2))
+    arrays, renderer, g = _room_and_block(cubegi)
     settings = cubegi.cubegi_engine.settings.BakeSettings(cube_size=16)
     real_trace, calls = nearfield.trace, []
     monkeypatch.setattr(nearfield, "trace", lambda *a, **k: calls.append(1) or real_trace(*a, **k))

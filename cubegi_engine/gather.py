@@ -263,7 +263,7 @@ def near_caster(scene, renderer):
 
 def scene_inward(scene) -> np.ndarray:
     """:func:`~cubegi_engine.geometry.inward` of ``scene``'s triangles, made once per snapshot
-    (where its shadow rays start: :func:`~cubegi_engine.lights.ray_starts`; and the near
+    (where its shadow rays start: :func:`~cubegi_engine.lifts.ray_starts`; and the near
     field's rays through the host's caster)."""
     return made_once(scene, "_inward", lambda: geometry.inward(np.asarray(scene.triangles), np.asarray(scene.points)),
                      key=(id(scene.points), id(scene.triangles)))

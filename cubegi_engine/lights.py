@@ -21,9 +21,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import cubemap, geometry
+from . import cubemap
 from .geometry import cut_triangles, in_pieces, piece_size
-from .spatial import COORD_SLACK
+from .lifts import LIFT, map_points, ray_starts
 from .working import made_once
 
 __all__ = ["Light", "area_polygon", "area_samples", "spot_attenuation", "polygon_form_factor", "unshadowed", "shadow_visibility",
@@ -201,9 +201,6 @@ def unshadowed(light, points, normals):
 # along the ray, and as a share of the scene's size (GPU float32 distances); the cosine below which
 # the slope term stops growing.
 BIAS_FOOTPRINTS, BIAS_OF_DEPTH, SLOPE_OF_SCALE, MIN_COS = 0.1, 1e-5, 1e-4, 0.2
-# How far (in texel footprints at the receiver) a receiver is lifted along its normal before its
-# shadow-map lookup: enough to step off its own curved surface, well below the gap under a rug.
-LIFT = 0.25
 OWN_PLANE = 1e-3  # a plane this share of the lift off either end of it passes through that end (_occluded)
 
 
@@ -303,7 +300,7 @@ def shadow_visibility(receivers: Receivers, occluders: Occluders, eye, depth: De
     rel = points - eye
     d = np.linalg.norm(rel, axis=1)
     footprint = d * (2.0 / n)
-    lifted = points + normals * (LIFT * footprint)[:, None]
+    lifted = map_points(receivers, occluders, footprint)
     rel2 = lifted - eye
     d2 = np.linalg.norm(rel2, axis=1)
     u = rel2 / np.maximum(d2, 1e-300)[:, None]
@@ -430,18 +427,19 @@ def ortho_visibility(receivers: Receivers, occluders: Occluders, view: OrthoView
     """Like :func:`shadow_visibility` for a sun: one orthographic depth map (``view``)."""
     if len(receivers) > piece_size():
         return np.concatenate(in_pieces(lambda sl: ortho_visibility(receivers[sl], occluders, view, depth), len(receivers)))
-    lookup, inside = ortho_lookup(receivers, view, depth.size)
+    lookup, inside = ortho_lookup(receivers, view, depth.size, occluders)
     occluded, doubt = _occluded(depth, lookup, receivers.ids, occluders)
     _ask_rays(occluded, doubt & inside, receivers, occluders, lookup.footprint, along=-view.axis)
     return (~occluded | ~inside).astype(np.float64)
 
 
-def ortho_lookup(receivers: Receivers, view: OrthoView, n):
-    """Each receiver's place in an orthographic map of edge ``n`` (``view``), lifted off its
-    surface as the shadow test lifts it: ``(_Lookup, inside (s,) bool)``."""
+def ortho_lookup(receivers: Receivers, view: OrthoView, n, occluders):
+    """Each receiver's place in an orthographic map of edge ``n`` (``view``) of ``occluders``,
+    lifted off its surface as the shadow test lifts it (:func:`~.lifts.map_points`): ``(_Lookup, inside
+    (s,) bool)``."""
     points, normals, axis = receivers.points, receivers.normals, view.axis
     footprint = np.full(len(points), 2.0 * view.half_width / n)
-    lifted = points + normals * (LIFT * footprint)[:, None]
+    lifted = map_points(receivers, occluders, footprint)
     clip = np.concatenate([lifted, np.ones((len(points), 1))], axis=1) @ view.view_proj.T
     ndc = clip[:, :2] / clip[:, 3:4]
     col = np.clip(((ndc[:, 0] + 1.0) * 0.5 * n).astype(np.int64), 0, n - 1)
@@ -450,34 +448,6 @@ def ortho_lookup(receivers: Receivers, view: OrthoView, n):
     lookup = _Lookup(np.zeros(len(points), dtype=np.int64), row, col, lifted - distance[:, None] * axis,
                      np.broadcast_to(axis, lifted.shape), distance, np.abs(normals @ axis), footprint)
     return lookup, (np.abs(ndc) <= 1.0).all(axis=1)
-
-
-# A ray asked where the map cannot decide starts off its receiver's surface by half the
-# map's own lift (the map's whole lift, a quarter of a texel, could carry it out of the fold
-# it lies in), but at most RAY_LIFT of the scene's size (never a share of the whole scene
-# alone: a 5 mm gap under a rug in a scene 2 km wide must hold) and at least COORD_SLACK of
-# the receiver's coordinates (a float32 mesh's rounding); and as far again into its own
-# triangles (see geometry.inward). A surface through the receiver itself (a wall standing on
-# the floor where the floor ends, walls meeting at a corner) then lies on one side of the
-# start: it shadows the rays that go through it and no others, as the map's back-face rule
-# has it. (A start moved along the ray instead went through such a wall on every ray heading
-# into it: the courtyard's sky per vertex by rays, direct light 19.7% off Cycles; from starts
-# into their own triangles 1.4%, by maps 1.8%.)
-RAY_LIFT = 1e-5
-
-
-def ray_starts(receivers, occluders, footprint, ask):
-    """Where the rays of receivers ``ask`` start (see RAY_LIFT): ``(k, 3)``."""
-    at, normals = receivers.points[ask], receivers.normals[ask]
-    lift = np.maximum(np.minimum(0.5 * LIFT * footprint[ask], RAY_LIFT * occluders.scale), COORD_SLACK * np.abs(at).max(axis=1))
-    start = at + lift[:, None] * normals
-    ids = receivers.ids[ask]
-    if not np.any(ids >= 0):  # no receiver among these surfaces (a moving object's, against the scene's)
-        return start
-    inward = occluders.inward() if occluders.inward is not None else geometry.inward(occluders.triangles, occluders.vertices)
-    into = np.where((ids >= 0)[:, None], inward[np.maximum(ids, 0)], 0.0)
-    into -= np.einsum("kc,kc->k", into, normals)[:, None] * normals  # along the surface
-    return start + lift[:, None] * into
 
 
 def _ask_rays(occluded, doubt, receivers, occluders, footprint, eye=None, along=None):

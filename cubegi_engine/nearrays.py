@@ -173,7 +173,7 @@ def cast_by_caster(caster, tri, sheets, ids, at, nrm, rch, slack, turn, rays, fi
     rays_by, whose, inward = caster()
     # From a vertex where two faces meet, a ray lifted off one face can start behind the
     # other: the rays start as far again into the vertex's own triangles (as shadow rays do:
-    # :func:`~cubegi_engine.lights.ray_starts`).
+    # :func:`~cubegi_engine.lifts.ray_starts`).
     into = inward[ids] - np.einsum("kc,kc->k", inward[ids], nrm)[:, None] * nrm
     at = at + slack[:, None] * into
     twins = None if sheets is None else sheets.twins

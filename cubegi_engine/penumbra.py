@@ -16,7 +16,8 @@ import numpy as np
 
 from . import cubemap
 from .hemisphere import GOLDEN_ANGLE, TURN_HASH
-from .lights import MIN_COS, ortho_lookup, ortho_visibility, ray_starts
+from .lifts import ray_starts
+from .lights import MIN_COS, ortho_lookup, ortho_visibility
 from .working import made_once
 
 __all__ = ["sun_visibility", "disk_directions", "SUN_DISK_RAYS"]
@@ -39,7 +40,7 @@ def sun_visibility(receivers, occluders, view, depth_map, angle):
         return sharp
     n = depth_map.size
     spread = np.tan(0.5 * angle)
-    lookup, inside = ortho_lookup(receivers, view, n)
+    lookup, inside = ortho_lookup(receivers, view, n, occluders)
     edge = inside & (receivers.normals @ -view.axis > -spread) & _near_an_edge(depth_map, lookup, spread, n)
     ask = np.flatnonzero(edge)
     if not len(ask):

@@ -14,6 +14,7 @@ from . import cubemap, sh
 from . import lights as lights_mod
 from .eyes import SUN_BOX_MARGIN, SUN_EYE_DISTANCE, SUN_FAR, SUN_NEAR
 from .gather import scene_caster, scene_occluders, sky_pattern
+from .lifts import ray_starts
 from .records import direct_step
 from .working import WORKERS, in_background, run, start, wait
 
@@ -207,7 +208,7 @@ def _sky_rays(receivers, occluders, caster, dirs, footprint):
     a map's doubtful receiver's ray is: ``footprint``, the map's texel)."""
     facing = receivers.normals @ dirs.T > 0  # (r, k)
     row, k = np.nonzero(facing)
-    origins = lights_mod.ray_starts(receivers[row], occluders, np.full(len(row), footprint), np.arange(len(row)))
+    origins = ray_starts(receivers[row], occluders, np.full(len(row), footprint), np.arange(len(row)))
     open_ = ~caster.blocked(origins, dirs[k], None)
     order = np.argsort(k, kind="stable")  # each direction's rays together (not one mask per direction)
     bounds = np.searchsorted(k[order], np.arange(len(dirs) + 1))

@@ -252,7 +252,7 @@ def _env_image(name="Sky"):
 # direct 4.2% (-0.1%), total 4.3%; the image 3.9% (-0.8%), 5.0%. By depth maps, 4.8% and
 # 5.0%, 5.0% and 5.7% (shadows a little wide where surfaces meet); by rays started straight
 # off their surface, not into their own triangles, direct 14.3% and 19.1% (where a wall meets
-# the ground, a ray starts on the wall's plane: see lights.RAY_LIFT).
+# the ground, a ray starts on the wall's plane: see lifts.RAY_LIFT).
 SKY_TOL = {("uniform", False): (0.11, 0.07), ("image", False): (0.14, 0.10),
            ("uniform", True): (0.05, 0.05), ("image", True): (0.05, 0.06)}
 

@@ -88,7 +88,7 @@ def test_a_receiver_asks_rays_only_within_the_penumbra_its_own_occluders_can_cas
     receivers = Receivers(np.stack([x, np.full_like(x, 0.013), np.zeros_like(x)], axis=1), np.tile([0.0, 0.0, 1.0], (len(x), 1)),
                           np.full(len(x), -1))
     angle = np.radians(2.0)
-    lookup, _ = lights.ortho_lookup(receivers, view, depth.size)
+    lookup, _ = lights.ortho_lookup(receivers, view, depth.size, occluders)
     asked = penumbra._near_an_edge(depth, lookup, np.tan(0.5 * angle), depth.size)
     truth, _ = penumbra._disk_share(receivers, occluders, view.axis, np.tan(0.5 * angle), np.full(len(x), 1e-3), np.arange(len(x)))
     partial = (truth > 0.0) & (truth < 1.0)
@@ -123,7 +123,7 @@ def test_receivers_sharing_a_texel_ask_the_first_rays_from_their_outermost_alone
     points = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
     receivers = Receivers(points, np.tile([0.0, 0.0, 1.0], (len(points), 1)), np.full(len(points), -1))
     spread = np.tan(np.radians(1.0))
-    lookup, _ = lights.ortho_lookup(receivers, view, depth.size)
+    lookup, _ = lights.ortho_lookup(receivers, view, depth.size, occluders)
     ask = np.flatnonzero(penumbra._near_an_edge(depth, lookup, spread, depth.size))
     sharp = lights.ortho_visibility(receivers, occluders, view, depth)[ask]
     counting.rays = 0
@@ -157,7 +157,7 @@ def test_a_shadows_corner_inside_a_texel_leaves_every_receiver_its_own_share(tur
         r, t = np.sqrt(rng.random(400)) * 0.45 * texel, rng.random(400) * 2.0 * np.pi
         points = np.stack([middle[0] + r * np.cos(t), middle[1] + r * np.sin(t), np.zeros(400)], axis=1)
         receivers = Receivers(points, np.tile([0.0, 0.0, 1.0], (400, 1)), np.full(400, -1))
-        lookup, _ = lights.ortho_lookup(receivers, view, depth.size)
+        lookup, _ = lights.ortho_lookup(receivers, view, depth.size, occluders)
         ask = np.flatnonzero(penumbra._near_an_edge(depth, lookup, spread, depth.size))
         sharp = lights.ortho_visibility(receivers, occluders, view, depth)[ask]
         got, _ = penumbra._shared_disk_share(receivers, occluders, view.axis, spread, lookup, ask, depth.size, sharp)
@@ -165,3 +165,22 @@ def test_a_shadows_corner_inside_a_texel_leaves_every_receiver_its_own_share(tur
         assert len(ask) > 100
         worst = max(worst, np.abs(got - own).max())
     assert worst <= 0.13, worst
+
+
+def test_a_receiver_on_the_edge_of_an_opening_is_looked_up_from_its_own_side():
+    """A slat's end lies on the line of an opening's edge above it (slats of a blind whose
+    ends meet a window's reveal): the sun's ray from that end grazes the edge. The map looks
+    each receiver up where its rays start, off its surface and into its own triangles: the
+    slat's end sees the sun through the opening, as Cycles' samples around it do (the map's
+    exact cut landed on the edge, inside the plate: shadowed, for sure). A floor under the
+    plate stays in its shadow, and the one under the opening in the sun."""
+    edge = 0.79  # (the texels' middles about it: the receiver's own texel sees the plate)
+    slat = [(-0.5, -0.8, 0.0), (0.5, -0.8, 0.0), (0.5, edge, 0.0), (-0.5, edge, 0.0)]  # faces up
+    plate = [(-2.0, edge, 1.0), (2.0, edge, 1.0), (2.0, 2.0, 1.0), (-2.0, 2.0, 1.0)]  # over y >= edge only
+    floor = [(-2.0, -2.0, -0.5), (2.0, -2.0, -0.5), (2.0, 2.0, -0.5), (-2.0, 2.0, -0.5)]
+    occluders, view, depth = _sun_map([slat, plate, floor])
+    ends = [2, 3]  # the slat's corners on the edge's line
+    points = np.concatenate([occluders.vertices[ends], [[0.0, 1.2, -0.5], [0.0, -1.2, -0.5]]])
+    receivers = Receivers(points, np.tile([0.0, 0.0, 1.0], (4, 1)), np.array(ends + [-1, -1]))
+    seen = lights.ortho_visibility(receivers, occluders, view, depth)
+    assert list(seen) == [1.0, 1.0, 0.0, 1.0]

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from cubegi.cubegi_engine import geometry
-from cubegi.cubegi_engine.lights import Occluders, Receivers, ray_starts
+from cubegi.cubegi_engine.lifts import ray_starts
+from cubegi.cubegi_engine.lights import Occluders, Receivers
 from cubegi.cubegi_engine.rays import NumpyRays
 
 

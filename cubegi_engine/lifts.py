@@ -55,10 +55,12 @@ def into_own(receivers, occluders, lift):
 
 
 def map_points(receivers, occluders, footprint):
-    """Where a shadow map looks each receiver up: lifted off its surface by LIFT of its texel's
+    """Where a sun's map looks each receiver up: lifted off its surface by LIFT of its texel's
     ``footprint (s,)``, and as far into its own triangles as its rays start (:func:`ray_starts`).
     A surface whose edge the receiver lies on (a window's reveal where a slat's end meets it,
     seen edge-on from the sun) then lies on one side of it, for the map as for its rays: the
-    map's exact plane cut no longer lands on that edge, inside the surface beyond it."""
+    map's exact plane cut no longer lands on that edge, inside the surface beyond it. (A
+    lamp's cube maps look receivers up lifted alone: there the same step put a block's top
+    corner in a shadow Cycles does not cast, one eye of an emitter's in 16.)"""
     at = receivers.points
     return at + receivers.normals * (LIFT * footprint)[:, None] + into_own(receivers, occluders, ray_lift(at, occluders, footprint))

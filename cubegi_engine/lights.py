@@ -300,7 +300,7 @@ def shadow_visibility(receivers: Receivers, occluders: Occluders, eye, depth: De
     rel = points - eye
     d = np.linalg.norm(rel, axis=1)
     footprint = d * (2.0 / n)
-    lifted = map_points(receivers, occluders, footprint)
+    lifted = points + normals * (LIFT * footprint)[:, None]
     rel2 = lifted - eye
     d2 = np.linalg.norm(rel2, axis=1)
     u = rel2 / np.maximum(d2, 1e-300)[:, None]

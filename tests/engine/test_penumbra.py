@@ -177,7 +177,7 @@ def test_a_receiver_on_the_edge_of_an_opening_is_looked_up_from_its_own_side():
     edge = 0.79  # (the texels' middles about it: the receiver's own texel sees the plate)
     slat = [(-0.5, -0.8, 0.0), (0.5, -0.8, 0.0), (0.5, edge, 0.0), (-0.5, edge, 0.0)]  # faces up
     plate = [(-2.0, edge, 1.0), (2.0, edge, 1.0), (2.0, 2.0, 1.0), (-2.0, 2.0, 1.0)]  # over y >= edge only
-    floor = [(-2.0, -2.0, -0.5), (2.0, -2.0, -0.5), (2.0, 2.0, -0.5), (-2.0, 2.0, -0.5)]
+    floor = [(-4.5, -4.5, -0.5), (4.5, -4.5, -0.5), (4.5, 4.5, -0.5), (-4.5, 4.5, -0.5)]  # (under the whole map)
     occluders, view, depth = _sun_map([slat, plate, floor])
     ends = [2, 3]  # the slat's corners on the edge's line
     points = np.concatenate([occluders.vertices[ends], [[0.0, 1.2, -0.5], [0.0, -1.2, -0.5]]])

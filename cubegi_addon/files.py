@@ -9,16 +9,15 @@ Rules, for every path CubeGI writes:
 - it is not the same file as any path it must not touch (the input, or another output),
   through symbolic links, hard links or bind mounts alike (compared by device and inode
   where the file exists, by resolved path where it does not);
-- it is written to a temporary file in a private folder beside it and renamed over the
-  target only when every output of the job is complete (:func:`write_all`); the temporary
-  folder is removed in every case, so nothing half-written and no backup file stays.
+- it is written to a temporary file of a new name beside it and renamed over the target
+  only when every output of the job is complete (:func:`write_all`); the temporary file is
+  removed in every case, so nothing half-written and no backup file stays.
 """
 
 import collections
 import os
-import shutil
+import secrets
 import stat
-import tempfile
 
 from ..cubegi_engine.errors import BakeError
 from . import interrupts
@@ -80,8 +79,10 @@ def writable_target(path, what, protected=()):
 def write_all(jobs):
     """Write several files, all or none: ``jobs`` is ``[(path, write(tmp_path))]``.
 
-    Each ``write`` fills a temporary path in a private folder beside its target; once all
-    have succeeded they are renamed over their targets. A failure (a full disk, a write
+    Each ``write`` fills a temporary file in its target's own folder (a .blend's relative
+    paths, to its linked libraries and images, are written relative to where it is saved:
+    from a folder of its own they pointed one level too deep); once all have succeeded they
+    are renamed over their targets. A failure (a full disk, a write
     error) raises a BakeError and leaves every target as it was; the temporary folders go in
     every case. Under :func:`.interrupts.interruptible`, an interrupt (Ctrl-C, SIGTERM) that
     comes while the files are written waits for the write to end (the save itself is
@@ -93,9 +94,8 @@ def write_all(jobs):
     with interrupts.deferred(written=done):
         try:
             for path, write in jobs:
-                folder = tempfile.mkdtemp(prefix=".cubegi-", dir=os.path.dirname(path))
-                tmp = os.path.join(folder, os.path.basename(path))
-                staged.append((folder, tmp, path))
+                tmp = _sibling(path)
+                staged.append((tmp, path))
                 try:
                     write(tmp)
                 except (OSError, RuntimeError) as exc:
@@ -103,12 +103,22 @@ def write_all(jobs):
                     raise BakeError(f"could not write {path!r}: {reason}") from None
                 if not os.path.isfile(tmp):
                     raise BakeError(f"could not write {path!r}")
-            for _, tmp, path in staged:
+            for tmp, path in staged:
                 os.replace(tmp, path)
                 written.append(path)
                 done.append(path)
         finally:
-            for folder, _, _ in staged:
-                shutil.rmtree(folder, ignore_errors=True)
+            for tmp, _ in staged:
+                if os.path.exists(tmp):
+                    os.remove(tmp)
+
+
+def _sibling(path):
+    """A path no file has, in ``path``'s folder: ``.cubegi-<random>-<its name>``."""
+    folder, name = os.path.split(path)
+    while True:
+        tmp = os.path.join(folder, f".cubegi-{secrets.token_hex(6)}-{name}")
+        if not os.path.exists(tmp):
+            return tmp
 
 

@@ -67,6 +67,31 @@ def test_cli_bakes_a_saved_file(saved_scene, tmp_path, cubegi):
     assert "user_data" in bpy.data.objects["Block"].data.attributes
 
 
+def test_the_output_keeps_a_linked_world_s_relative_path(empty_scene, tmp_path):
+    """A world linked from a library by a relative path (``//lib.blend``): the output saved
+    beside the input still finds it (the output was first written in a folder of its own,
+    and Blender made the path relative to that: ``//../lib.blend``, missing)."""
+    world = bpy.data.worlds.new("LibSky")
+    world.use_fake_user = True
+    bpy.data.libraries.write(str(tmp_path / "lib.blend"), {world})
+    bpy.data.worlds.remove(world)
+    v, f = scenes.box_mesh((-2, -2, 0), (2, 2, 2.5), (4, 4, 3), inward=True)
+    scenes.mesh_object("Room", v, f, scenes.material("White", (0.8, 0.8, 0.8)))
+    scenes.add_light("POINT", (0.3, 0.2, 2.0), 100.0)
+    src = tmp_path / "in.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(src))
+    with bpy.data.libraries.load("//lib.blend", link=True, relative=True) as (_, linked):
+        linked.worlds = ["LibSky"]
+    bpy.context.scene.world = linked.worlds[0]
+    bpy.ops.wm.save_as_mainfile(filepath=str(src))
+    out = tmp_path / "out.blend"
+    r = _cli("bake", str(src), "-o", str(out), "--grid", "3", "3", "2", "--bounces", "1", "--no-tail")
+    assert r.returncode == 0, r.stderr
+    bpy.ops.wm.open_mainfile(filepath=str(out))
+    (lib,) = bpy.data.libraries
+    assert lib.filepath == "//lib.blend" and bpy.context.scene.world.name == "LibSky" and not bpy.context.scene.world.is_missing
+
+
 def test_cli_rebake_replaces_only_its_own_attributes(saved_scene, tmp_path):
     src, _ = saved_scene
     first, second = tmp_path / "a.blend", tmp_path / "b.blend"

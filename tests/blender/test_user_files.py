@@ -148,7 +148,7 @@ sys.exit(cli.main(sys.argv[1:]))
 def test_sigterm_while_saving_finishes_the_save_and_leaves_no_temporary_folder(saved, tmp_path):
     """SIGTERM during the save (a job scheduler's stop): the write ends (every file whole),
     then the command stops with status 143 and one line naming what it wrote; no hidden
-    ``.cubegi-*`` folder stays (before: the process ended mid-save and left it)."""
+    ``.cubegi-*`` file stays (before: the process ended mid-save and left a folder)."""
     out, report = tmp_path / "out" / "out.blend", tmp_path / "out" / "out.json"
     out.parent.mkdir()
     before = saved.read_bytes()

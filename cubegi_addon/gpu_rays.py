@@ -179,7 +179,6 @@ class GpuRays:
         weakref.finalize(self, _forget, self._key)
         self._fallback = None  # Blender's tree over the same triangles, made where it first answers
         self._unusable = False  # the shader cannot run, or the tree is over the GPU's largest image
-        self._corners = None  # the triangles at each point (near_hits_again), made when first asked
         self._lock = threading.Lock()
 
     @property
@@ -193,11 +192,14 @@ class GpuRays:
         which, t = self._walk(origins, dirs, reach, any_hit=False)
         if which is None:
             return self._by_tree().cast(origins, dirs, reach)
-        with self._lock:
-            if self._corners is None:
-                self._corners = corner_triangles(self.triangles, len(self.points))
         which, t = near_hits_again(self.points, self.triangles, self._corners, self.tree.scale, origins, dirs, reach, which, t)
         return hits_from_distances(self.points, self.triangles, origins, dirs, t, which)
+
+    @working.once
+    def _corners(self):
+        """The triangles at each point (:func:`~cubegi_engine.rays.near_hits_again`), made when
+        first asked."""
+        return corner_triangles(self.triangles, len(self.points))
 
     def blocked(self, origins, dirs, reach=None) -> np.ndarray:
         """``(n,)`` bool: whether each ray meets a triangle within its reach (a shadow ray:

@@ -1,6 +1,6 @@
-"""Where a shadow test asks about a receiver: the point its shadow maps look up (lifted off its
-surface, and into its own triangles) and where its rays start (:mod:`.lights`,
-:mod:`.penumbra`, :mod:`.sky`).
+"""Where a shadow test asks about a receiver: where its rays start (off its surface, and into
+its own triangles) and the point a sun's maps look it up at, there too (:mod:`.lights`,
+:mod:`.penumbra`, :mod:`.sky`; a lamp's cube maps lift it alone, see :func:`map_points`).
 
 Pure numpy; must not import bpy.
 """

@@ -423,7 +423,7 @@ def finish(traced, *, hidden=None, lit_if_open=None, hidden_as_given=False, emit
     weight = np.stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], axis=1)
     corners = hits.corners
     # The caster's hits lie in dense geometry, where the voxel index's tests below would take
-    # minutes: their hidden corners' weight goes to the others, and no gap darkens them.
+    # minutes: their hidden corners' weight goes to the others (and trace asked no gap of them).
     by_voxels = point < traced.traced
     emitters = None
     if hidden is not None:
@@ -435,8 +435,7 @@ def finish(traced, *, hidden=None, lit_if_open=None, hidden_as_given=False, emit
         weight = uncover(index, weight, corners, hidden, hits.triangle, traced.rch[point], by_voxels)
     if traced.gap is not None:  # a hit in a gap takes what the gap lets in (worked out with the rays)
         ask, ratio = traced.gap
-        weight = weight.copy()
-        weight[ask] *= ratio
+        weight[ask] *= ratio  # (weight is this call's own: stacked above, or uncover's copy)
     weight *= (hits.front * hits.weight)[:, None]  # a back face occludes and sends nothing
     open_basis, share, hit_row = hits.open_basis, hits.share, hit_row.astype(np.int64).ravel()
     alias = None

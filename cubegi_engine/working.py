@@ -13,7 +13,6 @@ steps started when it is closed (a cancel) or fails: each ends at its next piece
 """
 
 import ctypes
-import math
 import os
 import threading
 import time
@@ -141,7 +140,7 @@ def abandon(job):
     the main thread, the calls it hands over meanwhile are served (it would wait for them)."""
     job.stop.set()
     if threading.current_thread() is threading.main_thread():
-        _serve_until(job.finished.is_set, math.inf)
+        _serve_until(job.finished.is_set, float("inf"))
     job.thread.join()  # (after its last call: at once)
 
 

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..cubegi_engine import working as working_steps
 from ..cubegi_engine.errors import BakeError
+from ..cubegi_engine.geometry import cross
 from ..cubegi_engine.scene import SceneArrays
 from . import attributes, read_lights, read_materials, read_meshes, read_world
 from .sampling import sampled
@@ -481,7 +482,7 @@ def vertex_areas(ob):
     mesh.loop_triangles.foreach_get("vertices", tri)
     tri = tri.reshape(-1, 3)
     p = co[tri]
-    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    area = 0.5 * np.linalg.norm(cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
     return np.bincount(tri.ravel(), np.repeat(area / 3.0, 3), minlength=len(mesh.vertices))
 
 

@@ -6,7 +6,7 @@ Pure numpy; must not import bpy.
 
 import numpy as np
 
-from .geometry import corner_box, corner_triangles, near_any_triangle, run_offsets, triangles_at
+from .geometry import corner_box, corner_triangles, cross, near_any_triangle, run_offsets, triangles_at
 from .working import checkpoint, once
 
 __all__ = ["Prepared", "contact", "PARALLEL", "AROUND", "SIDE_PLANES"]
@@ -36,7 +36,7 @@ class Prepared:
         self.tri_lo, self.tri_hi = corner_box(corners)
         size = self.tri_hi - self.tri_lo
         self.tri_extent = np.maximum(np.maximum(size[:, 0], size[:, 1]), size[:, 2])
-        n = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        n = cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
         length = np.linalg.norm(n, axis=1)
         self.tri_area = 0.5 * length
         self.tri_normal = n / np.maximum(length, 1e-300)[:, None]

@@ -115,7 +115,7 @@ def corners(scene, rows) -> Corners:
     corners_ = p[tri[t]]  # (c, 3, 3)
     to_centre = corners_.mean(axis=1) - at
     to_centre /= np.maximum(np.linalg.norm(to_centre, axis=1, keepdims=True), 1e-300)
-    face = np.cross(corners_[:, 1] - corners_[:, 0], corners_[:, 2] - corners_[:, 0])
+    face = geometry.cross(corners_[:, 1] - corners_[:, 0], corners_[:, 2] - corners_[:, 0])
     face /= np.maximum(np.linalg.norm(face, axis=1, keepdims=True), 1e-300)
     scale = scene.scale
     inset = at + INSET * scale * to_centre
@@ -222,7 +222,7 @@ def _seen_corners(caster, points, tri, at, bary, scale) -> np.ndarray:
     lit by the outside's sun, which the hit point is not. A hit that sees none of its
     corners keeps them all."""
     p = np.asarray(points, dtype=np.float64)[tri]  # (h, 3 corners, 3)
-    face = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    face = geometry.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     face /= np.maximum(np.linalg.norm(face, axis=1, keepdims=True), 1e-300)
     lift = SEEN_LIFT * scale
     start = np.repeat(at + lift * face, 3, axis=0)

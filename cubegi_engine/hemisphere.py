@@ -11,6 +11,8 @@ same scene in another object order bakes the same, and neighbours' rays are deco
 
 import numpy as np
 
+from .geometry import cross
+
 __all__ = ["ray_pattern", "hemisphere_rays", "TURN_HASH", "GOLDEN_ANGLE"]
 
 GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
@@ -36,8 +38,8 @@ def hemisphere_rays(normals, rays, turn):
     """Each point's rays in world space, ``(m, rays, 3)``. A point without a normal (zero: a
     face of no area) gets rays of no length, which meet nothing."""
     helper = np.where(np.abs(normals[:, 2:3]) < 0.9, np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))
-    t1 = np.cross(helper, normals)
+    t1 = cross(helper, normals)
     t1 /= np.maximum(np.linalg.norm(t1, axis=1, keepdims=True), 1e-300)
-    t2 = np.cross(normals, t1)
+    t2 = cross(normals, t1)
     local = ray_pattern(rays, turn)
     return local[..., 0:1] * t1[:, None] + local[..., 1:2] * t2[:, None] + local[..., 2:3] * normals[:, None]

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import cubemap
-from .geometry import cut_triangles, in_pieces, piece_size
+from .geometry import cross, cut_triangles, in_pieces, piece_size
 from .lifts import LIFT, map_points, ray_starts
 from .working import made_once
 
@@ -162,11 +162,11 @@ def polygon_form_factor(points, normals, polygon):
     nxt_j = np.where(j + 1 < count[:, None], j + 1, 0)
     u = slots / np.maximum(np.linalg.norm(slots, axis=-1, keepdims=True), 1e-30)
     w = np.take_along_axis(u, nxt_j[..., None], axis=1)
-    cross = np.cross(w, u)  # counter-clockwise seen from the receiver: w x u faces it
-    sin_t = np.linalg.norm(cross, axis=-1)
+    turn = cross(w, u)  # counter-clockwise seen from the receiver: w x u faces it
+    sin_t = np.linalg.norm(turn, axis=-1)
     cos_t = np.einsum("sjc,sjc->sj", u, w)
     theta = np.arctan2(sin_t, cos_t)
-    g = cross / np.maximum(sin_t, 1e-30)[..., None]
+    g = turn / np.maximum(sin_t, 1e-30)[..., None]
     term = theta * np.einsum("sjc,sc->sj", g, normals)
     f = np.where(valid & (count[:, None] >= 3), term, 0.0).sum(axis=1) / (2.0 * np.pi)
     return np.clip(f, 0.0, 1.0)

@@ -33,6 +33,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import crossing
+from .geometry import cross
 from .working import checkpoint
 
 __all__ = ["CaptureProxy", "simplify"]
@@ -412,4 +413,4 @@ def _place(prep, clusters: _Clusters, mean):
 
 def _normals(vertices, triangles):
     v = vertices[triangles]
-    return np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    return cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])

@@ -6,7 +6,7 @@ import weakref
 
 import numpy as np
 
-from .geometry import chunks, in_pieces, planes_of, ray_cut, run_offsets, sorted_unique
+from .geometry import chunks, cross, in_pieces, planes_of, ray_cut, run_offsets, sorted_unique
 from .working import checkpoint, once
 
 __all__ = ["VoxelIndex", "Corners", "corners_of", "voxel_index", "forget_indexes", "resting", "intersect_pairs",
@@ -37,7 +37,7 @@ def over_triangles(x, a, b, c, unit):
     inside = np.ones(len(x), dtype=bool)
     for p, q in ((a, b), (b, c), (c, a)):
         edge = q - p
-        side = np.einsum("ij,ij->i", np.cross(edge, x - p), unit)
+        side = np.einsum("ij,ij->i", cross(edge, x - p), unit)
         inside &= side >= -e * np.einsum("ij,ij->i", edge, edge)
     return inside
 
@@ -84,7 +84,7 @@ class Corners:
     @once
     def unit(self):
         """``(t, 3)`` each triangle's unit normal."""
-        normal = np.cross(self.b - self.a, self.c - self.a)
+        normal = cross(self.b - self.a, self.c - self.a)
         return normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
 
     @once

@@ -359,17 +359,21 @@ class Transport:
         rows = np.asarray(rows, dtype=np.int64)
         if not len(rows):
             return np.zeros((0, 3))
-        flat = np.asarray(coeffs, dtype=np.float64).reshape(len(coeffs), -1)  # (p, 27)
-        weight, index = self.probe_weights(rows), self.index[rows]
-        mixed = np.zeros((len(rows), flat.shape[1]))  # each row's 8 probes mixed first: no (m, 8, 9, 3) array
-        for j in range(index.shape[1]):
-            mixed += weight[:, j, None] * flat[index[:, j]]
-        return np.einsum("mk,mkc->mc", basis, mixed.reshape(len(rows), 9, -1))
+        # (float32, as _cell_light: at 1.24M vertices, 0.6 -> 0.2 s a call of 390K rows)
+        flat = np.ascontiguousarray(coeffs, dtype=np.float32).reshape(len(coeffs), -1)  # (p, 27)
+        index, weight = self.index[rows], self._weights_of(rows)
+        mixed = weight[:, 0, None] * flat[index[:, 0]]  # each row's 8 probes mixed first: no (m, 8, 9, 3) array
+        taken = np.empty_like(mixed)
+        for j in range(1, index.shape[1]):
+            mixed += np.multiply(np.take(flat, index[:, j], axis=0, out=taken), weight[:, j, None], out=taken)
+        return np.matmul(np.asarray(basis, dtype=np.float32)[:, None, :], mixed.reshape(len(rows), 9, -1))[:, 0].astype(np.float64)
 
     def probe_weights(self, rows):
         """``(m, 8)`` float64: the (visibility-aware) weights of the points ``rows``' 8 probes."""
-        at = rows if self._cells is None else self._cells.rank[rows]
-        return self._weight[at].astype(np.float64)
+        return self._weights_of(rows).astype(np.float64)
+
+    def _weights_of(self, rows):
+        return self._weight[rows if self._cells is None else self._cells.rank[rows]]
 
     def arrays(self):
         """The tables' arrays (for memory accounting)."""

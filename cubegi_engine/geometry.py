@@ -320,10 +320,17 @@ def twin_triangles(points, triangles, sheet):
     ids = np.flatnonzero(sheet)
     if len(ids) < 2:
         return twin
-    corner = position_hash(np.asarray(points)[triangles[ids]].reshape(-1, 3)).reshape(-1, 3)  # (k, 3)
-    key = np.sort(corner, axis=1)
-    key = mix64(mix64(key[:, 0]) ^ key[:, 1])
-    key = mix64(key ^ np.sort(corner, axis=1)[:, 2])
+    points = np.asarray(points)
+    if len(points) < 3 * len(ids):  # each position hashed once (a vertex is the corner of several)
+        corner = position_hash(points)[triangles[ids]]  # (k, 3)
+    else:
+        corner = position_hash(points[triangles[ids]].reshape(-1, 3)).reshape(-1, 3)
+    # The corners' hashes in order, each triangle's (a sorting network: np.sort along an axis
+    # of three is slow), then one key of the three.
+    c0, c1, c2 = corner[:, 0], corner[:, 1], corner[:, 2]
+    low, high = np.minimum(np.minimum(c0, c1), c2), np.maximum(np.maximum(c0, c1), c2)
+    key = mix64(mix64(mix64(low) ^ (c0 ^ c1 ^ c2 ^ low ^ high)) ^ high)
+    del low, high
     order = np.argsort(key, kind="stable")
     k = key[order]
     pair = np.flatnonzero((k[1:] == k[:-1]) & np.append(k[2:] != k[1:-1], True) & np.insert(k[1:-1] != k[:-2], 0, True))

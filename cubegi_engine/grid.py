@@ -259,7 +259,10 @@ class ProbeSubset:
         return pos if self._displacement is None else pos + self._displacement
 
     def trilinear(self, points):
-        index, weight = self.grid.trilinear(points)
+        return self.of_whole(*self.grid.trilinear(points))
+
+    def of_whole(self, index, weight):
+        """:meth:`trilinear` from the whole grid's ``(index, weight)`` of the same points."""
         mine = self._number[index]
         return np.maximum(mine, 0), np.where(mine >= 0, weight, 0.0)
 

@@ -639,3 +639,39 @@ def test_a_curved_emitters_lone_triangles_give_lamberts_light_near_and_far():
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(emitters, "FAR_RADII", 1e6)
         np.testing.assert_allclose(emitters._lone_ff(points, normals, verts, radiance), exact, rtol=1e-12, atol=1e-15)
+
+
+def test_a_sheets_twin_is_the_triangle_over_the_same_positions_wound_the_other_way():
+    """Twins found by hashed positions are those a brute-force search finds: over the same
+    three positions (copies, not shared vertices), wound the other way; not a copy wound the
+    same way, not one of three over the same positions, not a triangle outside the sheets.
+    Alike whether each position or each corner is hashed (few or many points per sheet)."""
+    from cubegi.cubegi_engine.geometry import twin_triangles
+
+    rng = np.random.default_rng(11)
+    grid = rng.integers(0, 4, (30, 3)).astype(np.float32)  # few distinct positions: many near misses
+    base = np.array([c for c in rng.integers(0, 30, (200, 3)) if len(set(c)) == 3][:60])
+    turned = base[:, [0, 2, 1]]  # wound the other way
+    same = base[:10]  # wound the same way: not a twin
+    rolled = np.roll(base[10:20, ::-1], 1, axis=1)  # the other way, starting elsewhere: a twin
+    tri = np.concatenate([base, turned[:40], same, rolled, turned[45:50], turned[45:50]])  # 45-49: three over one place
+    points = np.concatenate([grid, grid[tri.ravel()]])  # each corner a copy of its position
+    tri = (30 + np.arange(tri.size)).reshape(-1, 3)
+    sheet = rng.uniform(size=len(tri)) < 0.9
+
+    def brute(points):
+        out = np.full(len(tri), -1)
+        key = [tuple(map(tuple, points[t])) for t in tri]
+        for i in np.flatnonzero(sheet):
+            found = [j for j in np.flatnonzero(sheet) if j != i and sorted(key[j]) == sorted(key[i])]
+            turn = [j for j in found if any(key[j] == (key[i][(k + 2) % 3], key[i][(k + 1) % 3], key[i][k]) for k in range(3))]
+            if len(found) == 1 and len(turn) == 1:
+                out[i] = turn[0]
+        return out
+
+    expected = brute(points)
+    assert (expected >= 0).sum() >= 40 and (expected[:40] < 0).any()
+    assert np.array_equal(twin_triangles(points, tri, sheet), expected)  # each corner hashed (points > 3 x sheets)
+    compact = grid  # each position once, shared by the corners: each position hashed
+    shared = np.concatenate([base, turned[:40], same, rolled, turned[45:50], turned[45:50]])
+    assert np.array_equal(twin_triangles(compact, shared, sheet), expected)

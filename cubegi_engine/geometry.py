@@ -7,7 +7,7 @@ import numpy as np
 from . import working
 
 __all__ = ["sorted_unique", "run_offsets", "triangle_planes", "planes_of", "cross", "ray_cut", "cut_planes", "cut_triangles", "near_any_triangle",
-           "edge_neighbours", "chunks", "POINT_CHUNK", "GRAZING", "twin_triangles", "mix64", "position_hash", "corner_box",
+           "edge_neighbours", "chunks", "POINT_CHUNK", "GRAZING", "twin_triangles", "mix64", "sorted_columns", "position_hash", "corner_box",
            "corner_triangles", "triangles_at"]
 
 # Per-point tests that make several (s, 9, 3) float64 arrays run this many points at a time:
@@ -325,12 +325,9 @@ def twin_triangles(points, triangles, sheet):
         corner = position_hash(points)[triangles[ids]]  # (k, 3)
     else:
         corner = position_hash(points[triangles[ids]].reshape(-1, 3)).reshape(-1, 3)
-    # The corners' hashes in order, each triangle's (a sorting network: np.sort along an axis
-    # of three is slow), then one key of the three.
-    c0, c1, c2 = corner[:, 0], corner[:, 1], corner[:, 2]
-    low, high = np.minimum(np.minimum(c0, c1), c2), np.maximum(np.maximum(c0, c1), c2)
-    key = mix64(mix64(mix64(low) ^ (c0 ^ c1 ^ c2 ^ low ^ high)) ^ high)
-    del low, high
+    low, mid, high = sorted_columns(corner)
+    key = mix64(mix64(mix64(low) ^ mid) ^ high)
+    del low, mid, high
     order = np.argsort(key, kind="stable")
     k = key[order]
     pair = np.flatnonzero((k[1:] == k[:-1]) & np.append(k[2:] != k[1:-1], True) & np.insert(k[1:-1] != k[:-2], 0, True))
@@ -344,6 +341,15 @@ def twin_triangles(points, triangles, sheet):
     a, b = a[same & reversed_], b[same & reversed_]
     twin[ids[a]], twin[ids[b]] = ids[b], ids[a]
     return twin
+
+
+def sorted_columns(triples):
+    """``(low, middle, high)``, each ``(k,)``: the three integers of each row of ``triples (k,
+    3)`` in order (min and max, the middle one by XOR: np.sort along an axis of three is
+    several times slower)."""
+    a, b, c = triples[:, 0], triples[:, 1], triples[:, 2]
+    low, high = np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
+    return low, a ^ b ^ c ^ low ^ high, high
 
 
 def mix64(x):

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .emitters import emitting_triangles
-from .geometry import cross, mix64, near_any_triangle
+from .geometry import cross, mix64, near_any_triangle, sorted_columns
 from .scene import SceneArrays
 
 __all__ = ["refine", "refine_for_grid", "refine_near_emitters", "split_counts", "MAX_SPLIT", "MAX_NEW_SHARE"]
@@ -262,8 +262,8 @@ def _among(triangles, others) -> np.ndarray:
         return np.zeros(len(triangles), dtype=bool)
 
     def key(t):
-        t = np.sort(t, axis=1).astype(np.uint64)
-        return mix64(mix64(mix64(t[:, 0]) ^ t[:, 1]) ^ t[:, 2])
+        low, mid, high = sorted_columns(np.asarray(t).astype(np.uint64))
+        return mix64(mix64(mix64(low) ^ mid) ^ high)
 
     known, wanted = np.sort(key(others)), key(triangles)
     return known[np.minimum(np.searchsorted(known, wanted), len(known) - 1)] == wanted

@@ -5,7 +5,8 @@ import numpy as np
 from mathutils.bvhtree import BVHTree
 
 from ..cubegi_engine import working
-from ..cubegi_engine.rays import Hits, hits_from_distances
+from ..cubegi_engine.geometry import corner_triangles
+from ..cubegi_engine.rays import Hits, hits_from_distances, near_hits_again
 
 # Resident memory of Blender's BVH tree per triangle (measured: about 160 MB for a million).
 TREE_BYTES = 160
@@ -34,12 +35,14 @@ class BvhRays:
         local = renumber[self.triangles]
         kept = self.points[used]
         self.centre = 0.5 * (kept.min(axis=0) + kept.max(axis=0)) if len(kept) else np.zeros(3)
+        self.scale = float(np.max(kept.max(axis=0) - kept.min(axis=0))) if len(kept) else 0.0
         self.tree = BVHTree.FromPolygons((kept - self.centre).tolist(), local.tolist(), all_triangles=True)
 
     @property
     def nbytes(self) -> int:
-        """Memory held: its triangles and the tree (about TREE_BYTES a triangle, measured)."""
-        return int(self.triangles.nbytes + TREE_BYTES * len(self.triangles))
+        """Memory held: its triangles, the tree (about TREE_BYTES a triangle, measured) and the
+        triangles at each point, once made."""
+        return int(self.triangles.nbytes + TREE_BYTES * len(self.triangles) + sum(a.nbytes for a in self.__dict__.get("_corners", ())))
 
     def cast(self, origins, dirs, reach=None) -> Hits:
         origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
@@ -51,7 +54,15 @@ class BvhRays:
         for k, (_, _, index, distance) in enumerate(self._found(local, dirs, reach)):
             if index is not None:
                 t[k], which[k] = distance, index
+        # (a float32 tree: its near hits taken again in float64, as the GPU's are)
+        which, t = near_hits_again(self.points, self.triangles, self._corners, self.scale, origins, dirs, reach, which, t)
         return hits_from_distances(self.points, self.triangles, origins, dirs, t, which)
+
+    @working.once
+    def _corners(self):
+        """The triangles at each point (:func:`~cubegi_engine.rays.near_hits_again`), made when
+        first asked."""
+        return corner_triangles(self.triangles, len(self.points))
 
     def blocked(self, origins, dirs, reach=None) -> np.ndarray:
         """``(n,)`` bool: whether each ray meets a triangle within its reach (a shadow ray:

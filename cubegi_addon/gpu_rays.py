@@ -183,8 +183,10 @@ class GpuRays:
 
     @property
     def nbytes(self) -> int:
-        """Memory held: its triangles and the tree, here and again on the GPU."""
-        return int(self.triangles.nbytes + 2 * self.tree.nbytes)
+        """Memory held: its triangles and the tree, here and again on the GPU, and the
+        triangles at each point and Blender's tree, once made."""
+        extra = sum(a.nbytes for a in self.__dict__.get("_corners", ())) + (self._fallback.nbytes if self._fallback is not None else 0)
+        return int(self.triangles.nbytes + 2 * self.tree.nbytes + extra)
 
     def cast(self, origins, dirs, reach=None) -> Hits:
         origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)

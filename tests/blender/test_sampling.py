@@ -95,6 +95,28 @@ def test_the_host_casters_meet_what_testing_every_triangle_meets(empty_scene, cu
 
 
 @pytest.mark.parametrize("kind", ["bvh", "gpu"])
+def test_the_host_casters_name_the_surface_met_first_from_a_crease(empty_scene, cubegi, kind):
+    """Rays from a hair off a floor into its corner with a wall meet the two surfaces within
+    float32's error of one another: Blender's tree and the GPU's shader (both float32) name
+    the triangle that testing every triangle in float64 names (their near hits taken again).
+    A GPU call the main thread does not take goes through Blender's tree: the light must not
+    depend on which answered."""
+    from cubegi.cubegi_engine.rays import NumpyRays
+
+    points = np.array([[0, 0, 0], [2, 0, 0], [2, 2, 0], [0, 2, 0], [0, 0, 2], [0, 2, 2], [4, 0, 0]], dtype=np.float64)
+    triangles = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 5], [0, 5, 4], [1, 6, 2]])
+    rng = np.random.default_rng(7)
+    n = 20_000
+    origins = np.column_stack([rng.uniform(1e-6, 1e-5, n), rng.uniform(0.1, 1.9, n), rng.uniform(1e-7, 1e-6, n)])
+    dirs = rng.normal(size=(n, 3)) - [1.0, 0.0, 1.0]
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    plain = NumpyRays(points, triangles).cast(origins, dirs)
+    ours = _casters(cubegi)[kind](points, triangles).cast(origins, dirs)
+    assert np.isin(plain.triangle, [0, 1]).sum() > 2000 and np.isin(plain.triangle, [2, 3]).sum() > 2000
+    assert np.array_equal(ours.triangle, plain.triangle) and ours.t == pytest.approx(plain.t, rel=1e-6, abs=1e-12)
+
+
+@pytest.mark.parametrize("kind", ["bvh", "gpu"])
 def test_a_ray_of_no_direction_meets_nothing_and_leaves_the_others_as_they_were(empty_scene, cubegi, kind):
     """A point without a normal (a face with a corner at NaN) casts rays of no direction, or
     of NaN (``hemisphere.hemisphere_rays``): the host's casters meet nothing along them, and

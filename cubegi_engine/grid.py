@@ -262,9 +262,11 @@ class ProbeSubset:
         return self.of_whole(*self.grid.trilinear(points))
 
     def of_whole(self, index, weight):
-        """:meth:`trilinear` from the whole grid's ``(index, weight)`` of the same points."""
+        """:meth:`trilinear` from the whole grid's ``(index, weight)`` of the same points
+        (``weight`` is taken over: the left-out probes' set to zero in place)."""
         mine = self._number[index]
-        return np.maximum(mine, 0), np.where(mine >= 0, weight, 0.0)
+        weight[mine < 0] = 0.0
+        return np.maximum(mine, 0, out=mine), weight
 
     def point_cell_edge(self, points):
         return self.grid.point_cell_edge(points)

@@ -108,13 +108,13 @@ class Transport:
 
         positions = grid.positions()
         whole = grid.whole()  # (a probe subset's weights are its whole grid's, renumbered)
-        index, whole_weight = whole.trilinear(scene.points)
-        index, weight = (index, whole_weight) if whole is grid else grid.of_whole(index, whole_weight)
+        index, weight = whole.trilinear(scene.points)
         # (s,) points with no probe of their grid at all (its probes around them all lie in a
         # finer grid's box): a grid-placement problem the bake notes. (Points covered by
         # another object, dark by the visibility test below, are not counted; nor are points
         # whose probes were all left out for lying inside geometry: a floor under a block.)
-        self.no_probe = ~np.any(whole_weight > 0, axis=1)
+        self.no_probe = ~np.any(weight > 0, axis=1)
+        index, weight = (index, weight) if whole is grid else grid.of_whole(index, weight)
         trilinear_weight = weight
         spare = None  # (rows, weights of the probes behind them), for points the near field leaves dark
         if visibility:

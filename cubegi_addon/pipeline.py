@@ -253,6 +253,31 @@ def _coarse_objects(arrays, grid):
 
 # Emitters close to a surface named one by one, up to this many.
 TRAPPED_NOTES = 3
+# A baked object that no probe sees over more than this share of its area is noted.
+UNSEEN_NOTE = 0.9
+
+
+def _note_unseen(collected, covered, baked):
+    """Note the baked objects that no probe lights over most of their surface (``covered
+    (s,)``): each stands under or inside other surfaces, or in a room whose normals point
+    outwards (every probe around it sees back faces, and is left out as inside geometry),
+    and only its near field's rays light it indirectly (a vase in a room made from the
+    default cube: none, where Cycles lights back faces as it lights fronts)."""
+    arrays = collected.arrays
+    if arrays.point_object is None or not covered.any():
+        return
+    seen = ~covered if arrays.dark is None else ~covered | arrays.dark
+    areas = arrays.point_areas()
+    count = len(arrays.object_names)
+    total = np.bincount(arrays.point_object, areas, minlength=count)
+    unseen = np.bincount(arrays.point_object, areas * ~seen, minlength=count) / np.maximum(total, 1e-300)
+    for k in np.flatnonzero((unseen > UNSEEN_NOTE) & (total > 0)):
+        if arrays.object_names[k] in baked:
+            collected.notes.append(
+                f"{arrays.object_names[k]}: no probe sees {100 * unseen[k]:.0f}% of it (other surfaces cover it, or it is or stands "
+                "in a closed mesh whose normals point outwards, a room made from a cube: every probe around it sees back faces and "
+                "is left out), so only its near field's rays light it indirectly, and back faces send them nothing; for a room, "
+                "recalculate its normals to face inwards (Mesh > Normals > Recalculate Inside)")
 
 
 def _note_capture(collected, result, grid, coarse=()):
@@ -268,6 +293,7 @@ def _note_capture(collected, result, grid, coarse=()):
             "get indirect light"
         )
     names = collected.arrays.object_names
+    _note_unseen(collected, result.capture.transport.covered, {t.object_name for t in collected.targets})
     traps = emitters.trapped_light(collected.arrays, result.capture.transport.near)
     unbalanced = emitters.gap_closed(traps)  # the scene's energy balance is left out (emitters.balanced_landing)
     for trap in traps[:TRAPPED_NOTES]:

@@ -182,3 +182,35 @@ def test_a_floor_whose_probes_were_all_left_out_is_covered_not_missing_a_grid(em
             assert report["grid"]["probes_left_inside"] > 0
     np.testing.assert_allclose(got[True], got[False], atol=1e-3)
     assert got[True].max() < 0.05
+
+
+def test_an_object_in_a_room_whose_normals_point_outwards_is_noted(empty_scene, cubegi):
+    """A room made from a cube (its normals outwards) with a ball and a lamp in it: every
+    probe in the room sees back faces and is left out, so no probe lights the ball, and
+    back faces send its near field's rays nothing, where Cycles lights back faces as fronts.
+    The report names the ball and says why; the same room turned inwards says nothing."""
+    import bmesh
+
+    white = scenes.material("White", (0.8, 0.8, 0.8))
+    for inward in (False, True):
+        for ob in list(bpy.data.objects):
+            bpy.data.objects.remove(ob)
+        cubegi.cubegi_addon.session.forget()
+        v, f = scenes.box_mesh((0.0, 0.0, 0.0), (4.0, 3.0, 2.5), (8, 6, 5), inward=inward)
+        scenes.mesh_object("Room", v, f, white)
+        mesh = bpy.data.meshes.new("Ball")
+        bm = bmesh.new()
+        bmesh.ops.create_uvsphere(bm, u_segments=16, v_segments=8, radius=0.3)
+        bm.to_mesh(mesh)
+        bm.free()
+        ball = bpy.data.objects.new("Ball", mesh)
+        bpy.context.scene.collection.objects.link(ball)
+        ball.location = (1.5, 1.2, 0.3)
+        mesh.materials.append(white)
+        scenes.add_light("POINT", (2.0, 1.5, 2.0), 200.0)
+        assert bpy.ops.cubegi.bake(grid=(5, 4, 3), **SETTINGS) == {"FINISHED"}
+        notes = [n for n in json.loads(bpy.context.scene.cubegi.last_report)["scene"]["notes"] if "no probe sees" in n]
+        if inward:
+            assert notes == []
+        else:
+            assert any(n.startswith("Ball: no probe sees 100%") and "Recalculate Inside" in n for n in notes), notes

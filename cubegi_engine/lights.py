@@ -17,7 +17,7 @@ Formulas (matched against Cycles 5.0 bakes; the measurements are in tests/blende
 Shadows come from depth cube maps rendered at the light (see :func:`shadow_visibility`).
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -283,6 +283,9 @@ class _Lookup:
     cos: np.ndarray
     footprint: np.ndarray
 
+    def __getitem__(self, which) -> "_Lookup":
+        return _Lookup(*(getattr(self, f.name)[which] for f in fields(self)))
+
 
 def shadow_visibility(receivers: Receivers, occluders: Occluders, eye, depth: DepthMap, reach=1, turn=None):
     """Whether each receiver sees ``eye``, from the depth cube map ``depth`` drawn at ``eye``
@@ -423,11 +426,13 @@ def _doubtful(depth_map: DepthMap, lookup: _Lookup, point_ids, occluders: Occlud
     return doubt
 
 
-def ortho_visibility(receivers: Receivers, occluders: Occluders, view: OrthoView, depth: DepthMap):
-    """Like :func:`shadow_visibility` for a sun: one orthographic depth map (``view``)."""
+def ortho_visibility(receivers: Receivers, occluders: Occluders, view: OrthoView, depth: DepthMap, looked_up=None):
+    """Like :func:`shadow_visibility` for a sun: one orthographic depth map (``view``).
+    ``looked_up``: the receivers' :func:`ortho_lookup`, where the caller has it."""
     if len(receivers) > piece_size():
-        return np.concatenate(in_pieces(lambda sl: ortho_visibility(receivers[sl], occluders, view, depth), len(receivers)))
-    lookup, inside = ortho_lookup(receivers, view, depth.size, occluders)
+        part = (lambda sl: None) if looked_up is None else (lambda sl: (looked_up[0][sl], looked_up[1][sl]))
+        return np.concatenate(in_pieces(lambda sl: ortho_visibility(receivers[sl], occluders, view, depth, part(sl)), len(receivers)))
+    lookup, inside = ortho_lookup(receivers, view, depth.size, occluders) if looked_up is None else looked_up
     occluded, doubt = _occluded(depth, lookup, receivers.ids, occluders)
     _ask_rays(occluded, doubt & inside, receivers, occluders, lookup.footprint, along=-view.axis)
     return (~occluded | ~inside).astype(np.float64)

@@ -35,12 +35,12 @@ GROUP_DEPTH, GROUP_TURN = 0.5, 0.9
 def sun_visibility(receivers, occluders, view, depth_map, angle):
     """``(s,)`` in [0, 1]: how much of a sun of angular diameter ``angle`` (radians) reaches
     each receiver, its shadows from ``depth_map`` drawn along ``view`` (an OrthoView)."""
-    sharp = ortho_visibility(receivers, occluders, view, depth_map)
     if angle <= 0.0 or occluders.rays is None or not len(receivers):
-        return sharp
+        return ortho_visibility(receivers, occluders, view, depth_map)
     n = depth_map.size
     spread = np.tan(0.5 * angle)
-    lookup, inside = ortho_lookup(receivers, view, n, occluders)
+    lookup, inside = ortho_lookup(receivers, view, n, occluders)  # (made once: the sharp map's test reads it too)
+    sharp = ortho_visibility(receivers, occluders, view, depth_map, (lookup, inside))
     edge = inside & (receivers.normals @ -view.axis > -spread) & _near_an_edge(depth_map, lookup, spread, n)
     ask = np.flatnonzero(edge)
     if not len(ask):

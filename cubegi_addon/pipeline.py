@@ -257,13 +257,14 @@ TRAPPED_NOTES = 3
 UNSEEN_NOTE = 0.9
 
 
-def _note_unseen(collected, covered, baked):
-    """Note the baked objects that no probe lights over most of their surface (``covered
-    (s,)``): each stands under or inside other surfaces, or in a room whose normals point
-    outwards (every probe around it sees back faces, and is left out as inside geometry),
-    and only its near field's rays light it indirectly (a vase in a room made from the
-    default cube: none, where Cycles lights back faces as it lights fronts)."""
-    arrays = collected.arrays
+def _note_unseen(collected, transport, baked):
+    """Note the baked objects that no probe lights over most of their surface (the tables'
+    ``covered`` points): each stands under or inside other surfaces, or in a room whose
+    normals point outwards (every probe around it sees back faces, and is left out as
+    inside geometry), and only its near field's rays light it indirectly (a vase in a room
+    made from the default cube: none, where Cycles lights back faces as it lights fronts).
+    An object the probes see from behind has its own note (see _note_capture)."""
+    arrays, covered = collected.arrays, transport.covered
     if arrays.point_object is None or not covered.any():
         return
     seen = ~covered if arrays.dark is None else ~covered | arrays.dark
@@ -271,6 +272,8 @@ def _note_unseen(collected, covered, baked):
     count = len(arrays.object_names)
     total = np.bincount(arrays.point_object, areas, minlength=count)
     unseen = np.bincount(arrays.point_object, areas * ~seen, minlength=count) / np.maximum(total, 1e-300)
+    if transport.seen_from_behind is not None:
+        unseen[transport.seen_from_behind > SEEN_FROM_BEHIND_NOTE] = 0.0
     for k in np.flatnonzero((unseen > UNSEEN_NOTE) & (total > 0)):
         if arrays.object_names[k] in baked:
             collected.notes.append(
@@ -293,7 +296,7 @@ def _note_capture(collected, result, grid, coarse=()):
             "get indirect light"
         )
     names = collected.arrays.object_names
-    _note_unseen(collected, result.capture.transport.covered, {t.object_name for t in collected.targets})
+    _note_unseen(collected, result.capture.transport, {t.object_name for t in collected.targets})
     traps = emitters.trapped_light(collected.arrays, result.capture.transport.near)
     unbalanced = emitters.gap_closed(traps)  # the scene's energy balance is left out (emitters.balanced_landing)
     for trap in traps[:TRAPPED_NOTES]:

@@ -17,6 +17,8 @@ __all__ = ["Prepared", "contact", "PARALLEL", "AROUND", "SIDE_PLANES"]
 SIDE_PLANES, ON_PLANE = 4, 1e-6
 # How many cells around a crossed one hold what can cross its halves (see _finer_candidates).
 AROUND = 2
+# The most cells of an object's lattice that _finer_candidates flags one by one (a byte each).
+LISTED_AT_MOST = 1 << 25
 # The coarse lattice that finds the points in a box (see Prepared.points_in): about this many
 # points a cell, and at most this many cells along a side.
 BUCKET_POINTS, BUCKETS_ALONG = 256, 128
@@ -131,12 +133,13 @@ def contact(prep, cell, ijk, which=None, within=None, sides=False):
         if within is None:
             near = prep.points_in(lo, hi)
             near = near[owner[near] != obj]
-            big = prep.triangles_in(lo, hi)
-            big = big[prep.tri_owner[big] != obj]
+            big = prep.triangles_in(lo, hi)  # (of every object: the others' are kept below)
         else:
             near, big = within[obj]
-        near = near[np.all((points[near] >= lo) & (points[near] <= hi), axis=1)]
-        theirs = np.floor(rel[near] / h).astype(np.int64) - base
+        q = points[near]
+        box = np.all((q >= lo) & (q <= hi), axis=1)
+        near = near[box]
+        theirs = np.floor((q[box] - prep.origin) / h).astype(np.int64) - base  # (rel[near], gathered once)
         inside = np.all((theirs >= 0) & (theirs < shape), axis=1)
         near, theirs = near[inside], np.ravel_multi_index(theirs[inside].T, shape)
         at = np.searchsorted(cells, theirs)
@@ -148,7 +151,8 @@ def contact(prep, cell, ijk, which=None, within=None, sides=False):
         touched[crossed] = True
         planes = _point_planes(prep, crossing, crossed) if sides else None
         # Other objects' triangles larger than a cell, whose vertices may lie far outside.
-        big = np.sort(big[prep.tri_extent[big] > h])
+        big = big[prep.tri_extent[big] > h]
+        big = np.sort(big[prep.tri_owner[big] != obj])
         big = big[np.all(prep.tri_lo[big] <= hi, axis=1) & np.all(prep.tri_hi[big] >= lo, axis=1)]
         if len(big):
             centres = points[mine[first]] - rel[mine[first]] + (ijk[mine[first]] + 0.5) * h
@@ -218,8 +222,13 @@ def _finer_candidates(prep, obj, near, theirs, crossed, shape, big, h):
     steps = np.stack(np.meshgrid(*[np.arange(-AROUND, AROUND + 1)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
     around = np.array(np.unravel_index(crossed, shape)).T[:, None, :] + steps[None]
     ok = np.all((around >= 0) & (around < shape), axis=2)
-    around = np.unique(np.ravel_multi_index(around[ok].T, shape))
-    near = near[np.isin(theirs, around)]
+    keys = np.ravel_multi_index(around[ok].T, shape)
+    if np.prod(shape.astype(np.float64)) <= LISTED_AT_MOST:  # a flag per cell of the lattice: no sort
+        listed = np.zeros(int(np.prod(shape)), dtype=bool)
+        listed[keys] = True
+        near = near[listed[theirs]]
+    else:
+        near = near[np.isin(theirs, np.unique(keys))]
     tris, _ = triangles_at(prep.corner_triangles, near)
     tris = tris[(prep.tri_owner[tris] != obj) & (prep.tri_extent[tris] > 0.5 * h)]
     return near, np.union1d(big, tris)

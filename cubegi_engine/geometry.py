@@ -6,9 +6,9 @@ import numpy as np
 
 from . import working
 
-__all__ = ["sorted_unique", "run_offsets", "triangle_planes", "planes_of", "cross", "ray_cut", "cut_planes", "cut_triangles", "near_any_triangle",
-           "edge_neighbours", "chunks", "POINT_CHUNK", "GRAZING", "twin_triangles", "mix64", "sorted_columns", "position_hash", "corner_box",
-           "corner_triangles", "triangles_at"]
+__all__ = ["sorted_unique", "run_offsets", "triangle_planes", "planes_of", "cross", "ray_cut", "cut_planes", "cuts_ahead", "cut_triangles",
+           "near_any_triangle", "edge_neighbours", "chunks", "POINT_CHUNK", "GRAZING", "twin_triangles", "mix64", "sorted_columns",
+           "position_hash", "corner_box", "corner_triangles", "triangles_at"]
 
 # Per-point tests that make several (s, 9, 3) float64 arrays run this many points at a time:
 # a million points then need tens of megabytes, not gigabytes, and stay in cache.
@@ -137,6 +137,28 @@ def cut_planes(origins, u, tid, planes):
     parallel) and whether the cut lies inside the triangle.
     """
     return _cut(origins, u, tid, planes[np.maximum(tid, 0)])
+
+
+def cuts_ahead(origins, u, tid, planes, depth):
+    """``(ahead, inside)``: whether the rays ``origins + t u`` cut the planes of triangles
+    ``tid`` ahead of them, ``0 < t < depth``, and whether that cut lies inside the triangle
+    (asked only where ahead: False elsewhere). The same cuts as :func:`cut_planes`, the
+    corners' weights worked out only for the cuts ahead (a probe's cover test: a quarter of
+    the triangles seen around a point lie in front of it)."""
+    safe = np.maximum(tid, 0)
+    a, n = planes[safe, 0], planes[safe, 1]
+    denom = np.einsum("...c,...c->...", u, n)
+    ok = (tid >= 0) & (np.abs(denom) > GRAZING)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.einsum("...c,...c->...", a - origins, n) / np.where(ok, denom, 1.0)
+    ahead = ok & (t > 0) & (t < depth)
+    k = np.flatnonzero(ahead)
+    x = origins[k] + t[k, None] * u[k] - a[k]
+    b = np.einsum("...c,...c->...", x, planes[safe[k], 2])
+    c = np.einsum("...c,...c->...", x, planes[safe[k], 3])
+    inside = np.zeros_like(ahead)
+    inside[k] = (b >= 0) & (c >= 0) & (b + c <= 1)
+    return ahead, inside
 
 
 def cut_triangles(origins, u, tid, triangles, vertices):

@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import cubemap
-from .geometry import cut_planes, edge_neighbours, in_pieces, piece_size, sorted_unique, triangle_planes
+from .geometry import cuts_ahead, edge_neighbours, in_pieces, piece_size, sorted_unique, triangle_planes
 
 __all__ = ["visibility_weights", "probes_in_front", "seen_corners_only", "Cover", "Probes", "PointProbes", "ProbeWeights", "BEHIND",
            "seen_from_behind"]
@@ -261,8 +261,7 @@ def _covered(cover, at: PointProbes, eyes, texels: _Texels, cell, ask):
     owner = cover.point_object[rows[pair]]
     keep = _blocks(cover, tid, owner, normals[pair])
     pair, tid, owner = pair[keep], tid[keep], owner[keep]
-    t, inside = cut_planes(eye[pair], u[pair], tid, cover.planes)
-    ahead = (t > 0) & (t < depth[pair])
+    ahead, inside = cuts_ahead(eye[pair], u[pair], tid, cover.planes, depth[pair])
     hit = np.zeros(len(rows), dtype=bool)
     hit[pair[inside & ahead]] = True
     # Where no seen triangle holds the cut, but another object's one (a rug over a floor: a
@@ -325,8 +324,8 @@ def _ring_search(cover, ray_of, seen, eye, u, depth):
         if not len(keys):
             break
         ray, tid = np.divmod(keys, count)
-        t, inside = cut_planes(eye[ray], u[ray], tid, cover.planes)
-        found[ray[inside & (t > 0) & (t < depth[ray])]] = True
+        ahead, inside = cuts_ahead(eye[ray], u[ray], tid, cover.planes, depth[ray])
+        found[ray[ahead & inside]] = True
         tried = sorted_unique(np.concatenate([tried, keys]))
         frontier = keys
     return found

@@ -266,9 +266,9 @@ def test_edge_neighbours_pair_the_triangles_across_each_edge():
 
 
 def test_a_ray_cuts_a_triangle_where_the_textbook_test_says():
-    """cut_planes (precomputed planes) and cut_triangles agree with Moller-Trumbore on
-    random rays and triangles, degenerate and grazing ones included."""
-    from cubegi.cubegi_engine.geometry import cut_planes, cut_triangles, triangle_planes
+    """cut_planes (precomputed planes), cut_triangles and cuts_ahead agree with
+    Moller-Trumbore on random rays and triangles, degenerate and grazing ones included."""
+    from cubegi.cubegi_engine.geometry import cut_planes, cut_triangles, cuts_ahead, triangle_planes
 
     rng = np.random.default_rng(3)
     vertices = rng.normal(size=(300, 3))
@@ -299,6 +299,13 @@ def test_a_ray_cuts_a_triangle_where_the_textbook_test_says():
     np.testing.assert_array_equal(inside[far & ok], ((bu >= 0) & (bv >= 0) & (bu + bv <= 1))[far & ok])
     np.testing.assert_allclose(t[ok], tt[ok], rtol=1e-9, atol=1e-9)
     assert np.isnan(t[~ok]).all()
+    # The cover test's cut: the same cuts, asked only up to a depth along each ray.
+    depth = rng.random(2000) * 6.0
+    ahead, inside3 = cuts_ahead(origins, u, tid, triangle_planes(triangles, vertices), depth)
+    want = (t > 0) & (t < depth)
+    assert 100 < want.sum() < ok.sum() and (want & inside).sum() > 50
+    np.testing.assert_array_equal(ahead, want)
+    np.testing.assert_array_equal(inside3, inside & want)
 
 
 def test_the_cover_ring_search_finds_the_crossed_triangle_up_to_two_edges_away():

@@ -142,23 +142,15 @@ def cut_planes(origins, u, tid, planes):
 def cuts_ahead(origins, u, tid, planes, depth):
     """``(ahead, inside)``: whether the rays ``origins + t u`` cut the planes of triangles
     ``tid`` ahead of them, ``0 < t < depth``, and whether that cut lies inside the triangle
-    (asked only where ahead: False elsewhere). The same cuts as :func:`cut_planes`, the
-    corners' weights worked out only for the cuts ahead (a probe's cover test: a quarter of
-    the triangles seen around a point lie in front of it)."""
-    safe = np.maximum(tid, 0)
-    a, n = planes[safe, 0], planes[safe, 1]
-    denom = np.einsum("...c,...c->...", u, n)
-    ok = (tid >= 0) & (np.abs(denom) > GRAZING)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.einsum("...c,...c->...", a - origins, n) / np.where(ok, denom, 1.0)
-    ahead = ok & (t > 0) & (t < depth)
-    k = np.flatnonzero(ahead)
-    x = origins[k] + t[k, None] * u[k] - a[k]
-    b = np.einsum("...c,...c->...", x, planes[safe[k], 2])
-    c = np.einsum("...c,...c->...", x, planes[safe[k], 3])
-    inside = np.zeros_like(ahead)
-    inside[k] = (b >= 0) & (c >= 0) & (b + c <= 1)
-    return ahead, inside
+    (False where not ahead): :func:`cut_planes`, the corners' weights worked out only for
+    the cuts ahead (a probe's cover test: a quarter of the triangles seen around a point lie
+    in front of it)."""
+    def is_ahead(t, _front):
+        return (t > 0) & (t < depth)
+
+    t, b, c, ok, _ = ray_cut(origins, u, planes, tid >= 0, tid=tid, wanted=is_ahead)
+    ahead = ok & is_ahead(t, None)
+    return ahead, ahead & (b >= 0) & (c >= 0) & (b + c <= 1)
 
 
 def cut_triangles(origins, u, tid, triangles, vertices):
@@ -176,22 +168,37 @@ def cut_triangles(origins, u, tid, triangles, vertices):
     return _cut(origins, u, tid, triangle_planes(triangles[listed], vertices)[local[safe]])
 
 
-def ray_cut(origins, u, planes, present=True, grazing=GRAZING):
+def ray_cut(origins, u, planes, present=True, grazing=GRAZING, tid=None, wanted=None):
     """The one ray-triangle kernel: where rays ``origins + t u`` (``(..., 3)``, ``u`` unit)
-    cut the planes of their triangles (:func:`planes_of`, ``(..., 4, 3)``). Returns ``(t,
-    b, c, ok, front)``: the distance along each ray (nan where not ``ok``), the barycentric
-    weights of the cut's second and third corners, whether the ray cuts the plane at all
-    (a triangle ``present``, of some area, not within ``grazing`` of parallel: see
-    :data:`GRAZING`), and whether it meets the triangle's front."""
-    a, n, g1, g2 = planes[..., 0, :], planes[..., 1, :], planes[..., 2, :], planes[..., 3, :]
+    cut the planes of their triangles (:func:`planes_of`, ``(..., 4, 3)``; with ``tid
+    (m,)``, every triangle's, the rays' being ``tid``, gathered only as far as asked).
+    Returns ``(t, b, c, ok, front)``: the distance along each ray (nan where not ``ok``), the
+    barycentric weights of the cut's second and third corners, whether the ray cuts the
+    plane at all (a triangle ``present``, of some area, not within ``grazing`` of parallel:
+    see :data:`GRAZING`), and whether it meets the triangle's front. ``wanted(t, front)``
+    (paired rays, ``(m,)``): the cuts whose weights are asked, zeros elsewhere (most of a
+    test's cuts lie out of its range: its weights cost as much as the cut)."""
+    if tid is not None:
+        safe = np.maximum(tid, 0)
+        a, n = planes[safe, 0], planes[safe, 1]
+    else:
+        a, n = planes[..., 0, :], planes[..., 1, :]
     denom = np.einsum("...c,...c->...", u, n)
     ok = present & (np.abs(denom) > grazing)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.einsum("...c,...c->...", a - origins, n) / np.where(ok, denom, 1.0)
-        x = origins + t[..., None] * u - a
-        b = np.einsum("...c,...c->...", x, g1)
-        c = np.einsum("...c,...c->...", x, g2)
-    return np.where(ok, t, np.nan), b, c, ok, denom < 0
+        if wanted is None:
+            x = origins + t[..., None] * u - a
+            g1, g2 = (planes[..., 2, :], planes[..., 3, :]) if tid is None else (planes[safe, 2], planes[safe, 3])
+            return np.where(ok, t, np.nan), np.einsum("...c,...c->...", x, g1), np.einsum("...c,...c->...", x, g2), ok, denom < 0
+    t, front = np.where(ok, t, np.nan), denom < 0
+    k = np.flatnonzero(wanted(t, front))
+    x = origins[k] + t[k, None] * u[k] - a[k]
+    rows = k if tid is None else safe[k]
+    b, c = np.zeros(len(t)), np.zeros(len(t))
+    b[k] = np.einsum("...c,...c->...", x, planes[rows, 2])
+    c[k] = np.einsum("...c,...c->...", x, planes[rows, 3])
+    return t, b, c, ok, front
 
 
 def _cut(origins, u, tid, planes):

@@ -14,6 +14,7 @@ steps started when it is closed (a cancel) or fails: each ends at its next piece
 
 import ctypes
 import os
+import sys
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -139,6 +140,8 @@ def abandon(job):
     to end: a failed step's work that nothing will take (nothing of it outlives the step). On
     the main thread, the calls it hands over meanwhile are served (it would wait for them)."""
     job.stop.set()
+    if sys.is_finalizing():  # (a generator closed as the interpreter exits: its threads are stopped for good)
+        return
     if threading.current_thread() is threading.main_thread():
         _serve_until(job.finished.is_set, float("inf"))
     job.thread.join()  # (after its last call: at once)
@@ -398,4 +401,8 @@ def run(steps, progress=None):
                 progress(step)
     except BaseException:
         driven.stop.set()
+        # Its clean-up (threads stopped, and waited for) now, not when the generator is
+        # collected: at the interpreter's exit its threads are stopped for good (a bake's
+        # output piped to `head` waited forever for the near field's thread).
+        driven.close()
         raise

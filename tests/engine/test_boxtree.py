@@ -1,6 +1,9 @@
 """The tree of boxes the GPU's ray caster walks (cubegi_engine.boxtree), and the main thread's
 service that runs a thread's GPU calls (working.on_main), without Blender."""
 
+import os
+import subprocess
+import sys
 import threading
 import time
 
@@ -9,6 +12,7 @@ import pytest
 
 from cubegi_engine import boxtree, working
 from cubegi_engine.rays import NumpyRays
+from cubegi_engine.records import Progress, Stage
 
 
 def _soup(rng, count, offset=0.0):
@@ -208,6 +212,77 @@ def test_abandoned_work_stops_at_its_next_piece_and_its_calls_are_served_meanwhi
     with pytest.raises(working.Cancelled):
         working.result(box[0])
     assert out["left_first"]
+
+
+def _steps_with_work(work, started):
+    """A bake's shape: steps that start ``work`` in a thread, yield, and abandon it when they
+    fail or are closed (as a new capture abandons its near field's rays)."""
+    job = working.start(work)
+    started.append(job)
+    try:
+        yield Progress(Stage.CAPTURE, 0, 1, "capturing")
+        yield Progress(Stage.CAPTURE, 1, 1, "captured")
+    except BaseException:
+        working.abandon(job)
+        raise
+
+
+def test_a_run_whose_progress_fails_stops_its_steps_work_before_it_raises():
+    """A driver whose progress callback fails (the output's pipe closed: ``| head``) closes
+    its steps at once: their clean-up stops and waits for the work they started, while its
+    thread can still end (closed when collected at the interpreter's exit, it was not)."""
+    started = []
+
+    def work():
+        for _ in range(1000):
+            working.checkpoint()
+            time.sleep(0.01)
+
+    def progress(step):
+        raise BrokenPipeError("the output's reader is gone")
+
+    steps = _steps_with_work(work, started)
+    with pytest.raises(BrokenPipeError):
+        working.run(steps, progress)
+    assert steps.gi_frame is None  # closed
+    assert started[0].finished.is_set() and not started[0].thread.is_alive()
+    assert isinstance(started[0].out.get("error"), working.Cancelled)
+
+
+def test_a_process_whose_bake_fails_with_work_under_way_exits():
+    """The same in a process of its own that lets the error end it while the work is in a
+    long piece with no checkpoint (numpy's): it exits with the error, and does not wait
+    forever for a thread the interpreter's exit has stopped (a bake piped to ``head``
+    hung so, and so did a cluster's bake whose worker was killed)."""
+    code = (
+        "import time\n"
+        "from cubegi_engine import working\n"
+        "from tests.engine.test_boxtree import _steps_with_work\n"
+        "def work():\n"
+        "    time.sleep(1.5)\n"
+        "    working.checkpoint()\n"
+        "def progress(step):\n"
+        "    raise BrokenPipeError('the output reader is gone')\n"
+        "working.run(_steps_with_work(work, []), progress)\n"
+    )
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    r = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 1 and "BrokenPipeError" in r.stderr
+
+
+def test_steps_closed_as_the_interpreter_exits_wait_for_no_thread(monkeypatch):
+    """Steps left open until the interpreter's exit collects them abandon their work
+    without waiting for it: a daemon thread is stopped for good then, and its end would
+    never come."""
+    release = threading.Event()
+    job = working.start(release.wait)
+    monkeypatch.setattr(working.sys, "is_finalizing", lambda: True)
+    leaving = threading.Thread(target=working.abandon, args=(job,), daemon=True)
+    leaving.start()
+    leaving.join(5.0)
+    left = not leaving.is_alive()
+    release.set()
+    assert left and job.stop.is_set()
 
 
 def test_no_ray_slips_between_two_triangles_along_their_shared_edge(monkeypatch):

@@ -316,14 +316,19 @@ def _cluster(prep, cell, contact=True):
     # Within a cell, the points facing away from the normal of its largest point are a
     # cluster of their own: a thin wall's (or a rug's) two faces stay apart, while a floor and
     # a wall meeting in the cell are joined (no slit between them for a probe to see through).
-    order = np.lexsort((point_areas, cells))  # by cell, then area: each cell's largest last
-    last = np.ones(len(order), dtype=bool)
-    last[:-1] = cells[order[1:]] != cells[order[:-1]]
-    largest = np.empty(int(cells.max()) + 1 if s else 0, dtype=np.int64)
-    largest[cells[order[last]]] = order[last]
+    # (The cells are numbered 0, 1, ...: each one's largest point, the last of equal ones, and
+    # the clusters' numbers are found by flags per cell, not by sorting the points.)
+    count_cells = int(cells.max()) + 1 if s else 0
+    most = np.full(count_cells, -np.inf)
+    np.maximum.at(most, cells, point_areas)
+    largest = np.full(count_cells, -1, dtype=np.int64)
+    at_most = np.flatnonzero(point_areas == most[cells])
+    np.maximum.at(largest, cells[at_most], at_most)
     away = np.einsum("sc,sc->s", normals, normals[largest[cells]]) < 0
-    _, cluster = np.unique(2 * cells + away, return_inverse=True)
-    cluster = cluster.ravel().astype(np.int64)
+    key = 2 * cells + away
+    present = np.zeros(2 * count_cells, dtype=bool)
+    present[key] = True
+    cluster = (np.cumsum(present) - 1)[key].astype(np.int64)
     c = int(cluster.max()) + 1 if s else 0
     weight = np.bincount(cluster, point_areas, minlength=c)
     count = np.bincount(cluster, minlength=c).astype(np.float64)

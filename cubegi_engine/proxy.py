@@ -316,14 +316,10 @@ def _cluster(prep, cell, contact=True):
     # Within a cell, the points facing away from the normal of its largest point are a
     # cluster of their own: a thin wall's (or a rug's) two faces stay apart, while a floor and
     # a wall meeting in the cell are joined (no slit between them for a probe to see through).
-    # (The cells are numbered 0, 1, ...: each one's largest point, the last of equal ones, and
-    # the clusters' numbers are found by flags per cell, not by sorting the points.)
+    # (The cells are numbered 0, 1, ...: the clusters' numbers are found by flags per cell,
+    # not by sorting the points.)
     count_cells = int(cells.max()) + 1 if s else 0
-    most = np.full(count_cells, -np.inf)
-    np.maximum.at(most, cells, point_areas)
-    largest = np.full(count_cells, -1, dtype=np.int64)
-    at_most = np.flatnonzero(point_areas == most[cells])
-    np.maximum.at(largest, cells[at_most], at_most)
+    largest = _largest(cells, count_cells, point_areas)
     away = np.einsum("sc,sc->s", normals, normals[largest[cells]]) < 0
     key = 2 * cells + away
     present = np.zeros(2 * count_cells, dtype=bool)
@@ -385,11 +381,7 @@ def _place(prep, clusters: _Clusters, mean):
     points, normals, areas, rel = prep.points, prep.normals, prep.areas, prep.rel
     cells, away, cluster, ijk, h, whole = clusters.cells, clusters.away, clusters.cluster, clusters.ijk, clusters.h, clusters.whole
     c = len(mean)
-    ref = np.empty(c, dtype=np.int64)  # each cluster's largest point
-    order = np.lexsort((areas, cluster))
-    last = np.ones(len(order), dtype=bool)
-    last[:-1] = cluster[order[1:]] != cluster[order[:-1]]
-    ref[cluster[order[last]]] = order[last]
+    ref = _largest(cluster, c, areas)  # each cluster's largest point
     ncell = int(cells.max()) + 1
     main_of, away_of = np.full(ncell, -1), np.full(ncell, -1)
     main_of[cells[~away]] = cluster[~away]
@@ -414,6 +406,17 @@ def _place(prep, clusters: _Clusters, mean):
     lo = (points[first] - rel[first]) + ijk[first] * h[first, None]
     placed = np.clip(placed, lo, lo + h[first, None])
     return np.where(whole[first, None], mean, placed)
+
+
+def _largest(group, count, areas):
+    """``(count,)``: the point of largest ``areas`` in each of ``count`` groups (``group (s,)``
+    numbered 0, 1, ...; of equal ones the last; -1 for an empty group), without sorting."""
+    most = np.full(count, -np.inf)
+    np.maximum.at(most, group, areas)
+    largest = np.full(count, -1, dtype=np.int64)
+    at_most = np.flatnonzero(areas == most[group])
+    np.maximum.at(largest, group[at_most], at_most)
+    return largest
 
 
 def _normals(vertices, triangles):

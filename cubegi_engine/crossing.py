@@ -6,7 +6,7 @@ Pure numpy; must not import bpy.
 
 import numpy as np
 
-from .geometry import corner_box, corner_triangles, cross, near_any_triangle, run_offsets, triangles_at
+from .geometry import corner_box, corner_triangles, cross, listed_ranks, near_any_triangle, run_offsets, triangles_at
 from .working import checkpoint, once
 
 __all__ = ["Prepared", "contact", "PARALLEL", "AROUND", "SIDE_PLANES"]
@@ -224,9 +224,7 @@ def _finer_candidates(prep, obj, near, theirs, crossed, shape, big, h):
     ok = np.all((around >= 0) & (around < shape), axis=2)
     keys = np.ravel_multi_index(around[ok].T, shape)
     if np.prod(shape.astype(np.float64)) <= LISTED_AT_MOST:  # a flag per cell of the lattice: no sort
-        listed = np.zeros(int(np.prod(shape)), dtype=bool)
-        listed[keys] = True
-        near = near[listed[theirs]]
+        near = near[listed_ranks(keys, int(np.prod(shape)))[0][theirs]]
     else:
         near = near[np.isin(theirs, np.unique(keys))]
     tris, _ = triangles_at(prep.corner_triangles, near)

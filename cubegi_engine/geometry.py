@@ -7,7 +7,7 @@ import numpy as np
 from . import working
 
 __all__ = ["sorted_unique", "run_offsets", "triangle_planes", "planes_of", "cross", "ray_cut", "cut_planes", "cuts_ahead", "cut_triangles",
-           "near_any_triangle", "edge_neighbours", "chunks", "POINT_CHUNK", "GRAZING", "twin_triangles", "mix64", "sorted_columns",
+           "listed_ranks", "near_any_triangle", "edge_neighbours", "chunks", "POINT_CHUNK", "GRAZING", "twin_triangles", "mix64", "sorted_columns",
            "position_hash", "corner_box", "corner_triangles", "triangles_at"]
 
 # Per-point tests that make several (s, 9, 3) float64 arrays run this many points at a time:
@@ -136,7 +136,9 @@ def cut_planes(origins, u, tid, planes):
     each ray (nan where there is no triangle or the ray grazes its plane, within 1e-3 of
     parallel) and whether the cut lies inside the triangle.
     """
-    return _cut(origins, u, tid, planes[np.maximum(tid, 0)])
+    tid = np.asarray(tid)
+    t, b, c, ok, _ = ray_cut(origins, u, planes, tid >= 0, tid=tid)
+    return t, ok & (b >= 0) & (c >= 0) & (b + c <= 1)
 
 
 def cuts_ahead(origins, u, tid, planes, depth):
@@ -160,12 +162,20 @@ def cut_triangles(origins, u, tid, triangles, vertices):
     safe = np.maximum(tid, 0)
     if 8 * safe.size < len(triangles):  # each plane made once (receivers in one texel share its triangles)
         seen, local = np.unique(safe, return_inverse=True)
-        return _cut(origins, u, tid, triangle_planes(triangles[seen], vertices)[local.reshape(tid.shape)])
+        return cut_planes(origins, u, np.where(tid >= 0, local.reshape(tid.shape), -1), triangle_planes(triangles[seen], vertices))
     # Many rays: each triangle's plane made once (a shadow map's receivers share few).
-    listed = np.zeros(len(triangles), dtype=bool)
-    listed[safe] = True
-    local = np.cumsum(listed) - 1
-    return _cut(origins, u, tid, triangle_planes(triangles[listed], vertices)[local[safe]])
+    listed, local = listed_ranks(safe, len(triangles))
+    return cut_planes(origins, u, np.where(tid >= 0, local[safe], -1), triangle_planes(triangles[listed], vertices))
+
+
+def listed_ranks(keys, count):
+    """``(listed (count,) bool, rank (count,))``: which of ``0 .. count - 1`` occur in ``keys``
+    (non-negative ints, any shape) and each one's place among those that do:
+    ``np.unique(keys, return_inverse=True)``'s inverse is ``rank[keys]``, found by flags
+    instead of a sort."""
+    listed = np.zeros(count, dtype=bool)
+    listed[keys] = True
+    return listed, np.cumsum(listed) - 1
 
 
 def ray_cut(origins, u, planes, present=True, grazing=GRAZING, tid=None, wanted=None):
@@ -199,11 +209,6 @@ def ray_cut(origins, u, planes, present=True, grazing=GRAZING, tid=None, wanted=
     b[k] = np.einsum("...c,...c->...", x, planes[rows, 2])
     c[k] = np.einsum("...c,...c->...", x, planes[rows, 3])
     return t, b, c, ok, front
-
-
-def _cut(origins, u, tid, planes):
-    t, b, c, ok, _ = ray_cut(origins, u, planes, tid >= 0)
-    return t, ok & (b >= 0) & (c >= 0) & (b + c <= 1)
 
 
 def near_any_triangle(centres, radius, a, b, c, tiles=8, centre_normals=None, across=None, least=False, apart=0.0, facing=None):

@@ -33,7 +33,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import crossing
-from .geometry import cross
+from .geometry import cross, listed_ranks
 from .working import checkpoint
 
 __all__ = ["CaptureProxy", "simplify"]
@@ -322,9 +322,7 @@ def _cluster(prep, cell, contact=True):
     largest = _largest(cells, count_cells, point_areas)
     away = np.einsum("sc,sc->s", normals, normals[largest[cells]]) < 0
     key = 2 * cells + away
-    present = np.zeros(2 * count_cells, dtype=bool)
-    present[key] = True
-    cluster = (np.cumsum(present) - 1)[key].astype(np.int64)
+    cluster = listed_ranks(key, 2 * count_cells)[1][key].astype(np.int64)
     c = int(cluster.max()) + 1 if s else 0
     weight = np.bincount(cluster, point_areas, minlength=c)
     count = np.bincount(cluster, minlength=c).astype(np.float64)

@@ -402,7 +402,7 @@ def test_a_triangles_box_is_its_corners_least_and_greatest():
         assert np.array_equal(hi, c.max(axis=1), equal_nan=True) and np.isnan(lo[7, 2]) and (hi[:7] > lo[:7]).all()
 
 def test_sorted_unique_and_membership():
-    from cubegi.cubegi_engine.geometry import sorted_unique
+    from cubegi.cubegi_engine.geometry import listed_ranks, sorted_unique
     from cubegi.cubegi_engine.visibility import _in_sorted
 
     keys = np.array([9, 3, 3, 7, 9, 1], dtype=np.int64)
@@ -412,6 +412,12 @@ def test_sorted_unique_and_membership():
     assert np.array_equal(sorted_unique(runs), np.unique(runs))
     assert _in_sorted(np.array([0, 3, 8, 9, 10]), np.array([1, 3, 7, 9])).tolist() == [False, True, False, True, False]
     assert _in_sorted(np.array([2]), np.array([], dtype=np.int64)).tolist() == [False]
+    # By flags: which keys occur, and each one's place among them (np.unique's inverse).
+    listed, rank = listed_ranks(runs, 4000)
+    assert np.array_equal(np.flatnonzero(listed), np.unique(runs))
+    assert np.array_equal(rank[runs], np.unique(runs, return_inverse=True)[1].ravel())
+    grid = keys.reshape(2, 3)
+    assert np.array_equal(listed_ranks(grid, 10)[1][grid], [[3, 1, 1], [2, 3, 0]])
 
 
 def test_cutting_many_rays_makes_each_triangles_plane_once_with_the_same_answer():

@@ -296,7 +296,8 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     are ``emitting (s,)`` points and those whose rays meet one (:func:`~.nearhits.hidden_points`). ``owner``: each
     point's object (see :func:`_candidate_pairs`); ``keep_index``: see :func:`~.spatial.voxel_index`.
     ``caster``: where given, a callable giving ``(RayCaster, its triangles' indices among
-    triangles)``, the host's ray caster over the scene (Blender's BVH tree): the crowded
+    triangles)``, the host's ray caster over the scene (the GPU module's, or Blender's BVH
+    tree): every ray goes through it, and the crowded
     points of the smallest objects are not left out but share the rays of one point per
     cluster, cast through it (:func:`~.nearrays.clusters`).
 
@@ -334,6 +335,7 @@ class Traced:
     turn: np.ndarray
     openness: np.ndarray
     gap: tuple | None  # (ask (a,), ratio (a, 3)): the hits in a gap and their corners' scales (gap_ratios), or None
+    caster: object  # as given to trace (see build)
     seconds: float
 
 
@@ -371,12 +373,18 @@ def trace(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     openness[cast] = hits.openness
     openness[members] = openness[by_caster[member_of]]
     # How much light a hit in a gap gets through it needs only the geometry: asked here (the
-    # caster's hits lie in dense geometry, where the voxel index's tests would take minutes).
+    # clusters' hits lie in dense geometry, where the voxel index's tests would take minutes).
     gap = gap_ratios(index, hits.corners, openness, hits.at, hits.triangle, hits.front & (hits.point < traced), rch[hits.point],
-                     turn[hits.point], OPENNESS_RAYS) if OPENNESS_RAYS else None
+                     turn[hits.point], OPENNESS_RAYS, _rays_of(caster)) if OPENNESS_RAYS else None
     longest = float(np.max(reach, where=np.isfinite(reach), initial=0.0))  # (a point's at NaN is none)
     return Traced(index, points, normals, tri, sheets, rays, reach, longest, len(pair_p), crowded, crowded_objects, members, member_of,
-                  by_caster, cast, traced, hits, rch, turn, openness, gap, time.perf_counter() - t0)
+                  by_caster, cast, traced, hits, rch, turn, openness, gap, caster, time.perf_counter() - t0)
+
+
+def _rays_of(caster):
+    """The host's :class:`~cubegi_engine.rays.RayCaster` that ``caster`` gives (see
+    :func:`build`), or None."""
+    return None if caster is None else caster()[0]
 
 
 def started(scene, grid, caster):
@@ -422,9 +430,9 @@ def finish(traced, *, hidden=None, lit_if_open=None, hidden_as_given=False, emit
     uv = np.clip(hits.uv, 0.0, 1.0)
     weight = np.stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], axis=1)
     corners = hits.corners
-    # The caster's hits lie in dense geometry, where the voxel index's tests below would take
+    # The clusters' hits lie in dense geometry, where the voxel index's tests below would take
     # minutes: their hidden corners' weight goes to the others (and trace asked no gap of them).
-    by_voxels = point < traced.traced
+    own = point < traced.traced
     emitters = None
     if hidden is not None:
         hidden = np.asarray(hidden, dtype=bool).copy()
@@ -432,7 +440,7 @@ def finish(traced, *, hidden=None, lit_if_open=None, hidden_as_given=False, emit
             hidden, emitters = hidden_points(hidden, traced.openness, lit_if_open, traced.sheets, cast[point], corners, points, traced.normals,
                                              tri, emitting, lying)
         hidden[members] = False  # lit by their own rays: a surface's light
-        weight = uncover(index, weight, corners, hidden, hits.triangle, traced.rch[point], by_voxels)
+        weight = uncover(index, weight, corners, hidden, hits.triangle, traced.rch[point], own, _rays_of(traced.caster))
     if traced.gap is not None:  # a hit in a gap takes what the gap lets in (worked out with the rays)
         ask, ratio = traced.gap
         weight[ask] *= ratio  # (weight is this call's own: stacked above, or uncover's copy)

@@ -78,7 +78,7 @@ def _facing(surface, hit_point, corners):
     return facing
 
 
-def uncover(index, weight, corners, hidden, tri, reach, ask=None):
+def uncover(index, weight, corners, hidden, tri, reach, ask=None, caster=None):
     """Barycentric ``weight (h, 3)`` of hits on triangles ``tri`` with ``corners`` some of
     which are ``hidden`` (under another object: a floor point under a wall standing on it,
     whose light stands for no surface a ray can land on). The hit takes the other corners
@@ -88,7 +88,8 @@ def uncover(index, weight, corners, hidden, tri, reach, ask=None):
     (the floor under a block standing 2 cm above it, lit only through the gap) scaled up to
     whole only where they hold at least half of the weight (a hit deeper in the gap stays
     darker, continuously). ``ask (h,)`` bool: the hits whose point is asked; the others'
-    is taken as not covered."""
+    is taken as not covered. ``caster``: the host's ray caster (a
+    :class:`~cubegi_engine.rays.RayCaster`), where it has one: it casts the rays, not the index."""
     mixed = np.flatnonzero(hidden[corners].any(axis=1))
     if not len(mixed):
         return weight
@@ -96,24 +97,35 @@ def uncover(index, weight, corners, hidden, tri, reach, ask=None):
     asked = np.arange(len(mixed)) if ask is None else np.flatnonzero(ask[mixed])
     k = tri[mixed[asked]]
     at = np.einsum("hc,hcx->hx", weight[mixed[asked]], np.stack([index.a[k], index.b[k], index.c[k]], axis=1))
-    free[asked] = ~_covered_along_normal(index, at, index.unit[k], reach[mixed[asked]])
+    free[asked] = ~_covered_along_normal(index, at, index.unit[k], reach[mixed[asked]], caster)
     kept = weight[mixed] * ~hidden[corners[mixed]]
     out = weight.copy()
     out[mixed] = kept / np.maximum(kept.sum(axis=1, keepdims=True), np.where(free, 1e-2, 0.5)[:, None])
     return out
 
 
-def _covered_along_normal(index, at, up, reach):
+def _covered_along_normal(index, at, up, reach, caster=None):
     """``(h,)`` bool: whether a surface lies over each point ``at`` along its unit normal
-    ``up``, within ``reach`` (one ray each)."""
+    ``up``, within ``reach`` (one ray each; through ``caster`` where given)."""
     slack = SLACK * reach + COORD_SLACK * np.abs(at).max(axis=1)
+    if caster is not None:
+        return np.isfinite(_distances(caster, at, up, up[:, None, :], reach, slack)[:, 0])
     start = at + slack[:, None] * up
     pair_p, pair_t = index.segment_candidates(start, start + reach[:, None] * up)  # the ray trace casts
     t, _, _, _ = index.trace(at, up, up[:, None, :], reach, slack, pair_p, pair_t)
     return np.isfinite(t[:, 0])
 
 
-def gap_ratios(index, corners, openness, at, tri, front, reach, turn, rays):
+def _distances(caster, at, up, dirs, reach, slack):
+    """``(m, k)``: how far each ray ``at + slack up + t dirs`` (``dirs (m, k, 3)``) goes to
+    the first surface it meets, from either side, within ``reach`` (inf: none), through the
+    host's ``caster`` (what the voxel index's trace answers, without its candidate pairs)."""
+    m, k = dirs.shape[:2]
+    found = caster.cast(np.repeat(at + slack[:, None] * up, k, axis=0), dirs.reshape(-1, 3), np.repeat(reach, k))
+    return np.where(found.triangle >= 0, found.t, np.inf).reshape(m, k)
+
+
+def gap_ratios(index, corners, openness, at, tri, front, reach, turn, rays, caster=None):
     """``(ask (a,), ratio (a, 3))``: the barycentric weights of hits at ``at (h, 3)`` on
     triangles ``tri`` that lie in a gap (their rows ``ask``), each corner's share scaled by
     ``ratio``: how open the hit point is against how open the corner is
@@ -124,7 +136,7 @@ def gap_ratios(index, corners, openness, at, tri, front, reach, turn, rays):
     Only hits on front faces of triangles with a corner closed in and one in the open
     (OPENNESS_CLOSED, OPENNESS_OPEN), with something over them along their normal within
     reach, are asked (``rays`` rays each, about the hit triangle's normal; hits close
-    together on one triangle share them: OPENNESS_CELL)."""
+    together on one triangle share them: OPENNESS_CELL). ``caster``: as in :func:`uncover`."""
     open_c = openness[corners]  # (h, 3)
     ask = np.flatnonzero(front & (open_c.min(axis=1) < OPENNESS_CLOSED) & (open_c.max(axis=1) > OPENNESS_OPEN))
     none = (ask[:0], np.ones((0, 3)))
@@ -134,7 +146,7 @@ def gap_ratios(index, corners, openness, at, tri, front, reach, turn, rays):
     # wall is open overhead: its corners' light stands).
     up, r = index.unit[tri[ask]], reach[ask]
     slack = SLACK * r + COORD_SLACK * np.abs(at[ask]).max(axis=1)
-    gap = _covered_along_normal(index, at[ask], up, r)
+    gap = _covered_along_normal(index, at[ask], up, r, caster)
     if not gap.any():
         return none
     keep = np.flatnonzero(gap)
@@ -142,8 +154,11 @@ def gap_ratios(index, corners, openness, at, tri, front, reach, turn, rays):
     cell = np.floor(at[ask] / (OPENNESS_CELL * r[:, None])).astype(np.int64)
     _, first, shared = np.unique(np.column_stack([tri[ask], cell]), axis=0, return_index=True, return_inverse=True)
     one, up1, r1 = ask[first], up[first], r[first]
-    pair_p, pair_t, _ = index.candidates(at[one], up1, r1)
     dirs = hemisphere_rays(up1, rays, turn[one])
-    best, _, _, _ = index.trace(at[one], up1, dirs, r1, slack[first], pair_p, pair_t)
+    if caster is not None:
+        best = _distances(caster, at[one], up1, dirs, r1, slack[first])
+    else:
+        pair_p, pair_t, _ = index.candidates(at[one], up1, r1)
+        best, _, _, _ = index.trace(at[one], up1, dirs, r1, slack[first], pair_p, pair_t)
     open_hit = (1.0 - np.clip((r1[:, None] - best) / (FADE * r1[:, None]), 0.0, 1.0).mean(axis=1))[shared.ravel()]
     return ask, np.minimum(1.0, (open_hit[:, None] + OPENNESS_FLOOR) / (open_c[ask] + OPENNESS_FLOOR))

@@ -9,6 +9,7 @@ import pytest
 
 from cubegi.cubegi_engine import hemisphere, nearfield, nearrays, sh, spatial
 from cubegi.cubegi_engine.geometry import inward, planes_of
+from cubegi.cubegi_engine.rays import NumpyRays
 
 
 def _quad(lo, hi, z, up=True):
@@ -216,6 +217,44 @@ def test_rays_cast_a_few_points_at_a_time_give_the_same_near_field(monkeypatch):
             np.testing.assert_array_equal(getattr(split, name), getattr(whole, name), err_msg=f"{name} at {at_once}")
 
 
+def test_where_the_host_has_a_caster_every_ray_goes_through_it(monkeypatch):
+    """Given the host's caster, the points with candidate pairs cast their rays through it,
+    not through the voxel index's trace, and see what the index's trace sees: a floor at the
+    foot of a wall and under a plate."""
+    floor, plate = _quad(-1, 1, 0.0), _quad(-0.3, 0.3, 0.05, up=False)
+    wall = (np.array([[0.5, -1, 0], [0.5, 1, 0], [0.5, 1, 1], [0.5, -1, 1]]), np.array([[0, 2, 1], [0, 3, 2]]))
+    rng = np.random.default_rng(4)
+    points = (np.column_stack([rng.uniform(-0.9, 0.45, (60, 2)), np.zeros(60)]), np.zeros((0, 3), dtype=int))
+    pts, tris = _scene(points, floor, plate, wall)
+    normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    radiance = rng.uniform(0.1, 1.0, (len(pts), 3))
+    which = np.arange(len(pts)) < 60  # (the meshes' own corners start their rays into their triangles by the caster)
+    by_index = nearfield.build(pts, normals, 0.3, tris, rays=64, which=which)
+    asked = []
+
+    class Counting(NumpyRays):
+        def cast(self, origins, dirs, reach=None):
+            asked.append(len(origins))
+            return super().cast(origins, dirs, reach)
+
+    by_caster = nearfield.build(pts, normals, 0.3, tris, rays=64, which=which, caster=_host_caster(monkeypatch, pts, tris, Counting))
+    assert by_index.count >= 30 and by_caster.rows.tolist() == by_index.rows.tolist()
+    assert sum(asked) % 64 == 0 and by_index.count <= sum(asked) // 64 <= 60  # (64 rays each, a point with candidates)
+    assert np.abs(by_caster.gather(radiance) - by_index.gather(radiance)).max() < 1e-9
+    assert np.abs(by_caster.open_basis - by_index.open_basis).max() < 1e-9
+
+
+def _host_caster(monkeypatch, pts, tris, kind=NumpyRays):
+    """A host's caster over ``tris`` (as :func:`nearfield.build` takes it: every triangle
+    tested), with the voxel index's trace refused from here on."""
+    def refused(*args):
+        raise AssertionError("the voxel index traced rays that the caster was given")
+
+    monkeypatch.setattr(spatial.VoxelIndex, "trace", refused)
+    host = kind(pts, tris)
+    return lambda: (host, np.arange(len(tris)), inward(tris, pts))
+
+
 def test_crowded_points_and_scenes_over_the_budget_are_left_out_and_counted():
     """A point among more candidate triangles than the cap keeps the probes' light; a scene
     whose pairs would exceed the budget gets no near field, with the reason."""
@@ -281,32 +320,42 @@ def test_a_surface_passing_out_of_reach_fades(reach):
     assert np.abs(np.diff(values)).max() < 0.2  # no jump
 
 
-def test_a_corner_hidden_under_a_wall_lends_no_darkness_to_the_floor_beside_it():
+@pytest.mark.parametrize("by_caster", [False, True])
+def test_a_corner_hidden_under_a_wall_lends_no_darkness_to_the_floor_beside_it(monkeypatch, by_caster):
     """A floor triangle strip from x = -1 to 0 whose corners at x = 0 stand under a wall
     (covered: no probe sees them, so their light is dark; hidden, as the wall's underside
     lies on them): rays from the wall's foot land on the open floor beside it and take its
     lit corners' light; under a plate 2 cm above the floor (covered), a hit near the hidden
-    corners stays dark. Covered corners that lie open keep their own light."""
+    corners stays dark. Covered corners that lie open keep their own light. The same where
+    the host's caster casts the rays."""
     floor = np.array([[-1.0, -1, 0], [0.0, -1, 0], [0.0, 1, 0], [-1.0, 1, 0]])
     floor_tris = np.array([[0, 1, 2], [0, 2, 3]])
     foot = np.array([[-0.01, 0.0, 0.0]])  # on the wall's face, facing -x
     # The wall's underside, lying on the floor over the hidden corners (facing down).
     under = np.array([[-0.01, -1.2, 0.0], [0.3, -1.2, 0.0], [0.3, 1.2, 0.0], [-0.01, 1.2, 0.0]])
-    pts = np.concatenate([floor, foot, under])
-    normals = np.concatenate([np.tile([0.0, 0.0, 1.0], (4, 1)), [[-1.0, 0.0, 0.0]], np.tile([0.0, 0.0, -1.0], (4, 1))])
-    floor_tris = np.concatenate([floor_tris, np.array([[0, 2, 1], [0, 3, 2]]) + 5])
-    hidden = np.array([False, True, True, False, False, True, True, True, True])
-    radiance = np.array([[1.0] * 3, [0.0] * 3, [0.0] * 3, [1.0] * 3] + [[0.0] * 3] * 5)
-    near = nearfield.build(pts, normals, 0.3, floor_tris, rays=64, hidden=hidden)
+    # The wall's face over the foot (a corner of it, as a mesh's points are: a caster starts
+    # their rays into their own triangles).
+    face = np.array([[-0.01, -0.5, 1.0], [-0.01, 0.5, 1.0]])
+    pts = np.concatenate([floor, foot, under, face])
+    normals = np.concatenate([np.tile([0.0, 0.0, 1.0], (4, 1)), [[-1.0, 0.0, 0.0]], np.tile([0.0, 0.0, -1.0], (4, 1)),
+                              np.tile([-1.0, 0.0, 0.0], (2, 1))])
+    floor_tris = np.concatenate([floor_tris, np.array([[0, 2, 1], [0, 3, 2]]) + 5, [[4, 9, 10]]])
+    hidden = np.array([False, True, True, False, False, True, True, True, True, False, False])
+    radiance = np.array([[1.0] * 3, [0.0] * 3, [0.0] * 3, [1.0] * 3] + [[0.0] * 3] * 7)
+    def host(p, t):
+        return _host_caster(monkeypatch, p, t) if by_caster else None
+
+    near = nearfield.build(pts, normals, 0.3, floor_tris, rays=64, hidden=hidden, caster=host(pts, floor_tris))
     row = near.rows.tolist().index(4)
     # Half the foot's rays land on the floor; each takes the lit corners' light, 1.
     assert abs(near.gather(radiance)[row, 0] - 0.5) < 0.05
-    near_plain = nearfield.build(pts, normals, 0.3, floor_tris, rays=64)
+    near_plain = nearfield.build(pts, normals, 0.3, floor_tris, rays=64, caster=host(pts, floor_tris))
     assert near_plain.gather(radiance)[near_plain.rows.tolist().index(4), 0] < 0.2  # barycentric: mostly the dark corner
     # Without the wall's underside the covered corners lie open (a thick wall's outer face,
     # which no probe sees but the sun lights): their own light counts, as barycentric.
-    near_open = nearfield.build(pts[:5], normals[:5], 0.3, floor_tris[:2], rays=64, hidden=hidden[:5])
-    assert near_open.gather(radiance[:5])[near_open.rows.tolist().index(4), 0] < 0.2
+    no_under = floor_tris[[0, 1, 4]]
+    near_open = nearfield.build(pts, normals, 0.3, no_under, rays=64, hidden=hidden, caster=host(pts, no_under))
+    assert near_open.gather(radiance)[near_open.rows.tolist().index(4), 0] < 0.2
 
     plate = _quad(-0.2, 0.2, 0.02, up=False)
     centre = np.array([[0.0, 0.0, 0.02]])  # the plate's middle, facing down
@@ -315,7 +364,7 @@ def test_a_corner_hidden_under_a_wall_lends_no_darkness_to_the_floor_beside_it()
     tris2 = np.concatenate([floor_tris, plate[1] + len(pts)])
     hidden2 = np.concatenate([hidden, np.zeros(5, dtype=bool)])
     radiance2 = np.concatenate([radiance, np.zeros((5, 3))])
-    near = nearfield.build(pts2, normals2, 0.1, tris2, rays=64, hidden=hidden2)
+    near = nearfield.build(pts2, normals2, 0.1, tris2, rays=64, hidden=hidden2, caster=host(pts2, tris2))
     row = near.rows.tolist().index(len(pts2) - 1)
     # Its rays land on the floor under the plate, near the hidden corners: dark.
     assert near.gather(radiance2)[row, 0] < 0.1
@@ -355,13 +404,15 @@ def test_the_resting_index_is_kept_for_a_small_scene_and_not_past_the_limit(monk
     assert kept.tolist() == made.tolist() == [True, True]
 
 
-def test_a_hit_in_a_gap_takes_only_what_the_gap_lets_in(monkeypatch):
+@pytest.mark.parametrize("by_caster", [False, True])
+def test_a_hit_in_a_gap_takes_only_what_the_gap_lets_in(monkeypatch, by_caster):
     """A coarse floor cell (1 m) half under a plate standing 2 cm above it, and a point on
     the plate's underside looking down: its rays land on the floor under the plate, between
     corners in the open (x = 0) and corners under the plate (x = 1). Barycentric weights
     alone give the hit points much of the open corners' light; the openness of the hit
     points (closed in by the plate) against the open corners' takes nearly all of it away.
-    A point in the open, beside the plate, keeps its weights."""
+    A point in the open, beside the plate, keeps its weights. The same where the host's
+    caster casts the rays."""
     floor = (np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=float), np.array([[0, 1, 2], [0, 2, 3]]))
     plate = (np.array([[0.5, -0.5, 0.02], [1.5, -0.5, 0.02], [1.5, 1.5, 0.02], [0.5, 1.5, 0.02]]),
              np.array([[0, 2, 1], [0, 3, 2]]))  # facing down, over the floor's half x > 0.5
@@ -370,10 +421,11 @@ def test_a_hit_in_a_gap_takes_only_what_the_gap_lets_in(monkeypatch):
     normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
     normals[4:9] = [0.0, 0.0, -1.0]  # the plate's corners and the point under it look down
     watched, beside = 8, 9
+    caster = _host_caster(monkeypatch, pts, tris) if by_caster else None
 
     def open_corner_weight(rays):
         monkeypatch.setattr(nearfield, "OPENNESS_RAYS", rays)
-        near = nearfield.build(pts, normals, 0.1, tris)
+        near = nearfield.build(pts, normals, 0.1, tris, caster=caster)
         out = {}
         for p in (watched, beside):
             rows = np.flatnonzero(near.rows == p)

@@ -44,7 +44,7 @@ import numpy as np
 
 from . import convergence, working
 from .nearhits import gap_ratios, hidden_points, uncover
-from .nearrays import CASTER_RAYS, cast_points, clusters, shared_rows
+from .nearrays import CASTER_RAYS, cast_points, clusters, host_rays, shared_rows
 from .spatial import voxel_index
 
 __all__ = ["NearField", "Traced", "build", "trace", "started", "finish", "NEAR_REACH", "NEAR_RAYS", "MAX_CANDIDATES", "MAX_PAIRS"]
@@ -375,16 +375,10 @@ def trace(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     # How much light a hit in a gap gets through it needs only the geometry: asked here (the
     # clusters' hits lie in dense geometry, where the voxel index's tests would take minutes).
     gap = gap_ratios(index, hits.corners, openness, hits.at, hits.triangle, hits.front & (hits.point < traced), rch[hits.point],
-                     turn[hits.point], OPENNESS_RAYS, _rays_of(caster)) if OPENNESS_RAYS else None
+                     turn[hits.point], OPENNESS_RAYS, host_rays(caster)) if OPENNESS_RAYS else None
     longest = float(np.max(reach, where=np.isfinite(reach), initial=0.0))  # (a point's at NaN is none)
     return Traced(index, points, normals, tri, sheets, rays, reach, longest, len(pair_p), crowded, crowded_objects, members, member_of,
                   by_caster, cast, traced, hits, rch, turn, openness, gap, caster, time.perf_counter() - t0)
-
-
-def _rays_of(caster):
-    """The host's :class:`~cubegi_engine.rays.RayCaster` that ``caster`` gives (see
-    :func:`build`), or None."""
-    return None if caster is None else caster()[0]
 
 
 def started(scene, grid, caster):
@@ -440,7 +434,7 @@ def finish(traced, *, hidden=None, lit_if_open=None, hidden_as_given=False, emit
             hidden, emitters = hidden_points(hidden, traced.openness, lit_if_open, traced.sheets, cast[point], corners, points, traced.normals,
                                              tri, emitting, lying)
         hidden[members] = False  # lit by their own rays: a surface's light
-        weight = uncover(index, weight, corners, hidden, hits.triangle, traced.rch[point], own, _rays_of(traced.caster))
+        weight = uncover(index, weight, corners, hidden, hits.triangle, traced.rch[point], own, host_rays(traced.caster))
     if traced.gap is not None:  # a hit in a gap takes what the gap lets in (worked out with the rays)
         ask, ratio = traced.gap
         weight[ask] *= ratio  # (weight is this call's own: stacked above, or uncover's copy)

@@ -15,7 +15,8 @@ from .geometry import in_pieces
 from .hemisphere import TURN_HASH, hemisphere_rays
 from .spatial import COORD_SLACK, SLACK
 
-__all__ = ["Rays", "cast_points", "cast_rays", "cast_by_caster", "clusters", "shared_rows", "open_basis_of", "FADE", "CASTER_RAYS", "CASTER_REACH"]
+__all__ = ["Rays", "cast_points", "cast_rays", "cast_by_caster", "host_rays", "clusters", "shared_rows", "open_basis_of", "FADE", "CASTER_RAYS",
+           "CASTER_REACH"]
 
 # Hits fade out over this last share of the reach.
 FADE = 0.25
@@ -151,6 +152,12 @@ def clusters(crowded, points, normals, owner, reach, rays, caster):
     member = np.flatnonzero(chosen[local])
     reps = rep[kept]
     return ids[reps], ids[member], place[cluster[member]], np.maximum(CASTER_REACH * reach[ids[reps]], size[local[reps]])
+
+
+def host_rays(caster):
+    """The host's :class:`~cubegi_engine.rays.RayCaster` that ``caster`` gives (see
+    :func:`cast_by_caster`), or None."""
+    return None if caster is None else caster()[0]
 
 
 def shared_rows(rows, open_basis, share, members, rep, normals):

@@ -279,7 +279,7 @@ class NearField:
 
 
 def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PAIRS, hidden=None, lit_if_open=None, which=None,
-          hidden_as_given=False, sheets=None, owner=None, keep_index=True, caster=None, emitting=None):
+          hidden_as_given=False, sheets=None, owner=None, keep_index=True, caster=None, emitting=None, clustered=True):
     """The near field of ``points``/``normals`` ``(s, 3)`` among ``triangles (t, 3)``
     (indices into points), rays reaching ``reach`` (one length, or ``(s,)``). ``hidden``:
     ``(s,)`` bool, points covered by another object (their light is no sample of the
@@ -297,7 +297,7 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     point's object (see :func:`_candidate_pairs`); ``keep_index``: see :func:`~.spatial.voxel_index`.
     ``caster``: where given, a callable giving ``(RayCaster, its triangles' indices among
     triangles)``, the host's ray caster over the scene (the GPU module's, or Blender's BVH
-    tree): every ray goes through it, and the crowded
+    tree): every ray goes through it, and (unless not ``clustered``) the crowded
     points of the smallest objects are not left out but share the rays of one point per
     cluster, cast through it (:func:`~.nearrays.clusters`).
 
@@ -305,7 +305,7 @@ def build(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     the hits take, which needs ``hidden``): a bake traces while it tests which probes see
     each point."""
     traced = trace(points, normals, reach, triangles, rays=rays, max_pairs=max_pairs, which=which, sheets=sheets, owner=owner,
-                   keep_index=keep_index, caster=caster)
+                   keep_index=keep_index, caster=caster, clustered=clustered)
     return finish(traced, hidden=hidden, lit_if_open=lit_if_open, hidden_as_given=hidden_as_given, emitting=emitting)
 
 
@@ -340,7 +340,7 @@ class Traced:
 
 
 def trace(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PAIRS, which=None, sheets=None, owner=None,
-          keep_index=True, caster=None):
+          keep_index=True, caster=None, clustered=True):
     """The rays of :func:`build` and their hits (arguments as there): a :class:`Traced`, or a
     NearField where there is none (nothing asked, or the scene over the pairs' budget)."""
     t0 = time.perf_counter()
@@ -360,8 +360,9 @@ def trace(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     if isinstance(found, str):
         return NearField.empty(rays, found, time.perf_counter() - t0)
     pair_p, pair_t, crowded = found
-    small = _small_objects(points, owner, reach, asked) if caster is not None and SMALL_OBJECT > 0 else np.zeros(s, dtype=bool)
-    by_caster, members, member_of, caster_reach = clusters(crowded | small, points, normals, owner, reach, CASTER_RAYS, caster)
+    sharing = caster if clustered else None
+    small = _small_objects(points, owner, reach, asked) if sharing is not None and SMALL_OBJECT > 0 else np.zeros(s, dtype=bool)
+    by_caster, members, member_of, caster_reach = clusters(crowded | small, points, normals, owner, reach, CASTER_RAYS, sharing)
     crowded[members] = False
     if small.any():  # the small objects' points the caster takes cast no rays of their own through the index
         keep = np.ones(s, dtype=bool)

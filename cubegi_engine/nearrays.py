@@ -94,7 +94,7 @@ def cast_points(index, points, normals, reach, pair_p, pair_t, by_caster, caster
     if caster is not None and traced:
         # The host's caster takes them too: on the GPU module (llvmpipe here) the Breakfast
         # Room's 181K such rays took 0.19 s, the voxel index's trace 1.16 s on one core.
-        hits = cast_by_caster(caster, tri, sheets, cast[:traced], *mine, rays, 0)
+        hits = cast_by_caster(caster, tri, sheets, cast[:traced], *mine, rays, 0, back_occludes=True)
     else:
         hits = list(in_pieces(lambda sl: cast_rays(index, tri, *mine, rays, pair_local, pair_t, sl),
                               max(traced, 1), POINTS_AT_ONCE, least=CAST_PIECE)) if traced or not len(by_caster) else []
@@ -176,12 +176,14 @@ def shared_rows(rows, open_basis, share, members, rep, normals):
     return np.concatenate([rows, members]), np.concatenate([open_basis, turned]), np.concatenate([share, share[q]]), alias
 
 
-def cast_by_caster(caster, tri, sheets, ids, at, nrm, rch, slack, turn, rays, first):
+def cast_by_caster(caster, tri, sheets, ids, at, nrm, rch, slack, turn, rays, first, back_occludes=False):
     """:func:`cast_rays` of the points ``ids`` (at ``at``, counted from ``first``) through the host's
     caster (``caster()``: ``(RayCaster, its triangles' indices among tri, each point's
     inward direction)``, see :func:`~cubegi_engine.gather.near_caster`): a list of
     :class:`Rays`. A sheet is met on the side a ray comes from: a hit on a sheet's triangle
-    from behind takes its twin points' light, as :func:`~cubegi_engine.gather.gather` does."""
+    from behind takes its twin points' light, as :func:`~cubegi_engine.gather.gather` does.
+    ``back_occludes``: a ray that meets a back face first is a hit that sends nothing, as
+    through the voxel index (else it is left out of the point's view)."""
     rays_by, whose, inward = caster()
     # From a vertex where two faces meet, a ray lifted off one face can start behind the
     # other: the rays start as far again into the vertex's own triangles (as shadow rays do:
@@ -204,7 +206,7 @@ def cast_by_caster(caster, tri, sheets, ids, at, nrm, rch, slack, turn, rays, fi
             corners[turned], front[turned] = twins[corners[turned]], True
         # A ray that meets a back face first set out into a solid (or met a face turned the
         # wrong way): it is no sample of what the point sees, and its other rays stand for it.
-        counts = ~(hit & ~front).reshape(c, rays)
+        counts = None if back_occludes else ~(hit & ~front).reshape(c, rays)
         best = np.where(hit, found.t, np.inf).reshape(c, rays)
         out.append(_hits(a, n, r, dirs, best, t_.reshape(c, rays), corners.reshape(c, rays, 3), found.bary[:, 1:].reshape(c, rays, 2),
                          front.reshape(c, rays), first + lo, counts))

@@ -70,13 +70,13 @@ class Transport:
         if near_field and tracing is None:
             tracing = nearfield.started(scene, grid, caster)  # while the visibility is tested
         try:
-            self._build(scene, grid, capture, visibility, proxy, tracing)
+            self._build(scene, grid, capture, visibility, proxy, tracing, caster)
         except BaseException:
             if tracing is not None:  # nothing of the failed tables outlives them
                 working.abandon(tracing)
             raise
 
-    def _build(self, scene, grid, capture, visibility, proxy, tracing):
+    def _build(self, scene, grid, capture, visibility, proxy, tracing, caster):
         """The tables (see the constructor); ``tracing``: the near field's rays, started."""
         n = capture.size
         triangles = scene.triangles if proxy is None else proxy.triangles
@@ -152,7 +152,7 @@ class Transport:
         if spare is not None:
             self._light_from_behind(spare, basis, len(scene.points))
         if self.near is not None and visibility and self.covered.any():
-            self._light_under(scene, grid, index, trilinear_weight, basis, positions)
+            self._light_under(scene, grid, index, trilinear_weight, basis, positions, caster)
         self.own_near = self.near
         if proxy is None:  # (a proxy's clusters have no covered flag of their own)
             self.bary = seen_corners_only(self.bary, self.corners, self.covered)
@@ -266,7 +266,7 @@ class Transport:
         self._put_weights(rows, w, basis[rows])
         self.covered[rows] = self._weightless(rows)
 
-    def _light_under(self, scene, grid, index, weight, basis, positions):
+    def _light_under(self, scene, grid, index, weight, basis, positions, caster):
         """Covered points in the open (the floor under a sofa: every probe's view of it is
         cut by the sofa, but its near field does not close it in and it rests on nothing)
         take the valid probes in front of them, and rays of UNDER_REACH cells: the rays
@@ -293,7 +293,7 @@ class Transport:
             which = np.zeros(s, dtype=bool)
             which[rows] = True
             return nearfield.build(scene.points, scene.normals, reach, scene.triangles, hidden=hidden, which=which,
-                                   hidden_as_given=True, sheets=scene.sheets())
+                                   hidden_as_given=True, sheets=scene.sheets(), caster=caster, clustered=False)
 
         far = rays(open_)
         under = np.isin(open_, far.rows[far.share >= UNDER_SHARE]) if far.count else np.zeros(len(open_), dtype=bool)

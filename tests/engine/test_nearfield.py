@@ -56,11 +56,12 @@ def test_a_point_under_a_plate_sees_only_the_plate():
     assert np.allclose(light[0], [0.2, 0.4, 0.8]) and np.allclose(light[1:], 5.0)
 
 
-def test_a_back_face_occludes_and_sends_nothing():
+@pytest.mark.parametrize("by_caster", [False, True])
+def test_a_back_face_occludes_and_sends_nothing(monkeypatch, by_caster):
     plate = _quad(-1, 1, 0.01, up=True)  # its back faces the point
     pts, tris = _scene((np.zeros((1, 3)), np.zeros((0, 3), dtype=int)), plate)
     normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
-    near = nearfield.build(pts, normals, 0.5, tris)
+    near = nearfield.build(pts, normals, 0.5, tris, caster=_host_caster(monkeypatch, pts, tris) if by_caster else None)
     assert near.rows.tolist() == [0] and np.allclose(near.open_basis[0], sh.diffuse_basis(normals[0]))
     assert np.allclose(near.gather(np.ones((len(pts), 3))), 0.0)
 
@@ -255,9 +256,10 @@ def _host_caster(monkeypatch, pts, tris, kind=NumpyRays):
     return lambda: (host, np.arange(len(tris)), inward(tris, pts))
 
 
-def test_crowded_points_and_scenes_over_the_budget_are_left_out_and_counted():
+def test_crowded_points_and_scenes_over_the_budget_are_left_out_and_counted(monkeypatch):
     """A point among more candidate triangles than the cap keeps the probes' light; a scene
-    whose pairs would exceed the budget gets no near field, with the reason."""
+    whose pairs would exceed the budget gets no near field, with the reason. Given the host's
+    caster, the crowded point casts by clusters through it, unless asked not to."""
     rng = np.random.default_rng(2)
     n = 400
     c = rng.uniform(-0.05, 0.05, (n, 3)) + [0.0, 0.0, 0.1]
@@ -269,6 +271,11 @@ def test_crowded_points_and_scenes_over_the_budget_are_left_out_and_counted():
     assert near.crowded >= 1 and 0 not in near.rows.tolist()
     near = nearfield.build(pts, normals, 0.5, tris + 1, max_pairs=10)
     assert near.count == 0 and "more than 10" in near.skipped
+    down = tris[:, ::-1] + 1  # (facing the point: a cluster's ray meeting a back face first counts for nothing)
+    caster = _host_caster(monkeypatch, pts, down)
+    assert 0 in nearfield.build(pts, normals, 0.5, down, caster=caster).rows.tolist()
+    alone = nearfield.build(pts, normals, 0.5, down, caster=caster, clustered=False)
+    assert alone.crowded >= 1 and 0 not in alone.rows.tolist()
 
 
 @pytest.mark.parametrize("touching", [False, True])

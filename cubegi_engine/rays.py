@@ -96,6 +96,8 @@ def near_hits_again(points, triangles, corners, scale, origins, dirs, reach, whi
     with np.errstate(invalid="ignore"):
         inside = ok & (b >= 0) & (c >= 0) & (b + c <= 1) & (cut > 0) & (cut <= limit)
     ray, tri, cut = ray[inside], tri[inside], cut[inside]
+    if not len(ray):  # (float64 finds none of them met: the caster's hits stand)
+        return which, t
     first = np.lexsort((tri, cut, ray))
     keep = first[np.append(True, ray[first][1:] != ray[first][:-1])]
     # Only a cut no farther than the caster's (within float32's error): one beyond it may lie

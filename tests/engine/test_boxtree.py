@@ -343,3 +343,9 @@ def test_a_near_hit_is_taken_again_in_float64_among_the_triangles_at_its_corners
     far = plain.t * 1e4  # (beyond NEAR_AGAIN of the scene's size: not asked again)
     which, _ = near_hits_again(points, triangles, corner_triangles(triangles, len(points)), 4.0, origins, dirs, None, guess, far)
     assert np.array_equal(which, guess)
+    # A near hit that float64 finds on none of the triangles at its corners (a ray that the
+    # caster's float32 let graze an edge) stands as the caster gave it.
+    past = np.array([[3.5, 1.5, 1e-4]]), np.array([[0.0, 0.0, -1.0]])  # beside triangle 4, over nothing
+    which, t = near_hits_again(points, triangles, corner_triangles(triangles, len(points)), 4.0, *past, None, np.array([4]),
+                               np.array([1e-4]))
+    assert which.tolist() == [4] and t.tolist() == [1e-4]

@@ -93,14 +93,29 @@ def cast_points(index, points, normals, reach, pair_p, pair_t, by_caster, caster
     mine = tuple(x[:traced] for x in (at, nrm, rch, slack, turn))  # (a piece's slice may run past its end)
     if caster is not None and traced:
         # The host's caster takes them too: on the GPU module (llvmpipe here) the Breakfast
-        # Room's 181K such rays took 0.19 s, the voxel index's trace 1.16 s on one core.
-        hits = cast_by_caster(caster, tri, sheets, cast[:traced], *mine, rays, 0, back_occludes=True)
+        # Room's 181K such rays took 0.19 s, the voxel index's trace 1.16 s on one core. A
+        # point whose caster's answers are in doubt casts again through the index.
+        def again(ids, dirs):
+            p, t = _pairs_of(pair_local, pair_t, ids)
+            best, hit_tri, uv, front = index.trace(mine[0][ids], mine[1][ids], dirs, mine[2][ids], mine[3][ids], p, t)
+            return best, hit_tri, tri[np.maximum(hit_tri, 0)], uv, front
+
+        hits = cast_by_caster(caster, points, tri, sheets, cast[:traced], *mine, rays, 0, again=again)
     else:
         hits = list(in_pieces(lambda sl: cast_rays(index, tri, *mine, rays, pair_local, pair_t, sl),
                               max(traced, 1), POINTS_AT_ONCE, least=CAST_PIECE)) if traced or not len(by_caster) else []
     if len(by_caster):
-        hits += cast_by_caster(caster, tri, sheets, by_caster, *(x[traced:] for x in (at, nrm, rch, slack, turn)), CASTER_RAYS, traced)
+        hits += cast_by_caster(caster, points, tri, sheets, by_caster, *(x[traced:] for x in (at, nrm, rch, slack, turn)), CASTER_RAYS, traced)
     return cast, traced, Rays.joined(hits), rch, turn
+
+
+def _pairs_of(pair_local, pair_t, ids):
+    """The candidate pairs (``pair_local`` sorted) of the points ``ids`` (sorted), numbered
+    among them: ``(pair_p, pair_t)``."""
+    first, end = np.searchsorted(pair_local, ids), np.searchsorted(pair_local, ids, side="right")
+    count = end - first
+    at = np.repeat(first - np.cumsum(count) + count, count) + np.arange(int(count.sum()))
+    return np.repeat(np.arange(len(ids)), count), pair_t[at]
 
 
 def cast_rays(index, tri, at, nrm, rch, slack, turn, rays, pair_local, pair_t, sl):
@@ -176,14 +191,17 @@ def shared_rows(rows, open_basis, share, members, rep, normals):
     return np.concatenate([rows, members]), np.concatenate([open_basis, turned]), np.concatenate([share, share[q]]), alias
 
 
-def cast_by_caster(caster, tri, sheets, ids, at, nrm, rch, slack, turn, rays, first, back_occludes=False):
-    """:func:`cast_rays` of the points ``ids`` (at ``at``, counted from ``first``) through the host's
+def cast_by_caster(caster, points, tri, sheets, ids, at, nrm, rch, slack, turn, rays, first, again=None):
+    """:func:`cast_rays` of the points ``ids`` (at ``at``, counted from ``first``; ``tri`` over ``points``) through the host's
     caster (``caster()``: ``(RayCaster, its triangles' indices among tri, each point's
     inward direction)``, see :func:`~cubegi_engine.gather.near_caster`): a list of
     :class:`Rays`. A sheet is met on the side a ray comes from: a hit on a sheet's triangle
     from behind takes its twin points' light, as :func:`~cubegi_engine.gather.gather` does.
-    ``back_occludes``: a ray that meets a back face first is a hit that sends nothing, as
-    through the voxel index (else it is left out of the point's view)."""
+    ``again(which, dirs)``: where given, the points ``which`` (indices among ``ids``, with
+    their rays ``dirs``) any of whose rays met a back face first, or a triangle behind
+    their start, cast again by it: ``(best, triangle, corners, uv, front)`` per ray, as
+    :meth:`~.spatial.VoxelIndex.trace` (coincident faces, one each way, are one distance
+    to float32: the voxel index takes the front one, whatever the order of the objects)."""
     rays_by, whose, inward = caster()
     # From a vertex where two faces meet, a ray lifted off one face can start behind the
     # other: the rays start as far again into the vertex's own triangles (as shadow rays do:
@@ -197,19 +215,29 @@ def cast_by_caster(caster, tri, sheets, ids, at, nrm, rch, slack, turn, rays, fi
         a, n, r, k, tn = at[sl], nrm[sl], rch[sl], slack[sl], turn[sl]
         c = len(a)
         dirs = hemisphere_rays(n, rays, tn)  # (c, rays, 3)
-        found = rays_by.cast(np.repeat(a + k[:, None] * n, rays, axis=0), dirs.reshape(-1, 3), np.repeat(r, rays))
+        start = np.repeat(a + k[:, None] * n, rays, axis=0)
+        found = rays_by.cast(start, dirs.reshape(-1, 3), np.repeat(r, rays))
         hit = found.triangle >= 0
         t_ = np.where(hit, whose[np.maximum(found.triangle, 0)], -1)
         corners, front = tri[np.maximum(t_, 0)], found.front.copy()
+        # A hit on a triangle with no corner in front of the ray's start: the caster's float32
+        # let the ray graze the edge of a surface behind the point (a floor that ends at the
+        # foot of a sheet, met from the sheet's far side). The voxel index pairs no such
+        # triangle with the point; the ray is no sample of what the point sees.
+        behind = hit & (np.einsum("hcx,hx->hc", points[corners] - start[:, None, :], np.repeat(n, rays, axis=0)).max(axis=1) <= 0.0)
         if twins is not None:
             turned = hit & ~front & (twins[corners[:, 0]] >= 0)
             corners[turned], front[turned] = twins[corners[turned]], True
         # A ray that meets a back face first set out into a solid (or met a face turned the
         # wrong way): it is no sample of what the point sees, and its other rays stand for it.
-        counts = None if back_occludes else ~(hit & ~front).reshape(c, rays)
-        best = np.where(hit, found.t, np.inf).reshape(c, rays)
-        out.append(_hits(a, n, r, dirs, best, t_.reshape(c, rays), corners.reshape(c, rays, 3), found.bary[:, 1:].reshape(c, rays, 2),
-                         front.reshape(c, rays), first + lo, counts))
+        counts = ~(behind | (hit & ~front)).reshape(c, rays)
+        best, t_, corners, uv, front = (np.where(hit, found.t, np.inf).reshape(c, rays), t_.reshape(c, rays), corners.reshape(c, rays, 3),
+                                        found.bary[:, 1:].reshape(c, rays, 2), front.reshape(c, rays))
+        doubt = np.flatnonzero(~counts.all(axis=1)) if again is not None else []
+        if len(doubt):
+            best[doubt], t_[doubt], corners[doubt], uv[doubt], front[doubt] = again(lo + doubt, dirs[doubt])
+            counts[doubt] = True
+        out.append(_hits(a, n, r, dirs, best, t_, corners, uv, front, first + lo, counts))
     return out
 
 

@@ -61,7 +61,7 @@ def test_a_back_face_occludes_and_sends_nothing(monkeypatch, by_caster):
     plate = _quad(-1, 1, 0.01, up=True)  # its back faces the point
     pts, tris = _scene((np.zeros((1, 3)), np.zeros((0, 3), dtype=int)), plate)
     normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
-    near = nearfield.build(pts, normals, 0.5, tris, caster=_host_caster(monkeypatch, pts, tris) if by_caster else None)
+    near = nearfield.build(pts, normals, 0.5, tris, caster=_host_caster(monkeypatch, pts, tris, refuse=False) if by_caster else None)
     assert near.rows.tolist() == [0] and np.allclose(near.open_basis[0], sh.diffuse_basis(normals[0]))
     assert np.allclose(near.gather(np.ones((len(pts), 3))), 0.0)
 
@@ -245,15 +245,35 @@ def test_where_the_host_has_a_caster_every_ray_goes_through_it(monkeypatch):
     assert np.abs(by_caster.open_basis - by_index.open_basis).max() < 1e-9
 
 
-def _host_caster(monkeypatch, pts, tris, kind=NumpyRays):
+def _host_caster(monkeypatch, pts, tris, kind=NumpyRays, refuse=True):
     """A host's caster over ``tris`` (as :func:`nearfield.build` takes it: every triangle
-    tested), with the voxel index's trace refused from here on."""
+    tested), with the voxel index's trace refused from here on (unless not ``refuse``: a
+    point whose rays met a back face first casts again through it)."""
     def refused(*args):
         raise AssertionError("the voxel index traced rays that the caster was given")
 
-    monkeypatch.setattr(spatial.VoxelIndex, "trace", refused)
+    if refuse:
+        monkeypatch.setattr(spatial.VoxelIndex, "trace", refused)
     host = kind(pts, tris)
     return lambda: (host, np.arange(len(tris)), inward(tris, pts))
+
+
+def test_through_the_caster_coincident_faces_give_the_front_one_in_any_order(monkeypatch):
+    """A block's underside lying on a floor (its faces facing down, the floor's up, in one
+    plane): a point over them sees the floor, whichever of the two the caster names first
+    (float32 cannot tell them apart); as the voxel index sees it, in either order."""
+    floor, under = _quad(-1, 1, 0.0), _quad(0.0, 0.5, 0.0, up=False)
+    point = (np.array([[0.25, 0.1, 0.3]]), np.zeros((0, 3), dtype=int))
+    pts, tris = _scene(point, floor, under)
+    normals = np.tile([0.0, 0.0, -1.0], (len(pts), 1))
+    normals[1:5] = [0.0, 0.0, 1.0]
+    radiance = np.random.default_rng(3).uniform(0.1, 1.0, (len(pts), 3))
+    which = np.arange(len(pts)) == 0
+    by_index = nearfield.build(pts, normals, 0.5, tris, rays=64, which=which)
+    for order in (tris, tris[::-1]):
+        near = nearfield.build(pts, normals, 0.5, order, rays=64, which=which, caster=_host_caster(monkeypatch, pts, order, refuse=False))
+        assert near.rows.tolist() == [0] and np.allclose(near.gather(radiance), by_index.gather(radiance), atol=1e-12)
+    assert by_index.gather(radiance)[0, 0] > 0.1
 
 
 def test_crowded_points_and_scenes_over_the_budget_are_left_out_and_counted(monkeypatch):
@@ -350,7 +370,7 @@ def test_a_corner_hidden_under_a_wall_lends_no_darkness_to_the_floor_beside_it(m
     hidden = np.array([False, True, True, False, False, True, True, True, True, False, False])
     radiance = np.array([[1.0] * 3, [0.0] * 3, [0.0] * 3, [1.0] * 3] + [[0.0] * 3] * 7)
     def host(p, t):
-        return _host_caster(monkeypatch, p, t) if by_caster else None
+        return _host_caster(monkeypatch, p, t, refuse=False) if by_caster else None
 
     near = nearfield.build(pts, normals, 0.3, floor_tris, rays=64, hidden=hidden, caster=host(pts, floor_tris))
     row = near.rows.tolist().index(4)

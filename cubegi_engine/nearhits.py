@@ -97,11 +97,22 @@ def uncover(index, weight, corners, hidden, tri, reach, ask=None, caster=None):
     asked = np.arange(len(mixed)) if ask is None else np.flatnonzero(ask[mixed])
     k = tri[mixed[asked]]
     at = np.einsum("hc,hcx->hx", weight[mixed[asked]], np.stack([index.a[k], index.b[k], index.c[k]], axis=1))
-    free[asked] = ~_covered_along_normal(index, at, index.unit[k], reach[mixed[asked]], caster)
+    free[asked] = ~_covered_along_normal(index, at, _side_normals(index, k, corners[mixed[asked]]), reach[mixed[asked]], caster)
     kept = weight[mixed] * ~hidden[corners[mixed]]
     out = weight.copy()
     out[mixed] = kept / np.maximum(kept.sum(axis=1, keepdims=True), np.where(free, 1e-2, 0.5)[:, None])
     return out
+
+
+def _side_normals(index, tri, corners):
+    """``(h, 3)``: the unit normal of each hit's triangle ``tri`` on the side its ``corners``
+    lie. A sheet's back side met through its front's triangle (as the host's caster meets it:
+    :func:`~.nearrays.cast_by_caster`) faces the other way."""
+    up = index.unit[tri]
+    sheets = index.sheets
+    if sheets is None:
+        return up
+    return np.where((sheets.back[corners[:, 0]] != sheets.triangle_back[tri])[:, None], -up, up)
 
 
 def _covered_along_normal(index, at, up, reach, caster=None):
@@ -144,7 +155,7 @@ def gap_ratios(index, corners, openness, at, tri, front, reach, turn, rays, cast
         return none
     # In a gap: something over the hit point along its normal, within reach (a floor beside a
     # wall is open overhead: its corners' light stands).
-    up, r = index.unit[tri[ask]], reach[ask]
+    up, r = _side_normals(index, tri[ask], corners[ask]), reach[ask]
     slack = SLACK * r + COORD_SLACK * np.abs(at[ask]).max(axis=1)
     gap = _covered_along_normal(index, at[ask], up, r, caster)
     if not gap.any():

@@ -744,3 +744,21 @@ def test_a_probe_sees_a_triangle_with_a_covered_corner_by_its_seen_corners():
     corner_light = np.array([1.0, 2.0, 50.0, 80.0])  # the hidden side's light
     seen = (out[0] * corner_light[corners[0]]).sum(axis=-1)
     assert seen[0] <= 2.0 and seen[2] == pytest.approx(2.0)
+
+
+def test_a_sheets_back_side_met_through_its_fronts_triangle_faces_the_other_way():
+    """The host's caster meets a sheet's back side through its front's triangle, with the
+    twin points as its corners: the gap and hidden-corner tests take the normal of the side
+    those corners lie on (the twin's), not the front's."""
+    from cubegi.cubegi_engine.nearhits import _side_normals
+    from cubegi.cubegi_engine.scene import Sheets
+
+    pts, tris = _quad(-1, 1, 0.0)
+    pts = np.concatenate([pts, pts])
+    tris = np.concatenate([tris, tris[:, ::-1] + 4])  # the twins, wound the other way
+    sheets = Sheets(np.arange(8) >= 4, np.zeros(8, dtype=np.int64), tris)
+    index = spatial.VoxelIndex(pts[tris[:, 0]], pts[tris[:, 1]], pts[tris[:, 2]], 0.5, sheets)
+    hit_tri = np.array([0, 0, 2])
+    corners = np.stack([tris[0], tris[0] + 4, tris[2]])  # the front's, the front's turned to the twins, the twin's own
+    up = _side_normals(index, hit_tri, corners)
+    assert np.allclose(up, [[0, 0, 1], [0, 0, -1], [0, 0, -1]])

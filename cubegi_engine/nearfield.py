@@ -373,8 +373,8 @@ def trace(points, normals, reach, triangles, *, rays=NEAR_RAYS, max_pairs=MAX_PA
     openness = np.ones(s)
     openness[cast] = hits.openness
     openness[members] = openness[by_caster[member_of]]
-    # How much light a hit in a gap gets through it needs only the geometry: asked here (the
-    # clusters' hits lie in dense geometry, where the voxel index's tests would take minutes).
+    # How much light a hit in a gap gets through it needs only the geometry: asked here (of
+    # the own points' hits: see finish).
     gap = gap_ratios(index, hits.corners, openness, hits.at, hits.triangle, hits.front & (hits.point < traced), rch[hits.point],
                      turn[hits.point], OPENNESS_RAYS, host_rays(caster)) if OPENNESS_RAYS else None
     longest = float(np.max(reach, where=np.isfinite(reach), initial=0.0))  # (a point's at NaN is none)
@@ -425,8 +425,9 @@ def finish(traced, *, hidden=None, lit_if_open=None, hidden_as_given=False, emit
     uv = np.clip(hits.uv, 0.0, 1.0)
     weight = np.stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], axis=1)
     corners = hits.corners
-    # The clusters' hits lie in dense geometry, where the voxel index's tests below would take
-    # minutes: their hidden corners' weight goes to the others (and trace asked no gap of them).
+    # The clusters' hits (in dense geometry) are not asked whether they lie covered: their
+    # hidden corners' weight goes to the others (and trace asked no gap of them), as when
+    # those tests went through the voxel index, where they took minutes.
     own = point < traced.traced
     emitters = None
     if hidden is not None:

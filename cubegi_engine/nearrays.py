@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import sh
-from .geometry import in_pieces
+from .geometry import in_pieces, run_offsets
 from .hemisphere import TURN_HASH, hemisphere_rays
 from .spatial import COORD_SLACK, SLACK
 
@@ -114,8 +114,7 @@ def _pairs_of(pair_local, pair_t, ids):
     among them: ``(pair_p, pair_t)``."""
     first, end = np.searchsorted(pair_local, ids), np.searchsorted(pair_local, ids, side="right")
     count = end - first
-    at = np.repeat(first - np.cumsum(count) + count, count) + np.arange(int(count.sum()))
-    return np.repeat(np.arange(len(ids)), count), pair_t[at]
+    return np.repeat(np.arange(len(ids)), count), pair_t[np.repeat(first, count) + run_offsets(count)]
 
 
 def cast_rays(index, tri, at, nrm, rch, slack, turn, rays, pair_local, pair_t, sl):

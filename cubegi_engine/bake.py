@@ -20,7 +20,7 @@ from typing import Protocol
 
 import numpy as np
 
-from .capture import ProbeCapture, start_near_field
+from .capture import ProbeCapture, RayCubes, start_near_field
 from .direct import DirectLight, direct_light_steps, sun_steps
 from .emitters import balanced_landing
 from .errors import BakeError
@@ -255,6 +255,10 @@ def _bake(scene, grid, renderer, settings, capture, keep_shadows, whole_field, s
 # An object is left out of the capture where from every probe it spans less than this many
 # texels (it still receives light, and lights others through the direct light's shadows).
 SMALL_OBJECT_TEXELS = 1.0
+# The probes' simplified copy of the scene is cast through the host's ray caster, not drawn
+# (capture.RayCubes): the Breakfast Room's capture 1.5-2.7 -> 0.4-0.5 s on llvmpipe, its
+# light within 0.2% of the drawn capture's and its errors against Cycles the same.
+CAPTURE_BY_RAYS = True
 
 
 def _new_capture(scene, grid, renderer, settings, working, timings, total, simplifying, shadows):
@@ -294,8 +298,12 @@ def _drawn(scene, grid, renderer, settings, working, timings, total, simplifying
         sheet = scene.sheet_triangles()
         if sheet is not None and proxy is not None:  # per object: the proxy keeps each object's
             sheet = np.isin(proxy.triangle_object, np.unique(scene.triangle_object()[sheet]))
-        drawer = renderer.with_geometry(shown[0], shown[1], None if not small.any() else np.flatnonzero(~small[shown[2]]),
-                                        sheet)
+        drawn = None if not small.any() else np.flatnonzero(~small[shown[2]])
+        # A simplified copy is cast where the host has a ray caster (RayCubes): the scene's
+        # own triangles are drawn as before.
+        drawer = RayCubes.of(getattr(renderer, "rays", None), shown[0], shown[1], drawn, sheet) if (
+            proxy is not None and CAPTURE_BY_RAYS) else None
+        drawer = drawer or renderer.with_geometry(shown[0], shown[1], drawn, sheet)
     timings["simplify"] = time.perf_counter() - t
     drawn = f" ({len(proxy.triangles):,} of {len(scene.triangles):,} triangles)" if proxy is not None else ""
     yield Progress(Stage.CAPTURE, 0, total, f"capturing {grid.count} probes at {settings.cube_size}x{settings.cube_size}{drawn}")

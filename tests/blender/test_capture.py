@@ -310,3 +310,32 @@ def test_a_partitions_faces_lying_on_the_ceiling_and_a_wall_take_no_light(empty_
     print(lit[on_others].max(), lit[wall & (arrays.normals[:, 0] < -0.9)].mean())
     assert np.all(lit[on_others] == 0.0), lit[on_others].max()
     assert lit[wall & (arrays.normals[:, 0] < -0.9)].mean() > 1.0  # its face towards the light
+
+
+def test_a_cast_capture_sees_what_the_drawn_one_sees(empty_scene, cubegi):
+    """The probes' capture by rays through the GPU module's caster (capture.RayCubes, what a
+    simplified scene's probes take) against the same triangles drawn: the same triangle, side
+    and distance at nearly every texel (an edge is float rounding either way), a two-sided
+    sheet seen from behind as its twin in both."""
+    v, f = scenes.box_mesh((-3.0, -2.0, -1.5), (2.0, 4.0, 2.5), (6, 6, 6), inward=True)
+    scenes.mesh_object("Room", v, f)
+    v, f = scenes.box_mesh((-0.5, 0.5, -1.5), (0.5, 1.5, 0.5), (3, 3, 3), inward=False)
+    scenes.mesh_object("Block", v, f)
+    v, f = scenes.grid_patch((-1.5, -1.0, 0.3), (2.5, 0.4, 0.0), (0.0, 1.5, 0.0), 4, 3)  # an open sheet, tilted
+    scenes.mesh_object("Sheet", v, f)
+    arrays, _ = _collect_and_renderer(cubegi)
+    sheet = arrays.sheet_triangles()
+    assert sheet is not None and sheet.any()
+    gpu_capture = importlib.import_module("cubegi.cubegi_addon.gpu_capture")
+    renderer = gpu_capture.GpuRenderer(arrays.points, arrays.triangles, sheet=sheet)
+    eyes = np.array([[0.3, -0.4, 0.9], [-1.0, 0.2, -0.6], [1.5, 3.0, 2.0], [-2.5, -1.5, 0.0]])
+    near = np.full(len(eyes), 0.01)
+    drawn = cubemap.capture_cubes(renderer, eyes, 16, near, 50.0)
+    cast = capture.RayCubes.of(renderer.rays, arrays.points, arrays.triangles, sheet=sheet).capture(eyes, 16, near)
+    same = cast.tid == drawn.tid
+    assert same.mean() > 0.97, same.mean()
+    np.testing.assert_array_equal(cast.backface[same], drawn.backface[same])
+    np.testing.assert_allclose(cast.dist[same], drawn.dist[same], rtol=2e-4)
+    np.testing.assert_allclose(cast.bary[same], drawn.bary[same], atol=2e-3)
+    back_side = arrays.back_triangles()[np.maximum(cast.tid, 0)] & (cast.tid >= 0)
+    assert back_side[same].sum() > 20  # the sheet's underside, seen through its twin

@@ -468,3 +468,56 @@ def test_the_last_round_asks_no_edge_for_a_round_that_never_comes(monkeypatch):
     proxy = simplify(scene, 20)  # a budget two rounds do not reach
     assert proxy is not None and len(proxy.triangles) > 1.1 * 20
     assert len(rounds) == 2 and len(searches) == 1  # after the first round only
+
+
+def _casting(points, triangles, sheet=None):
+    from cubegi.cubegi_engine.capture import RayCubes
+    from cubegi.cubegi_engine.rays import NumpyRays
+
+    return RayCubes.of(NumpyRays, points, triangles, sheet=sheet)
+
+
+def test_cast_cube_maps_see_the_nearest_side_as_drawn_and_through_a_lone_sheets_back():
+    """The probes' capture by rays (capture.RayCubes): each texel its ray's nearest triangle
+    past the near distance, at its distance, with barycentric weights that rebuild the hit;
+    a two-sided sheet met from behind is its twin, met from the front; a one-sided wall met
+    from behind is a back face; a sheet's triangle with no twin is seen through from behind
+    (its drawing culls that face)."""
+    from cubegi.cubegi_engine import cubemap
+
+    room = _plane((-3.0, -3.0, -3.0), (0.0, 6.0, 0.0), (0.0, 0.0, 6.0), 2, flip=False)  # x = -3, faces +x (the eye)
+    far_wall = _plane((3.0, -3.0, -3.0), (0.0, 0.0, 6.0), (0.0, 6.0, 0.0), 2)  # x = 3: faces -x
+    sheet = _plane((1.0, -0.5, -0.5), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), 1)  # x = 1 faces +x: the eye sees its back
+    twin = (sheet[0], sheet[1][:, ::-1], -sheet[2])  # its other side: the same corners, wound the other way
+    parts = [room, far_wall, sheet, twin]
+    offsets = np.cumsum([0] + [len(p[0]) for p in parts])
+    points = np.concatenate([p[0] for p in parts])
+    tris = np.concatenate([p[1] + o for p, o in zip(parts, offsets)])
+    kind = np.concatenate([np.full(len(p[1]), k) for k, p in enumerate(parts)])
+    eye = np.zeros((1, 3))
+    n = 16
+    dirs = cubemap.texel_directions(n)
+    through = (np.abs(dirs[0, ..., 1] / dirs[0, ..., 0]) < 0.45) & (np.abs(dirs[0, ..., 2] / dirs[0, ..., 0]) < 0.45)
+    assert through.any()
+
+    cap = _casting(points, tris, sheet=kind >= 2).capture(eye, n, np.array([1e-3]))
+    seen = cap.tid[0] >= 0
+    assert seen[:2].all() and np.isinf(cap.dist[0][~seen]).all()  # the +-X faces see the walls, the rest sky
+    hit = np.einsum("kc,kcx->kx", cap.bary[0][seen], points[tris[cap.tid[0][seen]]])
+    np.testing.assert_allclose(np.linalg.norm(hit, axis=-1), cap.dist[0][seen], rtol=1e-6)
+    np.testing.assert_allclose(hit / cap.dist[0][seen][:, None], dirs[seen], atol=1e-6)
+    # +X face (face 0): through the sheet's square, the twin (its side facing the eye), not a back face.
+    assert (kind[cap.tid[0, 0][through]] == 3).all() and not cap.backface[0, 0][through].any()
+    np.testing.assert_allclose(cap.dist[0, 0][through], 1.0 / dirs[0][through][:, 0], rtol=1e-6)
+    # The room's wall at x = -3 faces the eye: every texel of the -X face sees it from the front.
+    assert (kind[cap.tid[0, 1]] == 0).all() and not cap.backface[0, 1].any()
+
+    # Without its twin the sheet is one-sided: seen through from behind, the far wall beyond.
+    keep = kind != 3
+    alone = np.flatnonzero(keep)
+    lone = _casting(points, tris[keep], sheet=kind[keep] == 2).capture(eye, n, np.array([1e-3]))
+    assert (kind[alone][lone.tid[0, 0][through]] == 1).all()
+    np.testing.assert_allclose(lone.dist[0, 0][through], 3.0 / dirs[0][through][:, 0], rtol=1e-6)
+    # Not a sheet: a one-sided wall met from behind, a back face.
+    wall = _casting(points, tris[keep]).capture(eye, n, np.array([1e-3]))
+    assert (kind[alone][wall.tid[0, 0][through]] == 2).all() and wall.backface[0, 0][through].all()

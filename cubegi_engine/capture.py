@@ -27,7 +27,7 @@ __all__ = ["ProbeCapture", "RayCubes", "reference_coefficients"]
 # The rays a batch of the probes' capture by rays (RayCubes) casts between steps; how far past
 # a lone sheet triangle met from behind its ray is cast on (a share of the scene's size), at
 # most how many times.
-CAPTURE_RAYS_PER_STEP, PAST_LONE, LONE_ROUNDS = 1 << 20, 1e-6, 4
+CAPTURE_RAYS_PER_STEP, PAST_LONE, LONE_ROUNDS = 1 << 18, 1e-6, 4
 
 
 @dataclass

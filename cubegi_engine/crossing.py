@@ -6,7 +6,7 @@ Pure numpy; must not import bpy.
 
 import numpy as np
 
-from .geometry import corner_box, corner_triangles, cross, listed_ranks, near_any_triangle, run_offsets, triangles_at
+from .geometry import all_three, corner_box, corner_triangles, cross, in_box, listed_ranks, near_any_triangle, run_offsets, triangles_at
 from .working import checkpoint, once
 
 __all__ = ["Prepared", "contact", "PARALLEL", "AROUND", "SIDE_PLANES"]
@@ -137,10 +137,10 @@ def contact(prep, cell, ijk, which=None, within=None, sides=False):
         else:
             near, big = within[obj]
         q = points[near]
-        box = np.all((q >= lo) & (q <= hi), axis=1)
+        box = in_box(q, lo, hi)
         near = near[box]
         theirs = np.floor((q[box] - prep.origin) / h).astype(np.int64) - base  # (rel[near], gathered once)
-        inside = np.all((theirs >= 0) & (theirs < shape), axis=1)
+        inside = in_box(theirs, np.zeros(3, dtype=np.int64), shape - 1)
         near, theirs = near[inside], np.ravel_multi_index(theirs[inside].T, shape)
         at = np.searchsorted(cells, theirs)
         found = at < len(cells)
@@ -153,7 +153,7 @@ def contact(prep, cell, ijk, which=None, within=None, sides=False):
         # Other objects' triangles larger than a cell, whose vertices may lie far outside.
         big = big[prep.tri_extent[big] > h]
         big = np.sort(big[prep.tri_owner[big] != obj])
-        big = big[np.all(prep.tri_lo[big] <= hi, axis=1) & np.all(prep.tri_hi[big] >= lo, axis=1)]
+        big = big[all_three(prep.tri_lo[big] <= hi) & all_three(prep.tri_hi[big] >= lo)]
         if len(big):
             centres = points[mine[first]] - rel[mine[first]] + (ijk[mine[first]] + 0.5) * h
             c = points[prep.tris[big]]
@@ -221,7 +221,7 @@ def _finer_candidates(prep, obj, near, theirs, crossed, shape, big, h):
     crossed cell along each axis: within AROUND = 2 cells."""
     steps = np.stack(np.meshgrid(*[np.arange(-AROUND, AROUND + 1)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
     around = np.array(np.unravel_index(crossed, shape)).T[:, None, :] + steps[None]
-    ok = np.all((around >= 0) & (around < shape), axis=2)
+    ok = in_box(around, np.zeros(3, dtype=np.int64), shape - 1)
     keys = np.ravel_multi_index(around[ok].T, shape)
     if np.prod(shape.astype(np.float64)) <= LISTED_AT_MOST:  # a flag per cell of the lattice: no sort
         near = near[listed_ranks(keys, int(np.prod(shape)))[0][theirs]]

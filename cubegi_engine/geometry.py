@@ -8,7 +8,7 @@ from . import working
 
 __all__ = ["sorted_unique", "run_offsets", "triangle_planes", "planes_of", "cross", "ray_cut", "cut_planes", "cuts_ahead", "cut_triangles",
            "listed_ranks", "near_any_triangle", "edge_neighbours", "chunks", "POINT_CHUNK", "GRAZING", "twin_triangles", "mix64", "sorted_columns",
-           "position_hash", "corner_box", "corner_triangles", "triangles_at"]
+           "position_hash", "corner_box", "corner_triangles", "triangles_at", "in_box", "all_three"]
 
 # Per-point tests that make several (s, 9, 3) float64 arrays run this many points at a time:
 # a million points then need tens of megabytes, not gigabytes, and stay in cache.
@@ -79,6 +79,21 @@ def triangles_at(runs, at):
     start, per, members = runs
     per = per[at]
     return members[np.repeat(start[at], per) + run_offsets(per)], per
+
+
+def in_box(x, lo, hi):
+    """``(...)`` bool: whether each point ``x (..., 3)`` lies in the box ``lo, hi`` (each
+    ``(..., 3)``, broadcast against ``x``), bounds included; a coordinate at a time (numpy's
+    ``np.all`` over an axis of three took 5-10 times as long: 8.3 -> 0.8 ms for 200K points)."""
+    out = (x[..., 0] >= lo[..., 0]) & (x[..., 0] <= hi[..., 0])
+    for j in (1, 2):
+        out &= (x[..., j] >= lo[..., j]) & (x[..., j] <= hi[..., j])
+    return out
+
+
+def all_three(mask):
+    """``np.all(mask, axis=-1)`` of a ``(..., 3)`` bool array, a column at a time (see in_box)."""
+    return mask[..., 0] & mask[..., 1] & mask[..., 2]
 
 
 def corner_box(corners):
@@ -247,7 +262,7 @@ def near_any_triangle(centres, radius, a, b, c, tiles=8, centre_normals=None, ac
     step = run_offsets(count)
     at = first[k] + np.stack([step % span[k, 0], (step // span[k, 0]) % span[k, 1], step // (span[k, 0] * span[k, 1])], axis=1)
     tiles_at = np.searchsorted(np.ravel_multi_index(ids.T, shape), np.ravel_multi_index(at.T, shape))
-    occupied = np.all(ids[np.minimum(tiles_at, len(ids) - 1)] == at, axis=1)
+    occupied = all_three(ids[np.minimum(tiles_at, len(ids) - 1)] == at)
     k, tiles_at = k[occupied], tiles_at[occupied]
     by_tile = np.argsort(tiles_at, kind="stable")
     k = k[by_tile]
@@ -260,7 +275,7 @@ def near_any_triangle(centres, radius, a, b, c, tiles=8, centre_normals=None, ac
         pts = centres[cells]
         # The boxes (and the normals) first, over every pair; the planes and edges over the
         # pairs left (few: a tile's triangles' boxes hold few of its centres each).
-        near = np.all((pts[:, None, :] >= tri.box_lo[None, sel]) & (pts[:, None, :] <= tri.box_hi[None, sel]), axis=2)
+        near = in_box(pts[:, None, :], tri.box_lo[None, sel], tri.box_hi[None, sel])
         if centre_normals is not None:
             cosine = np.abs(centre_normals[cells] @ tri.n[sel].T)
             if across is not None:

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .emitters import emitting_triangles
-from .geometry import cross, mix64, near_any_triangle, sorted_columns
+from .geometry import all_three, cross, in_box, mix64, near_any_triangle, sorted_columns
 from .scene import SceneArrays
 
 __all__ = ["refine", "refine_for_grid", "refine_near_emitters", "split_counts", "MAX_SPLIT", "MAX_NEW_SHARE"]
@@ -378,11 +378,11 @@ def _near_emitters(scene, grid, tri, longest, at_most):
         for k in np.unique(level[ask & asked]):
             radius = NEAR_EMITTER * 2.0 ** (k + 1)  # at least NEAR_EMITTER of each one's longest edge
             sel = np.flatnonzero(ask & asked & (level == k))
-            sel = sel[np.all((centre[sel] >= source_lo - radius) & (centre[sel] <= source_hi + radius), axis=1)]
+            sel = sel[in_box(centre[sel], source_lo - radius, source_hi + radius)]
             if not len(sel):
                 continue
             lo, hi = centre[sel].min(axis=0) - radius, centre[sel].max(axis=0) + radius
-            near = np.flatnonzero(source & np.all((hi_corner >= lo) & (lo_corner <= hi), axis=1))
+            near = np.flatnonzero(source & all_three((hi_corner >= lo) & (lo_corner <= hi)))
             if len(near):
                 split[sel] = near_any_triangle(centre[sel], radius, a[near], b[near], c[near], centre_normals=unit[sel],
                                                apart=APART * radius, facing=FACING)

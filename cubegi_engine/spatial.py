@@ -6,7 +6,7 @@ import weakref
 
 import numpy as np
 
-from .geometry import chunks, cross, in_pieces, planes_of, ray_cut, run_offsets, sorted_unique
+from .geometry import all_three, chunks, cross, in_box, in_pieces, planes_of, ray_cut, run_offsets, sorted_unique
 from .working import checkpoint, once
 
 __all__ = ["VoxelIndex", "Corners", "corners_of", "voxel_index", "forget_indexes", "resting", "intersect_pairs",
@@ -255,13 +255,13 @@ class VoxelIndex:
         for sl in chunks(len(starts), VOXEL_CHUNK):
             at = sl.start
             idx = first[sl, None, :] + offsets[None]  # (m, 8, 3)
-            use = np.all(idx <= last[sl, None, :], axis=2)
+            use = all_three(idx <= last[sl, None, :])
             key = np.where(use, self._key(idx[..., 0], idx[..., 1], idx[..., 2]), -1)
             pt, col = np.nonzero(key >= 0)
             pt, slot = self._voxels(pt, key[pt, col])
             pp, tt = self._listed(pt, slot)
             pp += at
-            keep = np.all((lo[pp] <= self.hi[tt]) & (hi[pp] >= self.lo[tt]), axis=1)
+            keep = all_three((lo[pp] <= self.hi[tt]) & (hi[pp] >= self.lo[tt]))
             pair = sorted_unique(pp[keep] * len(self.a) + tt[keep])  # a triangle in several voxels, once
             out_p.append(pair // len(self.a))
             out_t.append(pair % len(self.a))
@@ -307,7 +307,7 @@ class VoxelIndex:
             # The voxels' own boxes first (the same tests as the triangles' boxes below, each
             # passed by every triangle the voxel holds that passes them).
             x, r = points[lo + pt], reach[lo + pt][:, None]
-            fits = np.all((x >= self.content_lo[slot] - r) & (x <= self.content_hi[slot] + r), axis=1)
+            fits = in_box(x, self.content_lo[slot] - r, self.content_hi[slot] + r)
             if not touching:
                 fits &= _box_front(normals[lo + pt], self.content_lo[slot] - x, self.content_hi[slot] - x, x, r[:, 0])
             pp, tt = self._listed(pt[fits], slot[fits])
@@ -316,7 +316,7 @@ class VoxelIndex:
             # a wall's own triangles around its points are not, where it lies along an axis),
             # then the plane, then a corner of the triangle in front.
             x, r, box_lo, box_hi = points[pp], reach[pp][:, None], self.lo[tt], self.hi[tt]
-            keep = np.all((x >= box_lo - r) & (x <= box_hi + r), axis=1)
+            keep = in_box(x, box_lo - r, box_hi + r)
             if not touching:
                 keep &= _box_front(normals[pp], box_lo - x, box_hi - x, x, r[:, 0])
             pp, tt, x, r = pp[keep], tt[keep], x[keep], r[keep, 0]

@@ -211,11 +211,11 @@ class RayCubes:
     @classmethod
     def of(cls, make, points, triangles, drawn=None, sheet=None) -> "RayCubes | None":
         """The cube maps of ``triangles`` cast (see the class), or None where the host has no
-        caster (``make`` None)."""
-        if make is None:
-            return None
+        caster (``make`` None) or nothing to cast."""
         triangles = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
         drawn = np.arange(len(triangles)) if drawn is None else np.asarray(drawn, dtype=np.int64)
+        if make is None or not len(drawn):
+            return None
         twin, lone = np.full(len(triangles), -1, dtype=np.int64), np.zeros(len(triangles), dtype=bool)
         if sheet is not None:
             asked = np.zeros(len(triangles), dtype=bool)

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from cubegi.cubegi_engine import cubemap, grid, lights, sh, visibility
+from cubegi.cubegi_engine.geometry import all_three, in_box
 
 N = 32
 DIRS = cubemap.texel_directions(N).reshape(-1, 3)
@@ -688,3 +689,24 @@ def test_a_sheets_twin_is_the_triangle_over_the_same_positions_wound_the_other_w
     compact = grid  # each position once, shared by the corners: each position hashed
     shared = np.concatenate([base, turned[:40], same, rolled, turned[45:50], turned[45:50]])
     assert np.array_equal(twin_triangles(compact, shared, sheet), expected)
+
+
+def test_box_tests_a_coordinate_at_a_time_agree_with_numpys_all():
+    """geometry.in_box and all_three give what np.all over the last axis gives: points (NaN
+    among them) in boxes, bounds included, broadcast pairwise, and integer lattices."""
+    rng = np.random.default_rng(7)
+    x = rng.random((500, 3))
+    x[::50, 1] = np.nan
+    x[1] = (0.2, 0.5, 0.8)  # on the bounds
+    lo, hi = np.array([0.2, 0.1, 0.3]), np.array([0.9, 0.5, 0.8])
+    want = np.all((x >= lo) & (x <= hi), axis=1)
+    assert want.any() and not want.all() and want[1]
+    np.testing.assert_array_equal(in_box(x, lo, hi), want)
+    blo = rng.random((40, 3)) * 0.8
+    bhi = blo + 0.3
+    pairs = np.all((x[:, None, :] >= blo[None]) & (x[:, None, :] <= bhi[None]), axis=2)
+    np.testing.assert_array_equal(in_box(x[:, None, :], blo[None], bhi[None]), pairs)
+    ijk = rng.integers(-2, 6, size=(300, 3))
+    shape = np.array([4, 5, 3])
+    np.testing.assert_array_equal(in_box(ijk, np.zeros(3, dtype=np.int64), shape - 1), np.all((ijk >= 0) & (ijk < shape), axis=1))
+    np.testing.assert_array_equal(all_three(ijk >= 0), np.all(ijk >= 0, axis=-1))

@@ -4,8 +4,10 @@ surfaces move, thin parts kept apart, nothing turned over, radiance averaged by 
 import numpy as np
 import pytest
 
-from cubegi.cubegi_engine import crossing
+from cubegi.cubegi_engine import crossing, cubemap
+from cubegi.cubegi_engine.capture import RayCubes
 from cubegi.cubegi_engine.proxy import CONTACT_LEVELS, KEEP_WHOLE, simplify
+from cubegi.cubegi_engine.rays import NumpyRays
 from cubegi.cubegi_engine.scene import SceneArrays
 
 
@@ -471,9 +473,6 @@ def test_the_last_round_asks_no_edge_for_a_round_that_never_comes(monkeypatch):
 
 
 def _casting(points, triangles, sheet=None):
-    from cubegi.cubegi_engine.capture import RayCubes
-    from cubegi.cubegi_engine.rays import NumpyRays
-
     return RayCubes.of(NumpyRays, points, triangles, sheet=sheet)
 
 
@@ -483,8 +482,6 @@ def test_cast_cube_maps_see_the_nearest_side_as_drawn_and_through_a_lone_sheets_
     a two-sided sheet met from behind is its twin, met from the front; a one-sided wall met
     from behind is a back face; a sheet's triangle with no twin is seen through from behind
     (its drawing culls that face)."""
-    from cubegi.cubegi_engine import cubemap
-
     room = _plane((-3.0, -3.0, -3.0), (0.0, 6.0, 0.0), (0.0, 0.0, 6.0), 2, flip=False)  # x = -3, faces +x (the eye)
     far_wall = _plane((3.0, -3.0, -3.0), (0.0, 0.0, 6.0), (0.0, 6.0, 0.0), 2)  # x = 3: faces -x
     sheet = _plane((1.0, -0.5, -0.5), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), 1)  # x = 1 faces +x: the eye sees its back
@@ -521,3 +518,12 @@ def test_cast_cube_maps_see_the_nearest_side_as_drawn_and_through_a_lone_sheets_
     # Not a sheet: a one-sided wall met from behind, a back face.
     wall = _casting(points, tris[keep]).capture(eye, n, np.array([1e-3]))
     assert (kind[alone][wall.tid[0, 0][through]] == 2).all() and wall.backface[0, 0][through].all()
+
+
+def test_no_caster_or_nothing_to_cast_leaves_the_capture_to_drawing():
+    """RayCubes.of gives None where the host has no ray caster or no triangle is left to cast
+    (the bake then draws, as before)."""
+    pts, tris, _ = _plane((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), 2)
+    assert RayCubes.of(None, pts, tris) is None
+    assert RayCubes.of(NumpyRays, pts, tris, drawn=np.zeros(0, dtype=np.int64)) is None
+    assert RayCubes.of(NumpyRays, pts, tris) is not None

@@ -207,6 +207,9 @@ class RayCubes:
         span = points.max(axis=0) - points.min(axis=0) if len(points) else np.zeros(3)
         self.nudge = PAST_LONE * float(np.linalg.norm(span))
         self.caster = make(points, triangles[self.cast])
+        # The host's caster maker, as a renderer offers it: the tables' near field casts
+        # through it (gather.near_caster), over the scene's own triangles.
+        self.rays = make
 
     @classmethod
     def of(cls, make, points, triangles, drawn=None, sheet=None) -> "RayCubes | None":

@@ -509,6 +509,21 @@ def test_cast_cube_maps_see_the_nearest_side_as_drawn_and_through_a_lone_sheets_
     # The room's wall at x = -3 faces the eye: every texel of the -X face sees it from the front.
     assert (kind[cap.tid[0, 1]] == 0).all() and not cap.backface[0, 1].any()
 
+    # In any order of the triangles (a twin before its front), and only some of them cast
+    # (the rest left out as objects too small to draw): each texel names its own triangle.
+    order = np.random.default_rng(5).permutation(len(tris))
+    place = np.argsort(order)
+    # (A texel centre on a diagonal may name either triangle of the quad: the points and sides
+    # are compared, which a wrong triangle would move.)
+    turned = _casting(points, tris[order], sheet=kind[order] >= 2).capture(eye, n, np.array([1e-3]))
+    assert np.array_equal(turned.tid >= 0, seen[None]) and np.array_equal(turned.dist, cap.dist)
+    np.testing.assert_array_equal(kind[order][turned.tid[0][seen]], kind[cap.tid[0][seen]])
+    again = np.einsum("kc,kcx->kx", turned.bary[0][seen], points[tris[order][turned.tid[0][seen]]])
+    np.testing.assert_allclose(again, hit, atol=1e-9)
+    some = RayCubes.of(NumpyRays, points, tris[order], drawn=place[kind != 0], sheet=kind[order] >= 2).capture(eye, n, np.array([1e-3]))
+    np.testing.assert_array_equal(kind[order][some.tid[0, 0]], kind[cap.tid[0, 0]])  # the sheet and the far wall, as before
+    assert (some.tid[0, 1] < 0).all()  # the wall behind the eye left out: sky
+
     # Without its twin the sheet is one-sided: seen through from behind, the far wall beyond.
     keep = kind != 3
     alone = np.flatnonzero(keep)

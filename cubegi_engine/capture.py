@@ -53,7 +53,8 @@ class ProbeCapture:
         """Draw every probe's cube map of ``scene`` at ``settings`` (a BakeSettings: the
         cube-map size, visibility, near field) and build the tables. With ``proxy`` (a
         :class:`~cubegi_engine.proxy.CaptureProxy`), ``renderer`` draws the proxy's
-        triangles and the tables gather through its clusters."""
+        triangles, or casts them (a :class:`RayCubes`, which offers the host's ``rays`` to
+        the tables as a renderer does), and the tables gather through its clusters."""
         return run(cls.take_steps(scene, grid, renderer, settings, proxy))
 
     @classmethod

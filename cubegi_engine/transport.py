@@ -28,7 +28,7 @@ import numpy as np
 from . import cubemap, nearfield, sh, spatial, working
 from .gather import same_side
 from .grid import points_by_cell
-from .visibility import Cover, PointProbes, Probes, probes_in_front, seen_corners_only, seen_from_behind, visibility_weights
+from .visibility import CastCover, Cover, PointProbes, Probes, probes_in_front, seen_corners_only, seen_from_behind, visibility_weights
 
 # A covered point in the open (see Transport._light_under) casts rays this many cells long,
 # and is lit through the gap where at least this share of them meets what covers it.
@@ -118,7 +118,7 @@ class Transport:
         trilinear_weight = weight
         spare = None  # (rows, weights of the probes behind them), for points the near field leaves dark
         if visibility:
-            weight, spare = self._seen_weights(scene, grid, capture, triangles, proxy, positions, index, weight)
+            weight, spare = self._seen_weights(scene, grid, capture, triangles, proxy, positions, index, weight, caster)
         elif not self.probe_valid.all():
             w = weight * self.probe_valid[index]
             total = w.sum(axis=1, keepdims=True)
@@ -222,7 +222,7 @@ class Transport:
         weights = (self.sh_weights[:, :, None] * pattern[:, None, :].astype(np.float32)).reshape(len(dirs), 27)
         return (sky @ weights).reshape(len(sky), 9, 3)
 
-    def _seen_weights(self, scene, grid, capture, triangles, proxy, positions, index, weight):
+    def _seen_weights(self, scene, grid, capture, triangles, proxy, positions, index, weight, caster=None):
         """The probe weights ``(s, 8)`` of each point's probes that see it (the visibility
         test, :func:`~cubegi_engine.visibility.visibility_weights`), and ``spare``: the points no
         probe in front of them sees but some behind their plane do, with those probes'
@@ -231,7 +231,7 @@ class Transport:
         cover = None
         if scene.point_object is not None:
             cover = Cover.of(capture.tid.reshape(p, 6, n, n), triangles, scene.points if proxy is None else proxy.points,
-                             self.triangle_object, scene.point_object)
+                             self.triangle_object, scene.point_object, CastCover.of_scene(scene, caster))
         probes = Probes(positions, capture.dist.reshape(p, 6, n, n), self.probe_valid)
         lit_by = visibility_weights(grid, probes, PointProbes(scene.points, scene.normals, index, weight), cover, both=True,
                                     sheet=None if scene.sheets() is None else scene.sheets().point_sheet)

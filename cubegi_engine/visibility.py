@@ -11,8 +11,9 @@ import numpy as np
 
 from . import cubemap
 from .geometry import cuts_ahead, edge_neighbours, in_pieces, piece_size, sorted_unique, triangle_planes
+from .rays import RayCaster
 
-__all__ = ["visibility_weights", "probes_in_front", "seen_corners_only", "Cover", "Probes", "PointProbes", "ProbeWeights", "BEHIND",
+__all__ = ["visibility_weights", "probes_in_front", "seen_corners_only", "Cover", "CastCover", "Probes", "PointProbes", "ProbeWeights", "BEHIND",
            "seen_from_behind"]
 
 
@@ -209,21 +210,96 @@ class Cover:
     """What the cover test of :func:`visibility_weights` asks: the triangle each probe
     texel saw ``probe_tid (p, 6, n, n)`` (-1: none), each triangle's object ``(t,)``, its
     :func:`~.geometry.triangle_planes` ``(t, 4, 3)`` and :func:`~.geometry.edge_neighbours`
-    ``(t, 3)``, and each point's object ``(s,)``."""
+    ``(t, 3)``, each point's object ``(s,)``, and ``cast``: the exact rays' test where the
+    host has a ray caster (:class:`CastCover`), which decides the rays that cut another
+    object's seen triangles' planes outside of them (else their rings are searched)."""
 
     probe_tid: np.ndarray
     triangle_object: np.ndarray
     planes: np.ndarray
     neighbours: np.ndarray
     point_object: np.ndarray
+    cast: "CastCover | None" = None
 
     @classmethod
-    def of(cls, probe_tid, triangles, vertices, triangle_object, point_object):
-        return cls(probe_tid, triangle_object, triangle_planes(triangles, vertices), edge_neighbours(triangles), point_object)
+    def of(cls, probe_tid, triangles, vertices, triangle_object, point_object, cast=None):
+        return cls(probe_tid, triangle_object, triangle_planes(triangles, vertices), edge_neighbours(triangles), point_object, cast)
+
+    def rows(self, sl):
+        """The same cover for the points ``sl``."""
+        return replace(self, point_object=self.point_object[sl], cast=None if self.cast is None else self.cast.rows(sl))
+
+
+# The cover test casts the exact rays it cannot decide from what the probes' texels saw
+# through the host's ray caster, where the tables have one (CastCover). How many times such a
+# ray is cast on past a triangle of the point's own object that faces it (a fold of the same
+# surface), and how far past it (of the scene's size).
+COVER_BY_RAYS = True
+COVER_ROUNDS, PAST_OWN = 4, 1e-6
+
+
+@dataclass(frozen=True)
+class CastCover:
+    """The cover test of :func:`visibility_weights` through the host's ray caster: each
+    (point, probe) pair's exact ray is cast among the scene's triangles, and the first one
+    it meets covers the point if it is another object's, or its own object's facing away
+    from it (the far side of a thin wall); one facing it is passed. ``caster``: a
+    :class:`~.rays.RayCaster`; per caster triangle, its ``triangle_object (k,)``, unit
+    ``normal (k, 3)`` and ``sheet (k,)`` (met from behind: its twin, facing the other way);
+    ``point_object (s,)``; ``scale``: the scene's size. A ray that passes COVER_ROUNDS of
+    its own object's triangles is taken as not covered.
+
+    Where the seen triangles' rings fall short (a wall cut three times over: the Room's
+    indirect error 18.9% with rings of two edges, 16.1% with the exact rays; the scene drawn
+    whole, not simplified: 33.6% against 15.7%), the exact ray does not."""
+
+    caster: RayCaster
+    triangle_object: np.ndarray
+    normal: np.ndarray
+    sheet: np.ndarray
+    point_object: np.ndarray
+    scale: float
+
+    @classmethod
+    def of(cls, caster, triangles, vertices, triangle_object, sheet, point_object, scale):
+        return cls(caster, triangle_object, triangle_planes(triangles, vertices)[:, 1], sheet, point_object, float(scale))
+
+    @classmethod
+    def of_scene(cls, scene, near_caster) -> "CastCover | None":
+        """The cover of ``scene``'s points through the caster ``near_caster()`` gives (over
+        the scene's triangles it names: :func:`~.gather.near_caster`), or None where there is
+        none or COVER_BY_RAYS is off."""
+        if near_caster is None or not COVER_BY_RAYS:
+            return None
+        caster, front, _ = near_caster()
+        sheet = scene.sheet_triangles()
+        return cls.of(caster, np.asarray(scene.triangles)[front], scene.points, scene.triangle_object()[front],
+                      np.zeros(len(front), dtype=bool) if sheet is None else sheet[front], scene.point_object, scene.scale)
 
     def rows(self, sl):
         """The same cover for the points ``sl``."""
         return replace(self, point_object=self.point_object[sl])
+
+
+def _cast_covered(cover: CastCover, eye, u, depth, owner, normals):
+    """``(m,)``: whether the rays ``eye + t u`` (0 < t < depth) first meet a triangle that
+    covers points of ``owner`` facing ``normals`` (see :class:`CastCover`)."""
+    found = np.zeros(len(eye), dtype=bool)
+    todo, start = np.arange(len(eye)), np.zeros(len(eye))
+    for _ in range(COVER_ROUNDS + 1 if len(eye) else 0):
+        hits = cover.caster.cast(eye[todo] + start[todo, None] * u[todo], u[todo], depth[todo] - start[todo])
+        met = hits.hit
+        todo, tri, t = todo[met], hits.triangle[met], hits.t[met]
+        side = np.where(cover.sheet[tri] & ~hits.front[met], -1.0, 1.0)
+        away = side * np.einsum("ij,ij->i", cover.normal[tri], normals[todo]) < -0.5
+        blocks = (cover.triangle_object[tri] != owner[todo]) | away
+        found[todo[blocks]] = True
+        todo = todo[~blocks]
+        start[todo] += t[~blocks] + PAST_OWN * cover.scale
+        todo = todo[start[todo] < depth[todo]]
+        if not len(todo):
+            break
+    return found
 
 
 def _blocks(cover, tid, point_object, normals):
@@ -266,11 +342,15 @@ def _covered(cover, at: PointProbes, eyes, texels: _Texels, cell, ask):
     hit[pair[inside & ahead]] = True
     # Where no seen triangle holds the cut, but another object's one (a rug over a floor: a
     # thin part's far side is seen whole by the texels around the ray) lies ahead outside
-    # of it: the same objects' triangles up to COVER_RINGS edges around the seen ones, each
-    # tried once per pair.
+    # of it: the exact ray cast, where the cover has a caster (:class:`CastCover`); else the
+    # same objects' triangles up to COVER_RINGS edges around the seen ones, each tried once
+    # per pair (a finely cut rug's triangle under the ray may lie farther than that).
     missed = ahead & ~inside & (cover.triangle_object[tid] != owner)
     missed &= ~hit[pair]
     need = sorted_unique(pair[missed])  # (pair comes sorted)
+    if cover.cast is not None:
+        hit[need] = _cast_covered(cover.cast, eye[need], u[need], depth[need], cover.point_object[rows[need]], normals[need])
+        need = need[:0]
     local, seen = np.searchsorted(need, pair[missed]), tid[missed]
     for start in range(0, len(need) if COVER_RINGS else 0, RING_CHUNK):  # bounded temporaries
         lo, hi = np.searchsorted(local, [start, start + RING_CHUNK])

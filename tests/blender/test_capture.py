@@ -339,3 +339,27 @@ def test_a_cast_capture_sees_what_the_drawn_one_sees(empty_scene, cubegi):
     np.testing.assert_allclose(cast.bary[same], drawn.bary[same], atol=2e-3)
     back_side = arrays.back_triangles()[np.maximum(cast.tid, 0)] & (cast.tid >= 0)
     assert back_side[same].sum() > 20  # the sheet's underside, seen through its twin
+
+
+def test_a_finely_cut_rug_covers_the_floor_under_it_from_every_probe(empty_scene, cubegi, monkeypatch):
+    """A rug cut into 2.5 cm squares on a room's floor: the texels around a probe's ray to a
+    floor point under it (some 20 cm apart there) see rug triangles many squares from the one
+    the ray crosses, beyond the rings searched around them. The exact rays, cast through the
+    GPU module's caster (visibility.CastCover), cover the floor under it from every probe;
+    the rings alone let the probes light most of it."""
+    gather = importlib.import_module("cubegi.cubegi_engine.gather")
+    v, f = scenes.box_mesh((-2.0, -2.0, 0.0), (2.0, 2.0, 2.5), (8, 8, 5), inward=True)
+    scenes.mesh_object("Room", v, f)
+    v, f = scenes.box_mesh((-0.8, -0.8, 0.005), (0.8, 0.8, 0.015), (64, 64, 1), inward=False)
+    scenes.mesh_object("Rug", v, f)
+    arrays, renderer = _collect_and_renderer(cubegi)
+    g = ProbeGrid((-2, -2, 0), (2, 2, 2.5), (3, 3, 2))
+    near, far = cubemap.clip_planes(arrays.scale)
+    cap = cubemap.capture_cubes(renderer, g.positions(), 16, near, far)
+    p = arrays.points
+    under = np.flatnonzero((np.abs(p[:, 0]) <= 0.6) & (np.abs(p[:, 1]) <= 0.6) & (p[:, 2] < 1e-6) & (arrays.normals[:, 2] > 0.9))
+    assert len(under) == 9  # the floor's points under the rug
+    caster = gather.near_caster(arrays, renderer)
+    assert transport.Transport(arrays, g, cap, caster=caster).covered[under].all()
+    monkeypatch.setattr(importlib.import_module("cubegi.cubegi_engine.visibility"), "COVER_BY_RAYS", False)
+    assert transport.Transport(arrays, g, cap, caster=caster).covered[under].sum() < len(under) // 2

@@ -1,5 +1,6 @@
 """The engine's mathematics against closed forms and brute force (pure numpy, no bpy)."""
 
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -333,10 +334,58 @@ def test_the_cover_ring_search_finds_the_crossed_triangle_up_to_two_edges_away()
 
 
 
+def _two_strips():
+    """Two strips of 12 triangles along x, one at z = 0 and one at z = 1, both facing +z."""
+    xs = np.arange(7.0)
+    row = np.concatenate([np.stack([xs, np.zeros(7), np.zeros(7)], 1), np.stack([xs, np.ones(7), np.zeros(7)], 1)])
+    strip = np.array([t for i in range(6) for t in ((i, i + 1, 7 + i), (i + 1, 8 + i, 7 + i))])
+    return np.concatenate([row, row + [0.0, 0.0, 1.0]]), np.concatenate([strip, strip + 14])
+
+
+def test_the_cast_cover_meets_the_first_covering_triangle_past_its_own_objects_folds(monkeypatch):
+    """The cast cover test (visibility.CastCover, over a NumpyRays): a ray to a point below
+    two strips is covered by the first triangle it meets of another object, or of its own
+    object facing away from the point; its own object's triangles facing the point are
+    passed (COVER_ROUNDS times at most); a sheet met from behind faces the other way; a ray
+    that stops short of the strips, or meets nothing, is not covered."""
+    from cubegi.cubegi_engine import visibility
+    from cubegi.cubegi_engine.rays import NumpyRays
+    from cubegi.cubegi_engine.visibility import CastCover, _cast_covered
+
+    vertices, triangles = _two_strips()
+    upper = np.arange(24) >= 12
+
+    def covered(objects, normal, down=True, sheet=False, depth=7.0, owner=0):
+        cover = CastCover.of(NumpyRays(vertices, triangles), triangles, vertices, np.asarray(objects), np.full(24, sheet),
+                             np.zeros(1, int), 10.0)
+        eye = np.array([[4.6, 0.3, 5.0 if down else -5.0]])
+        u = np.array([[0.0, 0.0, -1.0 if down else 1.0]])
+        return bool(_cast_covered(cover, eye, u, np.array([depth]), np.array([owner]), np.array([normal], dtype=float))[0])
+
+    up, down = [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]
+    assert covered(np.where(upper, 2, 1), up)  # another object's strip above
+    assert not covered(np.zeros(24, int), up)  # its own folds, facing it: passed
+    assert covered(np.where(upper, 0, 1), up)  # past its own upper strip, onto another object's
+    assert covered(np.zeros(24, int), down)  # its own surface facing away: a thin wall's far side
+    assert not covered(np.where(upper, 2, 1), up, depth=3.5)  # stops above the strips
+    # From below, both strips are met from behind: a one-sided strip faces away from a point
+    # above it facing down; a sheet's twin faces it.
+    assert covered(np.zeros(24, int), down, down=False)
+    assert not covered(np.zeros(24, int), down, down=False, sheet=True)
+    assert not covered(np.zeros(24, int), up, down=False, depth=0.5)
+    monkeypatch.setattr(visibility, "COVER_ROUNDS", 0)  # no fold passed: the lower strip is never met
+    assert not covered(np.where(upper, 0, 1), up)
+    # Nothing asked: nothing cast.
+    cover = CastCover.of(NumpyRays(vertices, triangles), triangles, vertices, np.zeros(24, int), np.zeros(24, bool), np.zeros(1, int), 10.0)
+    assert _cast_covered(cover, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, int), np.zeros((0, 3))).shape == (0,)
+
+
 def _random_cover(rng, s=40, p=3, n=4, objects=3):
-    """A cover test's inputs over random triangles of a few objects (seen by random texels)."""
+    """A cover test's inputs over random triangles of a few objects (seen by random texels):
+    the cover, and the same with the exact rays cast (a NumpyRays over the triangles)."""
     from cubegi.cubegi_engine.geometry import edge_neighbours, triangle_planes
-    from cubegi.cubegi_engine.visibility import Cover, PointProbes, _Texels
+    from cubegi.cubegi_engine.rays import NumpyRays
+    from cubegi.cubegi_engine.visibility import CastCover, Cover, PointProbes, _Texels
 
     vertices, triangles = rng.uniform(0, 1, (40, 3)), rng.integers(0, 40, (60, 3))
     cover = Cover(rng.integers(-1, 60, (p, 6, n, n)).astype(np.int32), rng.integers(0, objects, 60),
@@ -345,7 +394,9 @@ def _random_cover(rng, s=40, p=3, n=4, objects=3):
     index = rng.integers(0, p, (s, 8))
     at = PointProbes(rng.uniform(0, 1, (s, 3)), normals / np.linalg.norm(normals, axis=1)[:, None], index, rng.uniform(0, 1, (s, 8)))
     texels = _Texels(rng.integers(0, 6, (s, 8)), rng.integers(0, n, (s, 8)), rng.integers(0, n, (s, 8)), n)
-    return cover, at, rng.uniform(-1, 2, (p, 3))[index], texels, rng.uniform(0.01, 0.1, (s, 1)), rng.uniform(size=(s, 8)) < 0.5
+    cast = CastCover.of(NumpyRays(vertices, triangles), triangles, vertices, cover.triangle_object, np.zeros(60, bool), cover.point_object, 1.0)
+    return (cover, replace(cover, cast=cast), at, rng.uniform(-1, 2, (p, 3))[index], texels, rng.uniform(0.01, 0.1, (s, 1)),
+            rng.uniform(size=(s, 8)) < 0.5)
 
 
 def test_the_cover_test_is_each_pairs_own_and_cut_into_chunks_alike(monkeypatch):
@@ -357,13 +408,16 @@ def test_the_cover_test_is_each_pairs_own_and_cut_into_chunks_alike(monkeypatch)
     from cubegi.cubegi_engine.geometry import cut_planes
 
     rng = np.random.default_rng(5)
-    found = rings = 0
+    found = rings = cast_decided = 0
+    monkeypatch.setattr(visibility, "COVER_ROUNDS", 100)  # every fold passed: the first blocking triangle decides
+    chunk = visibility.RING_CHUNK
     for _ in range(20):
-        cover, at, eyes, texels, cell, ask = _random_cover(rng)
+        cover, cast, at, eyes, texels, cell, ask = _random_cover(rng)
         whole = visibility._covered(cover, at, eyes, texels, cell, ask)
+        by_cast = np.zeros(ask.shape, dtype=bool)
         monkeypatch.setattr(visibility, "RING_CHUNK", int(rng.integers(1, 4)))
         assert np.array_equal(visibility._covered(cover, at, eyes, texels, cell, ask), whole)
-        monkeypatch.undo()
+        monkeypatch.setattr(visibility, "RING_CHUNK", chunk)
         n = texels.n
         for i, k in zip(*np.nonzero(ask)):  # pair by pair
             q = at.points[i] + 1e-3 * cell[i, 0] * at.normals[i]
@@ -381,14 +435,25 @@ def test_the_cover_test_is_each_pairs_own_and_cut_into_chunks_alike(monkeypatch)
                 one = bool(visibility._ring_search(cover, np.zeros(len(missed), dtype=np.int64), missed, eyes[i, k][None], u[None],
                                                    np.array([depth]))[0])
                 rings += one
+                # With a caster: whether the exact ray crosses any triangle of another object,
+                # or of its own facing away (its own facing the point are passed).
+                t_all, in_all = cut_planes(np.tile(eyes[i, k], (60, 1)), np.tile(u, (60, 1)), np.arange(60), cover.planes)
+                crossed = np.flatnonzero(in_all & (t_all > 0) & (t_all < depth))
+                by_cast[i, k] = visibility._blocks(cover, crossed, np.full(len(crossed), cover.point_object[i]),
+                                                   np.tile(at.normals[i], (len(crossed), 1))).any()
+                cast_decided += by_cast[i, k] != one
+            else:
+                by_cast[i, k] = one
             assert whole[i, k] == one
             found += one
         assert not whole[~ask].any()
+        assert np.array_equal(visibility._covered(cast, at, eyes, texels, cell, ask), by_cast)
         rows = np.flatnonzero(rng.uniform(size=len(ask)) < 0.5)
-        sub = visibility._covered(cover.rows(rows), at[rows], eyes[rows], texels[rows], cell[rows], ~ask[rows])
-        assert np.array_equal(visibility._any_covered(cover.rows(rows), at[rows], eyes[rows], texels[rows], cell[rows], ~ask[rows]),
-                              sub.any(axis=1))
-    assert found > 50 and rings > 0  # both ways of being covered were met
+        for one_cover in (cover, cast):
+            sub = visibility._covered(one_cover.rows(rows), at[rows], eyes[rows], texels[rows], cell[rows], ~ask[rows])
+            assert np.array_equal(visibility._any_covered(one_cover.rows(rows), at[rows], eyes[rows], texels[rows], cell[rows], ~ask[rows]),
+                                  sub.any(axis=1))
+    assert found > 50 and rings > 0 and cast_decided > 0  # both ways of being covered were met, and the rays differ from the rings
 
 
 def test_a_triangles_box_is_its_corners_least_and_greatest():

@@ -244,9 +244,9 @@ class CastCover:
     (point, probe) pair's exact ray is cast among the scene's triangles, and the first one
     it meets covers the point if it is another object's, or its own object's facing away
     from it (the far side of a thin wall); one facing it is passed. ``caster``: a
-    :class:`~.rays.RayCaster`; per caster triangle, its ``triangle_object (k,)``, unit
-    ``normal (k, 3)`` and ``sheet (k,)`` (met from behind: its twin, facing the other way);
-    ``point_object (s,)``; ``scale``: the scene's size. A ray that passes COVER_ROUNDS of
+    :class:`~.rays.RayCaster` over ``triangles (k, 3)`` (indices into ``vertices``); per
+    caster triangle, its ``triangle_object (k,)`` and ``sheet (k,)`` (met from behind: its
+    twin, facing the other way); ``point_object (s,)``; ``scale``: the scene's size. A ray that passes COVER_ROUNDS of
     its own object's triangles is taken as not covered.
 
     Where the seen triangles' rings fall short (a wall cut three times over: the Room's
@@ -254,15 +254,16 @@ class CastCover:
     whole, not simplified: 33.6% against 15.7%), the exact ray does not."""
 
     caster: RayCaster
+    triangles: np.ndarray
+    vertices: np.ndarray
     triangle_object: np.ndarray
-    normal: np.ndarray
     sheet: np.ndarray
     point_object: np.ndarray
     scale: float
 
     @classmethod
     def of(cls, caster, triangles, vertices, triangle_object, sheet, point_object, scale):
-        return cls(caster, triangle_object, triangle_planes(triangles, vertices)[:, 1], sheet, point_object, float(scale))
+        return cls(caster, np.asarray(triangles), np.asarray(vertices), triangle_object, sheet, point_object, float(scale))
 
     @classmethod
     def of_scene(cls, scene, near_caster) -> "CastCover | None":
@@ -291,7 +292,8 @@ def _cast_covered(cover: CastCover, eye, u, depth, owner, normals):
         met = hits.hit
         todo, tri, t = todo[met], hits.triangle[met], hits.t[met]
         side = np.where(cover.sheet[tri] & ~hits.front[met], -1.0, 1.0)
-        away = side * np.einsum("ij,ij->i", cover.normal[tri], normals[todo]) < -0.5
+        normal = triangle_planes(cover.triangles[tri], cover.vertices)[:, 1]  # (the ones met alone)
+        away = side * np.einsum("ij,ij->i", normal, normals[todo]) < -0.5
         blocks = (cover.triangle_object[tri] != owner[todo]) | away
         found[todo[blocks]] = True
         todo = todo[~blocks]

@@ -264,7 +264,7 @@ def _tables(scene, grid, cubes, visibility, proxy, settings, renderer, tracing=N
     field's crowded points cast through the ``renderer``'s ray caster (``tracing``: its rays
     already started, see :func:`start_near_field`)."""
     return Transport(scene, grid, cubes, visibility=visibility, proxy=proxy, near_field=settings.near_field,
-                     caster=near_caster(scene, renderer), tracing=tracing)
+                     caster=near_caster(scene, renderer), tracing=tracing, make=getattr(renderer, "rays", None))
 
 
 def start_near_field(scene, grid, renderer, settings):

@@ -58,15 +58,15 @@ class Transport:
     After construction every bounce is a few gathers and matrix products (float32).
     """
 
-    def __init__(self, scene, grid, capture, visibility=True, proxy=None, near_field=True, caster=None, tracing=None):
+    def __init__(self, scene, grid, capture, visibility=True, proxy=None, near_field=True, caster=None, tracing=None, make=None):
         """``proxy``: the :class:`~cubegi_engine.proxy.CaptureProxy` the capture drew (its
         triangles are what the texels see), or None for the scene's own triangles.
         ``near_field``: gather each point's short-range surroundings by rays
         (:mod:`cubegi_engine.nearfield`); ``caster``: the host's ray caster for the near field's
         crowded points (:func:`~cubegi_engine.gather.near_caster`), or None. ``tracing``: the
         near field's rays already started for ``scene`` and ``grid`` (:func:`~.nearfield.started`),
-        or None: started here."""
-        self.proxy = proxy
+        or None: started here. ``make``: the host's caster maker (CastCover.of_proxy)."""
+        self.proxy, self._make = proxy, make
         if near_field and tracing is None:
             tracing = nearfield.started(scene, grid, caster)  # while the visibility is tested
         try:
@@ -231,7 +231,7 @@ class Transport:
         cover = None
         if scene.point_object is not None:
             cover = Cover.of(capture.tid.reshape(p, 6, n, n), triangles, scene.points if proxy is None else proxy.points,
-                             self.triangle_object, scene.point_object, CastCover.of_scene(scene, caster))
+                             self.triangle_object, scene.point_object, CastCover.of_capture(scene, proxy, caster, self._make))
         probes = Probes(positions, capture.dist.reshape(p, 6, n, n), self.probe_valid)
         lit_by = visibility_weights(grid, probes, PointProbes(scene.points, scene.normals, index, weight), cover, both=True,
                                     sheet=None if scene.sheets() is None else scene.sheets().point_sheet)

@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import cubemap
-from .geometry import cuts_ahead, edge_neighbours, in_pieces, piece_size, sorted_unique, triangle_planes
+from .geometry import cuts_ahead, edge_neighbours, in_pieces, piece_size, sorted_unique, triangle_planes, twin_triangles
 from .rays import RayCaster
 
 __all__ = ["visibility_weights", "probes_in_front", "seen_corners_only", "Cover", "CastCover", "Probes", "PointProbes", "ProbeWeights", "BEHIND",
@@ -277,6 +277,30 @@ class CastCover:
         return cls.of(caster, np.asarray(scene.triangles)[front], scene.points, scene.triangle_object()[front],
                       np.zeros(len(front), dtype=bool) if sheet is None else sheet[front], scene.point_object, scene.scale)
 
+    @classmethod
+    def of_capture(cls, scene, proxy, near_caster, make) -> "CastCover | None":
+        """The cover for a capture of ``scene`` itself (``proxy`` None: :meth:`of_scene`) or of
+        its simplified copy (:meth:`of_proxy`)."""
+        return cls.of_scene(scene, near_caster) if proxy is None else cls.of_proxy(scene, proxy, make)
+
+    @classmethod
+    def of_proxy(cls, scene, proxy, make) -> "CastCover | None":
+        """The cover of ``scene``'s points through a caster the host's ``make`` (a renderer's
+        ``rays``) builds over ``proxy``'s triangles, the simplified copy the probes saw (a
+        two-sided object's twins cast once); None without one, or with COVER_BY_RAYS off.
+        (Through the scene's own caster, built before the tables' peak, the Room at 993K
+        vertices held 2.59 -> 3.07 GB.)"""
+        if make is None or not COVER_BY_RAYS or not len(proxy.triangles):
+            return None
+        triangles = np.asarray(proxy.triangles, dtype=np.int64)
+        sheet = scene.sheet_triangles()
+        twin = np.full(len(triangles), -1, dtype=np.int64)
+        if sheet is not None:  # (the copy keeps each object's sheets)
+            twin = twin_triangles(proxy.points, triangles, np.isin(proxy.triangle_object, np.unique(scene.triangle_object()[sheet])))
+        cast = np.flatnonzero((twin < 0) | (twin > np.arange(len(triangles))))  # a pair cast once, as its first
+        return cls.of(make(proxy.points, triangles[cast]), triangles[cast], proxy.points, proxy.triangle_object[cast], twin[cast] >= 0,
+                      scene.point_object, scene.scale)
+
     def rows(self, sl):
         """The same cover for the points ``sl``."""
         return replace(self, point_object=self.point_object[sl])
@@ -350,8 +374,10 @@ def _covered(cover, at: PointProbes, eyes, texels: _Texels, cell, ask):
     missed = ahead & ~inside & (cover.triangle_object[tid] != owner)
     missed &= ~hit[pair]
     need = sorted_unique(pair[missed])  # (pair comes sorted)
+    for start in range(0, len(need) if cover.cast is not None else 0, RING_CHUNK):  # (bounded: the Room at 993K vertices +0.48 GB whole)
+        some = need[start : start + RING_CHUNK]
+        hit[some] = _cast_covered(cover.cast, eye[some], u[some], depth[some], cover.point_object[rows[some]], normals[some])
     if cover.cast is not None:
-        hit[need] = _cast_covered(cover.cast, eye[need], u[need], depth[need], cover.point_object[rows[need]], normals[need])
         need = need[:0]
     local, seen = np.searchsorted(need, pair[missed]), tid[missed]
     for start in range(0, len(need) if COVER_RINGS else 0, RING_CHUNK):  # bounded temporaries

@@ -1,6 +1,8 @@
 """The probes' simplified copy of the scene (pure numpy): the budget, the bound on how far
 surfaces move, thin parts kept apart, nothing turned over, radiance averaged by area."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -542,3 +544,36 @@ def test_no_caster_or_nothing_to_cast_leaves_the_capture_to_drawing():
     assert RayCubes.of(None, pts, tris) is None
     assert RayCubes.of(NumpyRays, pts, tris, drawn=np.zeros(0, dtype=np.int64)) is None
     assert RayCubes.of(NumpyRays, pts, tris) is not None
+
+
+def test_the_cover_test_casts_over_the_simplified_copy_its_sheets_twins_once(monkeypatch):
+    """visibility.CastCover.of_proxy: the cover test's caster over the simplified copy the
+    probes saw (a NumpyRays here), a two-sided object's twin pair cast once and met from
+    behind as its twin; none without the host's caster, or with COVER_BY_RAYS off."""
+    from types import SimpleNamespace
+
+    from cubegi.cubegi_engine import visibility
+    from cubegi.cubegi_engine.visibility import CastCover, _cast_covered
+
+    xs = np.arange(4.0)
+    row = np.concatenate([np.stack([xs, np.zeros(4), np.zeros(4)], 1), np.stack([xs, np.ones(4), np.zeros(4)], 1)])
+    strip = np.array([t for i in range(3) for t in ((i, i + 1, 4 + i), (i + 1, 5 + i, 4 + i))])  # facing +z
+    points = np.concatenate([row, row + [0.0, 0.0, 1.0]])  # a sheet at z = 0 (object 0), a one-sided strip at z = 1
+    triangles = np.concatenate([strip, strip[:, ::-1], strip + 8])
+    owner = np.repeat([0, 0, 1], 6)
+    scene = SimpleNamespace(point_object=np.array([0, 1]), scale=5.0, sheet_triangles=lambda: np.repeat([True, False], [6, 0]),
+                            triangle_object=lambda: np.array([0] * 6))
+    proxy = SimpleNamespace(points=points, triangles=triangles, triangle_object=owner)
+    assert CastCover.of_proxy(scene, proxy, None) is None
+    cover = CastCover.of_proxy(scene, proxy, NumpyRays)
+    assert len(cover.triangles) == 12 and cover.sheet.tolist() == [True] * 6 + [False] * 6
+    assert cover.triangle_object.tolist() == [0] * 6 + [1] * 6
+    # Up through the sheet from below, to a point above it facing down: its own sheet, met
+    # from behind, is its twin facing the point (passed); then the other object's strip.
+    eye, up, down = np.array([[1.4, 0.3, -2.0]]), np.array([[0.0, 0.0, 1.0]]), np.array([[0.0, 0.0, -1.0]])
+    assert not _cast_covered(cover, eye, up, np.array([2.5]), np.array([0]), down)[0]  # stops below the strip
+    assert _cast_covered(cover, eye, up, np.array([3.5]), np.array([0]), down)[0]
+    one_sided = replace(cover, sheet=np.zeros(12, dtype=bool))
+    assert _cast_covered(one_sided, eye, up, np.array([2.5]), np.array([0]), down)[0]  # (its own, facing away)
+    monkeypatch.setattr(visibility, "COVER_BY_RAYS", False)
+    assert CastCover.of_proxy(scene, proxy, NumpyRays) is None

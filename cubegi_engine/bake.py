@@ -295,9 +295,7 @@ def _drawn(scene, grid, renderer, settings, working, timings, total, simplifying
     if proxy is None and not small.any():
         drawer = renderer
     else:
-        sheet = scene.sheet_triangles()
-        if sheet is not None and proxy is not None:  # per object: the proxy keeps each object's
-            sheet = np.isin(proxy.triangle_object, np.unique(scene.triangle_object()[sheet]))
+        sheet = scene.sheet_triangles() if proxy is None else proxy.sheet_triangles(scene)
         drawn = None if not small.any() else np.flatnonzero(~small[shown[2]])
         # A simplified copy is cast where the host has a ray caster (RayCubes): the scene's
         # own triangles are drawn as before.

@@ -13,7 +13,7 @@ import numpy as np
 from . import cubemap, sh
 from .cubemap import CubeCapture, capture_cubes, clip_planes
 from .gather import near_caster
-from .geometry import twin_triangles
+from .geometry import first_of_twins, twin_triangles
 from .grid import Grid
 from .nearfield import started
 from .rays import hits_from_distances
@@ -204,7 +204,7 @@ class RayCubes:
 
     def __init__(self, make, points, triangles, drawn, twin, lone):
         self.points, self.triangles, self.twin, self.lone = points, triangles, twin, lone
-        self.cast = drawn[(twin[drawn] < 0) | (twin[drawn] > drawn)]  # a pair cast once, as its first
+        self.cast = first_of_twins(twin, drawn)
         span = points.max(axis=0) - points.min(axis=0) if len(points) else np.zeros(3)
         self.nudge = PAST_LONE * float(np.linalg.norm(span))
         self.caster = make(points, triangles[self.cast])

@@ -8,7 +8,8 @@ from . import working
 
 __all__ = ["sorted_unique", "run_offsets", "triangle_planes", "planes_of", "cross", "ray_cut", "cut_planes", "cuts_ahead", "cut_triangles",
            "listed_ranks", "near_any_triangle", "edge_neighbours", "chunks", "POINT_CHUNK", "GRAZING", "twin_triangles", "mix64", "sorted_columns",
-           "position_hash", "corner_box", "corner_triangles", "triangles_at", "in_box", "all_three"]
+           "position_hash", "corner_box", "corner_triangles", "triangles_at", "in_box", "all_three",
+           "first_of_twins"]
 
 # Per-point tests that make several (s, 9, 3) float64 arrays run this many points at a time:
 # a million points then need tens of megabytes, not gigabytes, and stay in cache.
@@ -390,6 +391,14 @@ def twin_triangles(points, triangles, sheet):
     a, b = a[same & reversed_], b[same & reversed_]
     twin[ids[a]], twin[ids[b]] = ids[b], ids[a]
     return twin
+
+
+def first_of_twins(twin, among):
+    """The triangles of ``among`` (indices) with each twin pair (``twin``, see
+    :func:`twin_triangles`) taken once, as its first: what a caster meeting both sides of a
+    triangle needs of a two-sided object."""
+    among = np.asarray(among, dtype=np.int64)
+    return among[(twin[among] < 0) | (twin[among] > among)]
 
 
 def sorted_columns(triples):

@@ -91,6 +91,14 @@ class CaptureProxy:
         r = np.asarray(point_radiance)
         return np.stack([np.bincount(self.cluster, r[:, c] * self.share, minlength=self.count) for c in range(3)], axis=1).astype(np.float32)
 
+    def sheet_triangles(self, scene) -> np.ndarray | None:
+        """``(t',)`` bool: this copy's triangles of ``scene``'s two-sided objects (it keeps each
+        object's sheets whole or not at all), or None where the scene has none."""
+        sheet = scene.sheet_triangles()
+        if sheet is None or self.triangle_object is None:
+            return None
+        return np.isin(self.triangle_object, np.unique(scene.triangle_object()[sheet]))
+
     def reordered(self, order) -> "CaptureProxy":
         """The same proxy over the scene's points taken in ``order`` (their clusters and
         shares reordered: :meth:`radiance` of point radiance in that order)."""

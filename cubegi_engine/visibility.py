@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import cubemap
-from .geometry import cuts_ahead, edge_neighbours, in_pieces, piece_size, sorted_unique, triangle_planes, twin_triangles
+from .geometry import cuts_ahead, edge_neighbours, first_of_twins, in_pieces, piece_size, sorted_unique, triangle_planes, twin_triangles
 from .rays import RayCaster
 
 __all__ = ["visibility_weights", "probes_in_front", "seen_corners_only", "Cover", "CastCover", "Probes", "PointProbes", "ProbeWeights", "BEHIND",
@@ -240,8 +240,8 @@ COVER_ROUNDS, PAST_OWN = 4, 1e-6
 
 @dataclass(frozen=True)
 class CastCover:
-    """The cover test of :func:`visibility_weights` through the host's ray caster: each
-    (point, probe) pair's exact ray is cast among the scene's triangles, and the first one
+    """The cover test of :func:`visibility_weights` through the host's ray caster: the exact
+    ray of each (point, probe) pair its texels leave open is cast, and the first triangle
     it meets covers the point if it is another object's, or its own object's facing away
     from it (the far side of a thin wall); one facing it is passed. ``caster``: a
     :class:`~.rays.RayCaster` over ``triangles (k, 3)`` (indices into ``vertices``); per
@@ -293,11 +293,9 @@ class CastCover:
         if make is None or not COVER_BY_RAYS or not len(proxy.triangles):
             return None
         triangles = np.asarray(proxy.triangles, dtype=np.int64)
-        sheet = scene.sheet_triangles()
-        twin = np.full(len(triangles), -1, dtype=np.int64)
-        if sheet is not None:  # (the copy keeps each object's sheets)
-            twin = twin_triangles(proxy.points, triangles, np.isin(proxy.triangle_object, np.unique(scene.triangle_object()[sheet])))
-        cast = np.flatnonzero((twin < 0) | (twin > np.arange(len(triangles))))  # a pair cast once, as its first
+        sheet = proxy.sheet_triangles(scene)
+        twin = np.full(len(triangles), -1, dtype=np.int64) if sheet is None else twin_triangles(proxy.points, triangles, sheet)
+        cast = first_of_twins(twin, np.arange(len(triangles)))
         return cls.of(make(proxy.points, triangles[cast]), triangles[cast], proxy.points, proxy.triangle_object[cast], twin[cast] >= 0,
                       scene.point_object, scene.scale)
 
@@ -374,11 +372,11 @@ def _covered(cover, at: PointProbes, eyes, texels: _Texels, cell, ask):
     missed = ahead & ~inside & (cover.triangle_object[tid] != owner)
     missed &= ~hit[pair]
     need = sorted_unique(pair[missed])  # (pair comes sorted)
-    for start in range(0, len(need) if cover.cast is not None else 0, RING_CHUNK):  # (bounded: the Room at 993K vertices +0.48 GB whole)
-        some = need[start : start + RING_CHUNK]
-        hit[some] = _cast_covered(cover.cast, eye[some], u[some], depth[some], cover.point_object[rows[some]], normals[some])
     if cover.cast is not None:
-        need = need[:0]
+        for start in range(0, len(need), RING_CHUNK):  # bounded temporaries
+            some = need[start : start + RING_CHUNK]
+            hit[some] = _cast_covered(cover.cast, eye[some], u[some], depth[some], cover.point_object[rows[some]], normals[some])
+        need = need[:0]  # (no rings to search)
     local, seen = np.searchsorted(need, pair[missed]), tid[missed]
     for start in range(0, len(need) if COVER_RINGS else 0, RING_CHUNK):  # bounded temporaries
         lo, hi = np.searchsorted(local, [start, start + RING_CHUNK])

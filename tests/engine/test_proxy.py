@@ -8,7 +8,7 @@ import pytest
 
 from cubegi.cubegi_engine import crossing, cubemap
 from cubegi.cubegi_engine.capture import RayCubes
-from cubegi.cubegi_engine.proxy import CONTACT_LEVELS, KEEP_WHOLE, simplify
+from cubegi.cubegi_engine.proxy import CONTACT_LEVELS, KEEP_WHOLE, CaptureProxy, simplify
 from cubegi.cubegi_engine.rays import NumpyRays
 from cubegi.cubegi_engine.scene import SceneArrays
 
@@ -563,7 +563,8 @@ def test_the_cover_test_casts_over_the_simplified_copy_its_sheets_twins_once(mon
     owner = np.repeat([0, 0, 1], 6)
     scene = SimpleNamespace(point_object=np.array([0, 1]), scale=5.0, sheet_triangles=lambda: np.repeat([True, False], [6, 0]),
                             triangle_object=lambda: np.array([0] * 6))
-    proxy = SimpleNamespace(points=points, triangles=triangles, triangle_object=owner)
+    proxy = CaptureProxy(points, triangles, np.zeros(2, dtype=np.int64), np.ones(2), owner, np.zeros(2), len(triangles))
+    assert proxy.sheet_triangles(scene).tolist() == [True] * 12 + [False] * 6
     assert CastCover.of_proxy(scene, proxy, None) is None
     cover = CastCover.of_proxy(scene, proxy, NumpyRays)
     assert len(cover.triangles) == 12 and cover.sheet.tolist() == [True] * 6 + [False] * 6

@@ -180,7 +180,7 @@ def gather(scene, rows, caster: RayCaster, rays=GATHER_RAYS) -> Gathered:
     rows = rows[lit]
     if not len(rows):
         return Gathered(rows, NearField.empty(rays), np.zeros((0, 3)), at, rays, time.perf_counter() - t0)
-    front_tri = _front_triangles(scene)
+    front_tri = front_triangles(scene)
     turn = 2.0 * np.pi * ((at.origin / scene.scale * 1e3) @ TURN_HASH % 1.0)
     dirs = hemisphere_rays(at.normal, rays, turn)  # (c, rays, 3)
     flat_dirs = dirs.reshape(-1, 3)
@@ -239,7 +239,7 @@ def _seen_corners(caster, points, tri, at, bary, scale) -> np.ndarray:
     return np.where(total > 0, seen * (bary.sum(axis=1, keepdims=True) / np.maximum(total, 1e-300)), bary)
 
 
-def _front_triangles(scene) -> np.ndarray:
+def front_triangles(scene) -> np.ndarray:
     """The scene's triangles a caster needs: all but the back sides' (a sheet's back is met
     through its front's triangle)."""
     return np.flatnonzero(~scene.back_triangles())
@@ -258,7 +258,7 @@ def near_caster(scene, renderer):
     no caster of its own."""
     if getattr(renderer, "rays", None) is None:
         return None
-    return lambda: (scene_caster(scene, renderer), _front_triangles(scene), scene_inward(scene))
+    return lambda: (scene_caster(scene, renderer), front_triangles(scene), scene_inward(scene))
 
 
 def scene_inward(scene) -> np.ndarray:
@@ -282,7 +282,7 @@ def scene_occluders(scene, renderer=None) -> lights.Occluders:
 def caster_made_by(scene, make) -> RayCaster:
     """:func:`scene_caster` of the host's ``rays`` function itself (what a kept shadow holds:
     not the renderer), made once per snapshot and maker."""
-    return made_once(scene, "_caster", lambda: caster_for(make, scene.points, np.asarray(scene.triangles)[_front_triangles(scene)]),
+    return made_once(scene, "_caster", lambda: caster_for(make, scene.points, np.asarray(scene.triangles)[front_triangles(scene)]),
                      key=(id(scene.points), id(scene.triangles), make))
 
 

@@ -7,16 +7,23 @@ wall, a block, furniture) and lights nothing it should. The capture's own test f
 only after drawing it (:data:`cubegi_engine.transport.INSIDE_BACKFACE_SHARE`). Here the same
 question is asked first, cheaply: PROBE_RAYS rays from each probe (a Fibonacci sphere),
 traced against the triangles within PROBE_REACH cells (a voxel index, as the near field's).
-A probe is inside when more than INSIDE_SHARE of its rays meet a back face first.
+A probe is inside when more than INSIDE_SHARE of its rays meet a back face first. The voxel
+index leaves out as crowded a probe with more than MAX_NEARBY triangles around it (dense,
+finely cut geometry): where the host has a ray caster of its own (:class:`HostRays`), such
+a probe's rays are cast through it.
 
 Such a probe is moved out, as RTXGI's probe relocation does: each back face one of its rays
 met is a way out (BEYOND cells beyond it, within MAX_SHIFT of the cell centre on every axis);
 each way out is asked again, and the probe goes to the one that leaves it outside with the
 most room to the nearest surface (at least MARGIN cells: a probe hugging a surface sees it
-as half its sphere). With no such way it is left out before the capture (it would be drawn
-and then thrown away). Where every probe reads as inside (a mesh whose normals all point
-the wrong way) none is moved or left out: the capture's test and the bake's note on back
-faces take over. The interpolation keeps the grid's trilinear weights (DDGI's choice);
+as half its sphere; a way out that stops among crowded geometry is not taken, its room
+unknown). With no such way it is left out before the capture (it would be drawn and then
+thrown away). A crowded probe found inside is left out, not moved: the probes around it
+light its points better than it does from where its ways out lead (a white cup's inside
+under the Cornell box's lamp, its four probes in the cup's 6 mm wall: +3.0% against Cycles
+left out, +22.6% moved into its hollow, +8.7% moved just outside it). Where every probe
+reads as inside (a mesh whose normals all point the wrong way) none is moved or left out:
+the capture's test and the bake's note on back faces take over. The interpolation keeps the grid's trilinear weights (DDGI's choice);
 what the probe sees, and which points it can see, come from where it now stands. A probe
 deeper inside a solid than PROBE_REACH is not seen by this test; the capture's own test
 still leaves it out.
@@ -32,7 +39,7 @@ from .geometry import sorted_unique
 from .spatial import VoxelIndex, corners_of
 from .transport import INSIDE_BACKFACE_SHARE as INSIDE_SHARE  # the capture's own test, asked first
 
-__all__ = ["Placement", "place", "trace", "inside", "PROBE_RAYS", "PROBE_REACH", "INSIDE_SHARE", "MAX_SHIFT", "MARGIN", "BEYOND"]
+__all__ = ["Placement", "HostRays", "place", "trace", "inside", "PROBE_RAYS", "PROBE_REACH", "INSIDE_SHARE", "MAX_SHIFT", "MARGIN", "BEYOND"]
 
 PROBE_RAYS = 64
 PROBE_REACH = 1.0  # in cell edges
@@ -63,21 +70,42 @@ def _rays():
     return sh.fibonacci_sphere(PROBE_RAYS)
 
 
+class HostRays:
+    """The probes' rays through the host's :class:`~cubegi_engine.rays.RayCaster` (``caster``),
+    ``sheet (k,)`` bool over its triangles (None: none): those of two-sided objects, met
+    from behind as their twin's front."""
+
+    def __init__(self, caster, sheet=None):
+        self.caster, self.sheet = caster, sheet
+
+    def trace(self, positions, cell, dirs):
+        """:func:`trace`'s ``(t, back)`` of probes at ``positions (p, 3)``."""
+        p, k = len(positions), len(dirs)
+        origins = np.repeat(np.asarray(positions, dtype=np.float64), k, axis=0)
+        reach = np.repeat(PROBE_REACH * np.asarray(cell, dtype=np.float64), k)
+        hits = self.caster.cast(origins, np.tile(dirs, (p, 1)), reach)
+        back = hits.hit & ~hits.front
+        if self.sheet is not None:
+            back &= ~self.sheet[np.maximum(hits.triangle, 0)]
+        return hits.t.reshape(p, k), back.reshape(p, k)
+
+
 def trace(positions, index, cell, dirs=None):
     """Rays from probes at ``positions (p, 3)`` among the triangles of ``index`` (a voxel
     index), reaching ``cell (p,)`` x PROBE_REACH: ``(t (p, k) hit distance, inf where none;
-    back (p, k) the hit is a back face)`` for the ``k`` directions ``dirs`` (PROBE_RAYS)."""
+    back (p, k) the hit is a back face; crowded (p,) the probes the index left out, whose
+    rays meet nothing)`` for the ``k`` directions ``dirs`` (PROBE_RAYS)."""
     dirs = _rays() if dirs is None else dirs
     p = len(positions)
     reach = PROBE_REACH * np.asarray(cell, dtype=np.float64)
     # Two half-spaces make the whole sphere of candidates.
     up = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (p, 3))
-    pairs = [index.candidates(positions, n, reach)[:2] for n in (up, -up)]
-    pair = sorted_unique(np.concatenate([pp * len(index.a) + tt for pp, tt in pairs]))
+    found = [index.candidates(positions, n, reach) for n in (up, -up)]
+    pair = sorted_unique(np.concatenate([pp * len(index.a) + tt for pp, tt, _ in found]))
     pair_p, pair_t = pair // len(index.a), pair % len(index.a)
     rays = np.broadcast_to(dirs, (p,) + dirs.shape)
     t, tri, _, front = index.trace(positions, up, rays, reach, np.zeros(p), pair_p, pair_t)
-    return t, (tri >= 0) & ~front
+    return t, (tri >= 0) & ~front, found[0][2] | found[1][2]
 
 
 def inside(t, back):
@@ -86,10 +114,11 @@ def inside(t, back):
     return back.mean(axis=1) > INSIDE_SHARE
 
 
-def place(grid, triangles_points, triangles, candidates=None) -> Placement:
+def place(grid, triangles_points, triangles, candidates=None, rays=None) -> Placement:
     """Decide, for the probes of ``grid`` (``candidates (p,)`` bool: the ones to ask; all by
     default), which sit inside the geometry ``triangles`` over ``triangles_points``, which
-    of those move out and where (see the module docstring)."""
+    of those move out and where (see the module docstring). ``rays``: None, or a callable
+    giving a :class:`HostRays` over those triangles (asked only for crowded probes)."""
     t0 = time.perf_counter()
     positions = grid.positions()
     p = len(positions)
@@ -102,8 +131,13 @@ def place(grid, triangles_points, triangles, candidates=None) -> Placement:
                             float(np.min(cell)) * PROBE_REACH)
     dirs = _rays()
     asked = np.flatnonzero(keep)
-    t, back = trace(positions[asked], index, cell[asked], dirs)
+    t, back, crowded = trace(positions[asked], index, cell[asked], dirs)
     within = inside(t, back)
+    crowded_inside = np.zeros(0, dtype=np.int64)
+    if rays is not None and crowded.any():  # left out where found inside (see the module docstring)
+        crowded = asked[crowded]
+        crowded_inside = crowded[inside(*rays().trace(positions[crowded], cell[crowded], dirs))]
+        keep[crowded_inside] = False
     stuck, t, back = asked[within], t[within], back[within]
     keep[stuck] = False
     if len(stuck):
@@ -126,8 +160,8 @@ def place(grid, triangles_points, triangles, candidates=None) -> Placement:
             row, ray, probe, step = row[fits], ray[fits], probe[fits], step[fits]
             if not len(row):
                 return row, ray, step, np.zeros(0)
-            t2, back2 = trace(positions[probe] + step, index, cell[probe], dirs)
-            return row, ray, step, np.where(inside(t2, back2), -np.inf, t2.min(axis=1))  # room to the nearest surface
+            t2, back2, crowded = trace(positions[probe] + step, index, cell[probe], dirs)
+            return row, ray, step, np.where(inside(t2, back2) | crowded, -np.inf, t2.min(axis=1))  # room to the nearest surface
 
         found = stops(row, ray, np.full(len(row), BEYOND[0]))
         best = _most_room(found[0], found[3])
@@ -147,7 +181,7 @@ def place(grid, triangles_points, triangles, candidates=None) -> Placement:
         return Placement(np.asarray(candidates if candidates is not None else np.ones(p), dtype=bool).copy(),
                          np.zeros((p, 3)), 0, 0, time.perf_counter() - t0)
     moved = int(np.count_nonzero(np.any(displacement != 0.0, axis=1)))
-    return Placement(keep, displacement, moved, int(len(stuck) - moved), time.perf_counter() - t0)
+    return Placement(keep, displacement, moved, int(len(stuck) - moved + len(crowded_inside)), time.perf_counter() - t0)
 
 
 def _most_room(row, clear):

@@ -2,8 +2,9 @@
 
 import numpy as np
 
-from cubegi.cubegi_engine import placement
+from cubegi.cubegi_engine import placement, spatial
 from cubegi.cubegi_engine.grid import ProbeGrid, ProbeSubset
+from cubegi.cubegi_engine.rays import NumpyRays
 
 
 def _box(lo, hi, inward=False):
@@ -75,7 +76,7 @@ def test_when_every_probe_reads_as_inside_none_is_moved_or_left_out():
     # The room's normals turned outward (a mesh with flipped normals): every probe sees back faces.
     pts, tris = _box((-1.4, -1.4, -1.4), (1.4, 1.4, 1.4), inward=False)
     grid = ProbeGrid((-1.5, -1.5, -1.5), (1.5, 1.5, 1.5), (2, 2, 2))
-    t, back = placement.trace(grid.positions(), placement.VoxelIndex(*(pts[tris[:, k]] for k in range(3)), 1.5),
+    t, back, _ = placement.trace(grid.positions(), placement.VoxelIndex(*(pts[tris[:, k]] for k in range(3)), 1.5),
                               np.full(8, 1.5))
     assert placement.inside(t, back).all()
     got = placement.place(grid, pts, tris)
@@ -95,3 +96,32 @@ def test_objects_under_a_texel_from_every_probe_are_small():
     # 256^2: a texel spans 0.0078 rad: the 1.7 cm cube at 1 m spans two.
     assert small_objects(pts, tris, owner, probes, 256).tolist() == [False, False, False]
     assert small_objects(pts, tris, None, probes, 16).tolist() == []
+
+
+def test_a_crowded_probe_is_asked_through_the_hosts_caster_and_left_out_not_moved(monkeypatch):
+    """The voxel index leaves out as crowded a probe with more than MAX_NEARBY triangles
+    around it (here 4: the block's 12 are too many), so its rays meet nothing and it reads
+    as outside. Through the host's caster it is found inside the block and left out; it is
+    not moved (a crowded probe's ways out are not trusted), and the probes around it, also
+    crowded, are found outside and kept."""
+    monkeypatch.setattr(spatial, "MAX_NEARBY", 4)
+    pts, tris = _box((-0.3, -0.25, -0.2), (0.3, 0.25, 0.2))
+    index = placement.VoxelIndex(*(pts[tris[:, k]] for k in range(3)), 1.0)
+    _, back, crowded = placement.trace(_grid().positions(), index, np.ones(27))
+    assert crowded[13] and not back[13].any()
+    got = placement.place(_grid(), pts, tris)
+    assert got.keep.all() and got.moved == 0 and got.left_out == 0  # unseen
+    got = placement.place(_grid(), pts, tris, rays=lambda: placement.HostRays(NumpyRays(pts, tris)))
+    assert not got.keep[13] and got.keep.sum() == 26
+    assert got.moved == 0 and got.left_out == 1 and not got.displacement.any()
+
+
+def test_the_hosts_caster_meets_a_two_sided_sheet_from_behind_as_its_twins_front():
+    """A probe under a one-sided quad facing up meets its back face; where the quad is a
+    two-sided object's (its twin stands there, facing down), the probe meets a front face."""
+    pts = np.array([[-1.0, -1.0, 0.2], [1.0, -1.0, 0.2], [1.0, 1.0, 0.2], [-1.0, 1.0, 0.2]])
+    tris = np.array([[0, 1, 2], [0, 2, 3]])  # counter-clockwise from above: facing up
+    up = np.array([[0.0, 0.0, 1.0]])
+    for sheet, backs in ((None, True), (np.array([True, True]), False)):
+        t, back = placement.HostRays(NumpyRays(pts, tris), sheet).trace(np.zeros((1, 3)), np.ones(1), up)
+        assert back[0, 0] == backs and abs(t[0, 0] - 0.2) < 1e-9

@@ -39,7 +39,7 @@ from .spatial import resting
 from .working import made_once
 
 __all__ = ["large_points", "Corners", "Gathered", "gather", "gathered_for", "kept_nbytes", "light_visibility", "near_caster", "scene_caster",
-           "scene_occluders", "same_side", "scene_inward", "caster_made_by", "GATHER_SHARE", "GATHER_RAYS"]
+           "front_triangles", "scene_occluders", "same_side", "scene_inward", "caster_made_by", "GATHER_SHARE", "GATHER_RAYS"]
 
 # A point whose area is at least GATHER_SHARE of the scene's (front) surface, and at least
 # GATHER_OUTLIER times a point's mean, is gathered by rays: at most 1 / GATHER_SHARE points,

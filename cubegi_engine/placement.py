@@ -23,10 +23,10 @@ light its points better than it does from where its ways out lead (a white cup's
 under the Cornell box's lamp, its four probes in the cup's 6 mm wall: +3.0% against Cycles
 left out, +22.6% moved into its hollow, +8.7% moved just outside it). Where every probe
 reads as inside (a mesh whose normals all point the wrong way) none is moved or left out:
-the capture's test and the bake's note on back faces take over. The interpolation keeps the grid's trilinear weights (DDGI's choice);
-what the probe sees, and which points it can see, come from where it now stands. A probe
-deeper inside a solid than PROBE_REACH is not seen by this test; the capture's own test
-still leaves it out.
+the capture's test and the bake's note on back faces take over. The interpolation keeps
+the grid's trilinear weights (DDGI's choice); what the probe sees, and which points it can
+see, come from where it now stands. A probe deeper inside a solid than PROBE_REACH is not
+seen by this test; the capture's own test still leaves it out.
 """
 
 import time

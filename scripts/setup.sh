@@ -32,7 +32,7 @@ if [ ! -x "$VENV/bin/python" ]; then
 fi
 have="$("$VENV/bin/python" -c 'import importlib.metadata as m; print(m.version("bpy"))' 2>/dev/null || true)"
 if [ "$have" != "$CUBEGI_BLENDER" ] \
-  || ! "$VENV/bin/python" -c 'import pytest, hypothesis, matplotlib, dask, distributed, ruff, mypy' >/dev/null 2>&1; then
+  || ! "$VENV/bin/python" -c 'import pytest, xdist, hypothesis, matplotlib, dask, distributed, ruff, mypy' >/dev/null 2>&1; then
   echo "setup: installing bpy==$CUBEGI_BLENDER and the test tools into $VENV"
   "$VENV/bin/python" -m pip install -q --disable-pip-version-check "bpy==$CUBEGI_BLENDER" -r "$ROOT/requirements-dev.txt"
 fi

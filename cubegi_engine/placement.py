@@ -135,8 +135,8 @@ def place(grid, triangles_points, triangles, candidates=None, rays=None) -> Plac
     within = inside(t, back)
     crowded_inside = np.zeros(0, dtype=np.int64)
     if rays is not None and crowded.any():  # left out where found inside (see the module docstring)
-        crowded = asked[crowded]
-        crowded_inside = crowded[inside(*rays().trace(positions[crowded], cell[crowded], dirs))]
+        at = asked[crowded]
+        crowded_inside = at[inside(*rays().trace(positions[at], cell[at], dirs))]
         keep[crowded_inside] = False
     stuck, t, back = asked[within], t[within], back[within]
     keep[stuck] = False

@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import cubemap
-from .geometry import cuts_ahead, edge_neighbours, first_of_twins, in_pieces, piece_size, sorted_unique, triangle_planes, twin_triangles
+from .geometry import chunks, cuts_ahead, edge_neighbours, first_of_twins, in_pieces, piece_size, sorted_unique, triangle_planes, twin_triangles
 from .rays import RayCaster
 
 __all__ = ["visibility_weights", "probes_in_front", "seen_corners_only", "Cover", "CastCover", "Probes", "PointProbes", "ProbeWeights", "BEHIND",
@@ -246,8 +246,8 @@ class CastCover:
     from it (the far side of a thin wall); one facing it is passed. ``caster``: a
     :class:`~.rays.RayCaster` over ``triangles (k, 3)`` (indices into ``vertices``); per
     caster triangle, its ``triangle_object (k,)`` and ``sheet (k,)`` (met from behind: its
-    twin, facing the other way); ``point_object (s,)``; ``scale``: the scene's size. A ray that passes COVER_ROUNDS of
-    its own object's triangles is taken as not covered.
+    twin, facing the other way); ``point_object (s,)``; ``scale``: the scene's size. A ray
+    that passes COVER_ROUNDS of its own object's triangles is taken as not covered.
 
     Where the seen triangles' rings fall short (a wall cut three times over: the Room's
     indirect error 18.9% with rings of two edges, 16.1% with the exact rays; the scene drawn
@@ -373,8 +373,8 @@ def _covered(cover, at: PointProbes, eyes, texels: _Texels, cell, ask):
     missed &= ~hit[pair]
     need = sorted_unique(pair[missed])  # (pair comes sorted)
     if cover.cast is not None:
-        for start in range(0, len(need), RING_CHUNK):  # bounded temporaries
-            some = need[start : start + RING_CHUNK]
+        for sl in chunks(len(need), RING_CHUNK):  # bounded temporaries
+            some = need[sl]
             hit[some] = _cast_covered(cover.cast, eye[some], u[some], depth[some], cover.point_object[rows[some]], normals[some])
         need = need[:0]  # (no rings to search)
     local, seen = np.searchsorted(need, pair[missed]), tid[missed]

@@ -397,6 +397,7 @@ def _left_out_of_capture(capture, grid, placement=None):
     out = []
     captured = capture.grid.count
     inside = placement.left_out if placement is not None else 0
+    crowded = placement.crowded if placement is not None else 0
     unused = grid.count - captured - inside
     if unused > 0:
         out.append(LeftOut(LeftOutKind.PROBES, (
@@ -406,7 +407,8 @@ def _left_out_of_capture(capture, grid, placement=None):
     if inside:
         out.append(LeftOut(LeftOutKind.PROBES, (
             f"{inside} {plural(inside, 'sits', 'sit')} inside geometry with no way out within "
-            f"{plural(inside, 'its cell', 'their cells')} and {plural(inside, 'was', 'were')} not captured"), inside))
+            f"{plural(inside, 'its cell', 'their cells')} and {plural(inside, 'was', 'were')} not captured"
+            + (f" ({crowded} of them among finely cut geometry, where probes are left out, not moved)" if crowded else "")), inside))
     near = capture.transport.near
     if near is not None and near.skipped:
         out.append(LeftOut(LeftOutKind.NEAR_FIELD, f"every vertex ({near.skipped}); the probes light their surroundings as "

@@ -57,13 +57,15 @@ BEYOND = (0.1, 0.2, 0.3, 0.4)
 class Placement:
     """What :func:`place` decided: ``keep (p,)`` bool (probes captured), ``displacement (p, 3)``
     (each kept probe's move from its cell centre; zero for most), ``moved`` and
-    ``left_out`` counts, and the seconds it took."""
+    ``left_out`` counts (``crowded`` of them: among finely cut geometry, never moved), and the
+    seconds it took."""
 
     keep: np.ndarray
     displacement: np.ndarray
     moved: int
     left_out: int
     seconds: float = 0.0
+    crowded: int = 0  # of ``left_out``: crowded probes, not moved (see the module docstring)
 
 
 def _rays():
@@ -181,7 +183,8 @@ def place(grid, triangles_points, triangles, candidates=None, rays=None) -> Plac
         return Placement(np.asarray(candidates if candidates is not None else np.ones(p), dtype=bool).copy(),
                          np.zeros((p, 3)), 0, 0, time.perf_counter() - t0)
     moved = int(np.count_nonzero(np.any(displacement != 0.0, axis=1)))
-    return Placement(keep, displacement, moved, int(len(stuck) - moved + len(crowded_inside)), time.perf_counter() - t0)
+    return Placement(keep, displacement, moved, int(len(stuck) - moved + len(crowded_inside)), time.perf_counter() - t0,
+                     len(crowded_inside))
 
 
 def _most_room(row, clear):

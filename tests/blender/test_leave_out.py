@@ -147,13 +147,14 @@ def test_probes_inside_finely_cut_blocks_are_left_out_before_the_capture(empty_s
         bm.free()
     bpy.ops.cubegi.add_probe_grid()
     bpy.context.object.cubegi.resolution = (8, 8, 8)
-    reports = {}
+    reports, words = {}, {}
     for cast in (True, False):
         if not cast:
             monkeypatch.setattr(cubegi.cubegi_engine.bake, "probe_rays", lambda *args: None)
         cubegi.cubegi_addon.session.forget()
         assert bpy.ops.cubegi.bake(**SETTINGS) == {"FINISHED"}
-        reports[cast] = json.loads(bpy.context.scene.cubegi.last_report)["grid"]
+        report = json.loads(bpy.context.scene.cubegi.last_report)
+        reports[cast], words[cast] = report["grid"], [line for line in report["left_out"] if "finely cut" in line]
         assert all(np.isfinite(v).all() for v in _light(cubegi).values())
     cast, not_cast = reports[True], reports[False]
     print(cast, not_cast)
@@ -162,6 +163,11 @@ def test_probes_inside_finely_cut_blocks_are_left_out_before_the_capture(empty_s
     assert cast["probes_inside_geometry"] <= not_cast["probes_inside_geometry"] - extra, (cast, not_cast)
     assert cast["probes_captured"] == not_cast["probes_captured"] - extra
     assert cast.get("probes_moved", 0) == not_cast.get("probes_moved", 0)
+    # The report says why they were not moved (the bake that could not cast: no word of it).
+    assert len(words[True]) == 1 and f"{cast['probes_left_inside']} of them among finely cut" in words[True][0], words
+    assert not words[False], words
+    placement = cubegi.cubegi_addon.session.kept(bpy.context.scene).bake.result.placement
+    assert placement.crowded == 0 and placement.left_out == not_cast.get("probes_left_inside", 0)
 
 
 def test_an_object_smaller_than_a_texel_from_every_probe_is_not_drawn_by_the_probes(empty_scene, cubegi):

@@ -113,7 +113,7 @@ def test_a_crowded_probe_is_asked_through_the_hosts_caster_and_left_out_not_move
     assert got.keep.all() and got.moved == 0 and got.left_out == 0  # unseen
     got = placement.place(_grid(), pts, tris, rays=lambda: placement.HostRays(NumpyRays(pts, tris)))
     assert not got.keep[13] and got.keep.sum() == 26
-    assert got.moved == 0 and got.left_out == 1 and not got.displacement.any()
+    assert got.moved == 0 and got.left_out == 1 and got.crowded == 1 and not got.displacement.any()
 
 
 def test_the_hosts_caster_meets_a_two_sided_sheet_from_behind_as_its_twins_front():
